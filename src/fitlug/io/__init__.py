@@ -1,0 +1,26 @@
+"""Files fitlug reads and writes (DATA.md): trajectories.csv, rig.toml, JSON outputs.
+
+Every output is written atomically (temporary file, then rename); every bad input raises
+`fitlug.InputError` naming the file, the line and the problem.
+"""
+
+from ._atomic import atomic_path as atomic_path
+from ._atomic import write_bytes_atomic as write_bytes_atomic
+from ._atomic import write_text_atomic as write_text_atomic
+from ._fitjson import read_json as read_json
+from ._fitjson import write_json as write_json
+from ._recording import Recording as Recording
+from ._recording import check_enough_samples as check_enough_samples
+from ._rig import Rig as Rig
+from ._rig import find_rig as find_rig
+from ._rig import read_rig as read_rig
+from ._rig import write_rig as write_rig
+from ._trajectories import read_trajectories as read_trajectories
+from ._trajectories import write_trajectories as write_trajectories
+
+__all__ = [
+    "Recording", "read_trajectories", "write_trajectories", "check_enough_samples",
+    "Rig", "read_rig", "write_rig", "find_rig",
+    "write_json", "read_json",
+    "atomic_path", "write_text_atomic", "write_bytes_atomic",
+]

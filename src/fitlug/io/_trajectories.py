@@ -1,0 +1,417 @@
+"""Read and write trajectories.csv (DATA.md): long ("tidy") form and wide form.
+
+Parsing is row-wise with the csv module (to keep line numbers for errors), then
+column-wise with numpy, so 10^5 rows take a fraction of a second.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+import re
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .._errors import InputError
+from ._atomic import atomic_path
+from ._recording import OPTIONAL_COLUMNS, ROLES, Recording
+
+if TYPE_CHECKING:
+    from ._rig import Rig
+
+_LONG_REQUIRED = ("time_s", "marker", "role", "x_mm", "y_mm")
+# file column -> Recording field, for the optional per-sample columns
+_LONG_OPTIONAL = {"frame": "frame", "sigma_mm": "sigma", "x_px": "x_px", "y_px": "y_px",
+                  "quality": "quality"}
+_META_LINE = re.compile(r"^#\s*([A-Za-z_][\w.\-]*)\s*:\s*(.*?)\s*$")
+_WIDE_COLUMN = re.compile(r"^(.+)_([xy])_mm$", re.IGNORECASE)
+# longest prefix first: 'COG' must win over 'C', 'body' over 'B'
+_NAME_ROLES = (("body", "body"), ("cog", "lug"), ("lug", "lug"), ("qs", "body"),
+               ("c", "body"), ("q", "body"), ("b", "lug"), ("l", "lug"))
+
+
+class _Table:
+    """The rows of a CSV file below its header, with their physical line numbers."""
+
+    def __init__(self, path: str):
+        self.path = path
+        self.meta: dict[str, str] = {}
+        self.header: list[str] = []
+        self.header_line = 0
+        self.rows: list[list[str]] = []
+        self.lines: list[int] = []
+
+    def error(self, problem: str, row: int | None = None, line: int | None = None) -> InputError:
+        if row is not None:
+            line = self.lines[row]
+        return InputError(self.path, problem, line=line)
+
+
+def _read_table(path: str) -> _Table:
+    table = _Table(path)
+    lineno = 0
+
+    def lines(fh):
+        nonlocal lineno
+        for lineno, text in enumerate(fh, 1):  # `lineno` is read by the csv loop below
+            stripped = text.strip()
+            if not stripped:
+                continue
+            if stripped.startswith("#"):
+                match = _META_LINE.match(stripped)
+                if match and not table.header:  # metadata only from the preamble
+                    table.meta[match.group(1)] = match.group(2)
+                    if match.group(1) == "fps":
+                        _check_fps(table, match.group(2), lineno)
+                continue
+            yield text
+
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read()
+    except FileNotFoundError:
+        raise InputError(path, "file not found") from None
+    except IsADirectoryError:
+        raise InputError(path, "is a directory, not a CSV file") from None
+    except PermissionError:
+        raise InputError(path, "cannot read file (permission denied)") from None
+    except OSError as exc:
+        raise InputError(path, f"cannot read file: {exc.strerror or exc}") from None
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputError(path, f"not UTF-8 text ({exc.reason})",
+                         line=data.count(b"\n", 0, exc.start) + 1) from None
+    try:
+        # newline="": split lines as open(..., newline="") does, as the csv module wants
+        with io.StringIO(text, newline="") as fh:
+            reader = csv.reader(lines(fh))
+            for row in reader:
+                if not table.header:
+                    table.header = [c.strip() for c in row]
+                    table.header_line = lineno
+                else:
+                    table.rows.append(row)
+                    table.lines.append(lineno)
+    except csv.Error as exc:
+        raise InputError(path, f"malformed CSV: {exc}", line=lineno) from None
+    if not table.header:
+        raise InputError(path, "empty file: no header line")
+    return table
+
+
+def _check_fps(table: _Table, text: str, line: int) -> None:
+    try:
+        fps = float(text)
+    except ValueError:
+        fps = float("nan")
+    if not (np.isfinite(fps) and fps > 0):
+        raise InputError(table.path, f"metadata fps must be a number > 0, got {text!r}", line=line)
+
+
+def _columns(table: _Table) -> dict[str, int]:
+    """Map of column name -> index; duplicated names are an error."""
+    index: dict[str, int] = {}
+    for j, name in enumerate(table.header):
+        if not name:
+            continue  # an unnamed column (a trailing comma in the header) is ignored
+        key = name.lower() if name.lower() in (*_LONG_REQUIRED, *_LONG_OPTIONAL) else name
+        if key in index:
+            raise table.error(f"column {name!r} appears twice in the header", line=table.header_line)
+        index[key] = j
+    return index
+
+
+def _check_row_lengths(table: _Table) -> None:
+    width = len(table.header)
+    for i, row in enumerate(table.rows):
+        # trailing empty fields (a trailing comma) are harmless
+        if len(row) < width or (len(row) > width and any(f.strip() for f in row[width:])):
+            raise table.error(f"row has {len(row)} fields, the header has {width}", row=i)
+
+
+def _floats(table: _Table, j: int, name: str, *, missing_ok: bool) -> np.ndarray:
+    """Column j as float64; empty -> NaN when `missing_ok`; text, NaN (if not ok), inf raise."""
+    rows = table.rows
+    try:  # fast path; blank-but-not-empty fields fall through to the careful one
+        values = np.fromiter(map(float, [row[j] or "nan" for row in rows]), dtype=np.float64,
+                             count=len(rows))
+    except ValueError:
+        values = np.empty(len(rows))
+        for i, row in enumerate(rows):
+            try:
+                values[i] = float(row[j]) if row[j].strip() else np.nan
+            except ValueError:
+                raise table.error(f"text in number column {name}: {row[j].strip()!r}",
+                                  row=i) from None
+    if not missing_ok:
+        bad = np.flatnonzero(np.isnan(values))
+        if bad.size:
+            i = int(bad[0])
+            what = "empty" if not rows[i][j].strip() else "NaN"
+            raise table.error(f"{what} value in column {name}", row=i)
+    bad = np.flatnonzero(np.isinf(values))
+    if bad.size:
+        i = int(bad[0])
+        raise table.error(f"infinite value in column {name}: {rows[i][j].strip()!r}", row=i)
+    return values
+
+
+def _ints(table: _Table, j: int, name: str) -> np.ndarray:
+    raw = [row[j] for row in table.rows]
+    try:
+        return np.fromiter(map(int, raw), dtype=np.int64, count=len(raw))
+    except ValueError:
+        out = np.empty(len(raw), dtype=np.int64)
+        for i, s in enumerate(raw):
+            try:
+                out[i] = int(s)
+                continue
+            except ValueError:
+                pass
+            try:
+                value = float(s)
+            except ValueError:
+                value = float("nan")
+            if not s.strip():
+                raise table.error(f"empty value in column {name}", row=i) from None
+            if not (np.isfinite(value) and value.is_integer()):
+                raise table.error(f"column {name} must hold integers, got {s.strip()!r}",
+                                  row=i) from None
+            out[i] = int(value)
+        return out
+
+
+def _check_time_order(table: _Table, t: np.ndarray, mi: np.ndarray, rows: np.ndarray,
+                      markers: list[str]) -> np.ndarray:
+    """Require strictly increasing time per marker in file order; return the sorting order.
+
+    `rows` maps each sample to its row in the table (for the line number of an error).
+    The returned stable order sorts samples by (marker, file order) == (marker, time).
+    """
+    order = np.argsort(mi, kind="stable")
+    ts, ms = t[order], mi[order]
+    bad = np.flatnonzero((ms[1:] == ms[:-1]) & (ts[1:] <= ts[:-1]))
+    if bad.size:
+        k = int(bad[np.argmin(rows[order[bad + 1]])])  # the earliest offending row in the file
+        here, before = int(rows[order[k + 1]]), int(rows[order[k]])
+        marker = markers[int(ms[k])]
+        if ts[k + 1] == ts[k]:
+            problem = (f"marker {marker} appears twice at time_s = {float(ts[k])!r} "
+                       f"(also on line {table.lines[before]})")
+        else:
+            problem = (f"time going backwards for marker {marker}: {float(ts[k + 1])!r} s after "
+                       f"{float(ts[k])!r} s on line {table.lines[before]}")
+        raise table.error(problem, row=here)
+    return order
+
+
+def _read_long(table: _Table, cols: dict[str, int]) -> Recording:
+    n = len(table.rows)
+    t = _floats(table, cols["time_s"], "time_s", missing_ok=False)
+    x = _floats(table, cols["x_mm"], "x_mm", missing_ok=True)
+    y = _floats(table, cols["y_mm"], "y_mm", missing_ok=True)
+    j_marker, j_role = cols["marker"], cols["role"]
+    ids: dict[str, int] = {}
+    roles: list[str] = []
+    mi = np.empty(n, dtype=np.int64)
+    for i, row in enumerate(table.rows):
+        marker, role = row[j_marker].strip(), row[j_role].strip().lower()
+        if not marker:
+            raise table.error("empty marker id", row=i)
+        if role not in ROLES:
+            raise table.error(f"role must be 'body' or 'lug', got {row[j_role].strip()!r} "
+                              f"for marker {marker}", row=i)
+        k = ids.setdefault(marker, len(ids))
+        if k == len(roles):
+            roles.append(role)
+        elif roles[k] != role:
+            raise table.error(f"marker {marker} changes role from {roles[k]} to {role}", row=i)
+        mi[i] = k
+    optional: dict[str, np.ndarray] = {}
+    for column, fieldname in _LONG_OPTIONAL.items():
+        if column in cols:
+            if column == "frame":
+                optional[fieldname] = _ints(table, cols[column], column)
+            else:
+                optional[fieldname] = _floats(table, cols[column], column, missing_ok=True)
+    if "sigma" in optional:
+        bad = np.flatnonzero(optional["sigma"] <= 0)
+        if bad.size:
+            raise table.error("sigma_mm must be > 0, got "
+                              f"{table.rows[bad[0]][cols['sigma_mm']].strip()!r}", row=int(bad[0]))
+    markers = list(ids)
+    order = _check_time_order(table, t, mi, np.arange(n), markers)
+    return Recording(markers=tuple(markers), roles=tuple(roles), t=t[order],
+                     marker_index=mi[order], x=x[order], y=y[order],
+                     **{k: v[order] for k, v in optional.items()},
+                     meta=table.meta, path=table.path)
+
+
+def _role_from_name(marker: str) -> str | None:
+    lower = marker.lower()
+    for prefix, role in _NAME_ROLES:
+        if lower.startswith(prefix):
+            return role
+    return None
+
+
+def _wide_roles(table: _Table, markers: list[str], rig: "Rig | None") -> list[str]:
+    roles = []
+    for marker in markers:
+        if rig is not None and marker in rig.body_markers:
+            role = "body"
+        elif rig is not None and marker in rig.lug_markers:
+            role = "lug"
+        else:
+            role = _role_from_name(marker)
+        if role is None:
+            raise table.error(
+                f"cannot tell the role of marker {marker} from its name (body markers start "
+                f"with C, Q, QS or body; lug markers with B, L, COG or lug): list it under "
+                f"[markers] body = [...] or lug = [...] in rig.toml", line=table.header_line)
+        roles.append(role)
+    return roles
+
+
+def _read_wide(table: _Table, cols: dict[str, int], rig: "Rig | None") -> Recording:
+    pairs: dict[str, dict[str, int]] = {}
+    for name, j in cols.items():
+        match = _WIDE_COLUMN.match(name)
+        if match:
+            pairs.setdefault(match.group(1), {})[match.group(2).lower()] = j
+    for marker, pair in pairs.items():
+        for have, lack in (("x", "y"), ("y", "x")):
+            if lack not in pair:
+                raise table.error(f"column {table.header[pair[have]]} has no partner "
+                                  f"column {marker}_{lack}_mm", line=table.header_line)
+    if "time_s" not in cols:
+        raise table.error("missing required column 'time_s'", line=table.header_line)
+    markers = list(pairs)
+    roles = _wide_roles(table, markers, rig)
+    n_rows, n_markers = len(table.rows), len(markers)
+    time = _floats(table, cols["time_s"], "time_s", missing_ok=False)
+    xs = [_floats(table, pairs[m]["x"], table.header[pairs[m]["x"]], missing_ok=True)
+          for m in markers]
+    ys = [_floats(table, pairs[m]["y"], table.header[pairs[m]["y"]], missing_ok=True)
+          for m in markers]
+    # every marker shares the frame times, so checking one marker checks them all
+    _check_time_order(table, time, np.zeros(n_rows, dtype=np.int64), np.arange(n_rows), markers)
+    optional = {}
+    if "frame" in cols:
+        optional["frame"] = np.tile(_ints(table, cols["frame"], "frame"), n_markers)
+    return Recording(markers=tuple(markers), roles=tuple(roles), t=np.tile(time, n_markers),
+                     marker_index=np.repeat(np.arange(n_markers, dtype=np.int64), n_rows),
+                     x=np.concatenate(xs), y=np.concatenate(ys), **optional,
+                     meta=table.meta, path=table.path)
+
+
+def read_trajectories(path: str | os.PathLike, rig: "Rig | None" = None) -> Recording:
+    """Read trajectories.csv in long form or wide form (DATA.md).
+
+    Long form: columns time_s, marker, role, x_mm, y_mm; optional frame, sigma_mm, x_px,
+    y_px, quality; other columns are ignored; rows in any order. Wide form: one row per
+    frame, time_s plus `<ID>_x_mm`, `<ID>_y_mm` pairs (optional frame); roles from
+    `rig.body_markers`/`rig.lug_markers`, else from the marker names. Comment lines
+    starting with '#' may come before the header; `# key: value` lines become `meta`.
+
+    Args:
+        path: the CSV file.
+        rig: used for the roles of wide-form markers only (long form carries its roles).
+
+    Returns:
+        Recording with samples sorted by (marker_index, t); x, y NaN where a value is empty.
+
+    Raises:
+        InputError: naming the file, the line and the problem: missing or unreadable file,
+            no header, missing column, text in a number field, empty/NaN time, infinite
+            value, bad role, a marker changing role, time not increasing per marker, an x
+            column without its y partner, no data rows.
+    """
+    path = os.fspath(path)
+    table = _read_table(path)
+    cols = _columns(table)
+    is_long = "marker" in cols
+    is_wide = not is_long and any(_WIDE_COLUMN.match(name) for name in cols)
+    if is_long:
+        missing = [c for c in _LONG_REQUIRED if c not in cols]
+        if missing:
+            raise table.error(f"missing required column {missing[0]!r} (long form needs "
+                              f"{', '.join(_LONG_REQUIRED)})", line=table.header_line)
+    elif not is_wide:
+        raise table.error("missing required column 'marker' (long form needs "
+                          f"{', '.join(_LONG_REQUIRED)}; wide form needs time_s and "
+                          "<ID>_x_mm, <ID>_y_mm pairs)", line=table.header_line)
+    if not table.rows:
+        raise table.error("no samples: nothing below the header", line=table.header_line)
+    _check_row_lengths(table)
+    return _read_long(table, cols) if is_long else _read_wide(table, cols, rig)
+
+
+# -- writing --------------------------------------------------------------------------------
+
+def _format(values: np.ndarray, precision: int | None) -> list[str]:
+    fmt = repr if precision is None else f"%.{precision}g".__mod__
+    return [fmt(v) if v == v else "" for v in values.tolist()]  # v != v: NaN -> empty
+
+
+def write_trajectories(path: str | os.PathLike, recording: Recording, *,
+                       meta: dict | None = None, precision: int | None = None) -> None:
+    """Write `recording` as long-form trajectories.csv, atomically.
+
+    `# key: value` lines come first (recording.meta updated with `meta`), then the columns
+    time_s, marker, role, x_mm, y_mm and whichever of frame, sigma_mm, x_px, y_px, quality
+    the recording has. NaN is written as an empty field. Floats are written with the
+    shortest text that reads back to the same number (so read(write(r)) == r), or with
+    `precision` significant digits when given. Rows go frame by frame when that keeps the
+    markers' order of first appearance, else marker by marker.
+
+    Raises:
+        ValueError: a metadata key/value that cannot be written as a comment line, a time
+            that is not finite, an infinite coordinate, or times not increasing per marker
+            (the file would not read back).
+    """
+    r = recording
+    all_meta = {**r.meta, **(meta or {})}
+    for key, value in all_meta.items():
+        if not re.fullmatch(r"[A-Za-z_][\w.\-]*", str(key)) or "\n" in str(value) \
+                or "\r" in str(value):
+            raise ValueError(f"metadata {key!r}: {value!r} cannot be written as '# key: value'")
+    for name in ("t", "x", "y", *OPTIONAL_COLUMNS):
+        value = getattr(r, name)
+        if value is not None and np.isinf(value).any():
+            raise ValueError(f"write_trajectories: infinite value in {name}")
+    if not np.isfinite(r.t).all():
+        raise ValueError("write_trajectories: time stamps must be finite")
+    by_marker = np.lexsort((r.t, r.marker_index))
+    ms, ts = r.marker_index[by_marker], r.t[by_marker]
+    if np.any((ms[1:] == ms[:-1]) & (ts[1:] <= ts[:-1])):
+        raise ValueError("write_trajectories: times must be strictly increasing per marker")
+    by_frame = np.lexsort((r.marker_index, r.t))
+    _, first = np.unique(r.marker_index[by_frame], return_index=True)
+    keeps_order = np.array_equal(np.argsort(first, kind="stable"), np.arange(first.size))
+    order = by_frame if keeps_order else by_marker
+
+    header = list(_LONG_REQUIRED)
+    columns = [_format(r.t[order], precision),
+               [r.markers[k] for k in r.marker_index[order].tolist()],
+               [r.roles[k] for k in r.marker_index[order].tolist()],
+               _format(r.x[order], precision), _format(r.y[order], precision)]
+    for column, fieldname in _LONG_OPTIONAL.items():
+        value = getattr(r, fieldname)
+        if value is None:
+            continue
+        header.append(column)
+        if value.dtype.kind == "i":
+            columns.append([str(v) for v in value[order].tolist()])
+        else:
+            columns.append(_format(value[order], precision))
+    with atomic_path(path) as tmp:
+        with open(tmp, "w", newline="", encoding="utf-8") as fh:
+            for key, value in all_meta.items():
+                fh.write(f"# {key}: {value}\n")
+            writer = csv.writer(fh, lineterminator="\n")
+            writer.writerow(header)
+            writer.writerows(zip(*columns))

@@ -1,0 +1,472 @@
+"""fitlug.io: trajectories.csv, rig.toml and JSON files against the DATA.md contract."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from fitlug._errors import InputError
+from fitlug.io import (Recording, Rig, atomic_path, check_enough_samples, find_rig, read_json,
+                       read_rig, read_trajectories, write_json, write_rig, write_trajectories)
+from fitlug.io import _trajectories
+
+# The example of DATA.md, verbatim.
+DATA_MD_CSV = """\
+# any number of comment lines first; `# key: value` lines are metadata (fps, source, units)
+time_s,marker,role,x_mm,y_mm
+0.00,C1,body,-35.112,71.004
+0.00,B03,lug,12.870,-4.020
+"""
+DATA_MD_RIG = """\
+[track]
+load_bearing_length_mm = 127.0   # L
+lugs_in_contact = 8              # n
+lug_pitch_mm = 18.36             # p, optional
+[vehicle]
+mass_kg = 2.0                    # mass carried by this track, optional
+[markers]                        # optional: roles by name, for wide files
+body = ["C1", "C2"]
+"""
+
+
+def _write(tmp_path, text, name="traj.csv"):
+    path = tmp_path / name
+    path.write_text(text, encoding="utf-8")
+    return str(path)
+
+
+def _synthetic(seed=0, n_frames=50, with_optional=True):
+    """A recording with known values, sorted the way the reader sorts."""
+    rng = np.random.default_rng(seed)
+    markers, roles = ("C1", "C2", "B01", "B02", "L7"), ("body", "body", "lug", "lug", "lug")
+    time = np.arange(n_frames) / 2000.0 + rng.uniform(0, 1e-7, n_frames)
+    m = len(markers)
+    x = rng.normal(0, 100, m * n_frames)
+    y = rng.normal(0, 50, m * n_frames)
+    x[[3, 77]] = np.nan
+    y[[3, 150]] = np.nan
+    optional = {}
+    if with_optional:
+        optional = dict(sigma=rng.uniform(0.001, 0.01, m * n_frames),
+                        frame=np.tile(np.arange(n_frames) + 100, m),
+                        x_px=rng.uniform(0, 1024, m * n_frames),
+                        y_px=rng.uniform(0, 512, m * n_frames),
+                        quality=rng.uniform(0, 1, m * n_frames))
+        optional["x_px"][3] = np.nan
+    return Recording(markers=markers, roles=roles, t=np.tile(time, m),
+                     marker_index=np.repeat(np.arange(m), n_frames), x=x, y=y,
+                     meta={"fps": "2000", "source": "synthetic"}, **optional)
+
+
+# -- reading the contract's example -------------------------------------------------------
+
+def test_data_md_example_parses(tmp_path):
+    rec = read_trajectories(_write(tmp_path, DATA_MD_CSV))
+    assert rec.markers == ("C1", "B03")
+    assert rec.roles == ("body", "lug")
+    assert rec.t.tolist() == [0.0, 0.0]
+    assert rec.x.tolist() == [-35.112, 12.870]
+    assert rec.y.tolist() == [71.004, -4.020]
+    assert rec.marker_index.dtype == np.int64 and rec.marker_index.tolist() == [0, 1]
+    assert rec.sigma is None and rec.frame is None and rec.quality is None
+    assert rec.role_of("B03") == "lug"
+    assert rec.select("body").tolist() == [0] and rec.select("lug").tolist() == [1]
+    assert rec.meta == {}  # that comment line has no `key: value` form
+    assert rec.path.endswith("traj.csv")
+
+
+def test_metadata_lines_and_fps(tmp_path):
+    text = "# fps: 4000\n# source: cam 2\n# units: mm\n# just a remark\n" + DATA_MD_CSV
+    rec = read_trajectories(_write(tmp_path, text))
+    assert rec.meta == {"fps": "4000", "source": "cam 2", "units": "mm"}
+    assert rec.fps == 4000.0
+
+
+def test_fps_from_frame_times_when_no_metadata(tmp_path):
+    rows = "".join(f"{i / 500},C1,body,{i},0\n" for i in range(7))
+    rec = read_trajectories(_write(tmp_path, "time_s,marker,role,x_mm,y_mm\n" + rows))
+    assert rec.fps == pytest.approx(500.0, rel=1e-9)
+    assert rec.times().tolist() == [i / 500 for i in range(7)]
+
+
+# -- round trips ----------------------------------------------------------------------------
+
+def test_long_round_trip_is_exact(tmp_path):
+    rec = _synthetic()
+    path = str(tmp_path / "out.csv")
+    write_trajectories(path, rec)
+    back = read_trajectories(path)
+    assert back == rec
+    assert np.array_equal(back.x, rec.x, equal_nan=True)  # == is exact, check it is
+    with open(path, encoding="utf-8") as fh:
+        text = fh.read().splitlines()
+    assert text[:2] == ["# fps: 2000", "# source: synthetic"]
+    assert text[2] == "time_s,marker,role,x_mm,y_mm,frame,sigma_mm,x_px,y_px,quality"
+    # frame by frame, and NaN as an empty field
+    assert [line.split(",")[1] for line in text[3:8]] == ["C1", "C2", "B01", "B02", "L7"]
+    assert text[3 + 5 * 3].split(",")[3:5] == ["", ""]  # sample 3 is C1 in frame 3
+
+
+def test_round_trip_notices_a_change(tmp_path):
+    rec = _synthetic(with_optional=False)
+    path = str(tmp_path / "out.csv")
+    write_trajectories(path, rec, meta={"units": "mm"})
+    back = read_trajectories(path)
+    assert back.meta == {"fps": "2000", "source": "synthetic", "units": "mm"}
+    assert back == rec.with_(meta={**rec.meta, "units": "mm"})
+    x = back.x.copy()
+    x[10] = np.nextafter(x[10], np.inf)
+    assert back.with_(x=x) != back
+
+
+def test_round_trip_with_fixed_precision_keeps_micrometres(tmp_path):
+    rec = _synthetic(with_optional=False)
+    path = str(tmp_path / "out.csv")
+    write_trajectories(path, rec, precision=9)
+    back = read_trajectories(path)
+    ok = rec.valid
+    assert np.array_equal(back.valid, ok)
+    assert np.max(np.abs(back.x[ok] - rec.x[ok])) < 1e-4  # |x| < 1000 mm -> 9 digits
+    assert np.all(np.abs(back.t - rec.t) <= 5e-9 * np.abs(rec.t))  # 9 significant digits
+
+
+def test_marker_order_survives_when_a_marker_starts_late(tmp_path):
+    # marker 0 is first seen after marker 1: the writer must not reorder the markers
+    rec = Recording(markers=("C1", "B01"), roles=("body", "lug"), t=[0.5, 0.6, 0.0, 0.1],
+                    marker_index=[0, 0, 1, 1], x=[1.0, 2, 3, 4], y=[5.0, 6, 7, 8])
+    path = str(tmp_path / "late.csv")
+    write_trajectories(path, rec)
+    assert read_trajectories(path) == rec
+
+
+WIDE = """\
+# exported by a motion-analysis program
+frame,time_s,C1_x_mm,C1_y_mm,B03_x_mm,B03_y_mm,COG5_X_MM,COG5_Y_MM,comment
+10,0.000,-35.112,71.004,12.870,-4.020,1.5,2.5,a
+11,0.001,-35.100,71.010,,,1.6,2.6,b
+12,0.002,-35.088,71.016,12.900,-4.100,1.7,nan,c
+"""
+
+
+def test_wide_form(tmp_path):
+    rec = read_trajectories(_write(tmp_path, WIDE))
+    assert rec.markers == ("C1", "B03", "COG5")
+    assert rec.roles == ("body", "lug", "lug")  # COG before C, B -> lug
+    b03 = rec.marker_index == 1
+    assert rec.t[b03].tolist() == [0.0, 0.001, 0.002]
+    assert rec.x[b03][[0, 2]].tolist() == [12.870, 12.900]
+    assert np.isnan(rec.x[b03][1]) and np.isnan(rec.y[b03][1])
+    assert rec.frame[b03].tolist() == [10, 11, 12]
+    assert np.count_nonzero(~rec.valid) == 2
+    path = str(tmp_path / "long.csv")
+    write_trajectories(path, rec)
+    assert read_trajectories(path) == rec
+
+
+def test_wide_roles_from_rig_and_names(tmp_path):
+    text = "time_s,QS1_x_mm,QS1_y_mm,body2_x_mm,body2_y_mm,lugA_x_mm,lugA_y_mm,P9_x_mm,P9_y_mm\n" \
+           "0,1,2,3,4,5,6,7,8\n"
+    path = _write(tmp_path, text)
+    with pytest.raises(InputError) as err:
+        read_trajectories(path)
+    assert "P9" in str(err.value) and "rig.toml" in str(err.value) and ":1:" in str(err.value)
+    rec = read_trajectories(path, rig=Rig(lug_markers=("P9", "QS1")))
+    assert rec.roles == ("lug", "body", "lug", "lug")  # the rig wins over the name
+
+
+def test_rows_in_any_order(tmp_path):
+    rec = _synthetic(seed=3, n_frames=40, with_optional=False)
+    header = "time_s,marker,role,x_mm,y_mm,extra_column\n"
+
+    def row(i):
+        fmt = lambda v: "" if np.isnan(v) else repr(float(v))  # noqa: E731
+        k = rec.marker_index[i]
+        return f"{float(rec.t[i])!r},{rec.markers[k]},{rec.roles[k]},{fmt(rec.x[i])},{fmt(rec.y[i])},z\n"
+
+    by_marker = range(rec.n_samples)
+    by_frame = np.lexsort((rec.marker_index, rec.t))
+    a = read_trajectories(_write(tmp_path, header + "".join(map(row, by_marker)), "a.csv"))
+    b = read_trajectories(_write(tmp_path, header + "".join(map(row, by_frame)), "b.csv"))
+    assert a == b == rec.with_(meta={})
+    # columns in another order, roles in capitals
+    text = "y_mm,role,marker,x_mm,time_s\n4,Lug,B1,3,0.1\n2,BODY,C1,1,0.0\n6,body,C1,5,0.1\n" \
+           "8,lug,B1,7,0.2\n"
+    c = read_trajectories(_write(tmp_path, text, "c.csv"))
+    assert c.markers == ("B1", "C1") and c.roles == ("lug", "body")
+    assert c.t.tolist() == [0.1, 0.2, 0.0, 0.1]  # sorted by (marker, time)
+    assert c.x.tolist() == [3.0, 7.0, 1.0, 5.0] and c.y.tolist() == [4.0, 8.0, 2.0, 6.0]
+
+
+def test_missing_values_become_nan(tmp_path):
+    text = "time_s,marker,role,x_mm,y_mm,sigma_mm\n" \
+           "0,C1,body, ,1,0.002\n0.1,C1,body,NaN,nan,\n0.2,C1,body,3, 4 ,0.003\n"
+    rec = read_trajectories(_write(tmp_path, text))
+    assert np.isnan(rec.x[:2]).all() and rec.x[2] == 3.0
+    assert np.isnan(rec.y[1]) and rec.y[[0, 2]].tolist() == [1.0, 4.0]
+    assert rec.valid.tolist() == [False, False, True]
+    assert np.isnan(rec.sigma[1])
+    check_enough_samples(rec, 1)
+    with pytest.raises(InputError, match=r"traj\.csv: fewer valid samples \(1\) than "
+                                         r"parameters \(2\)"):
+        check_enough_samples(rec, 2)
+
+
+# -- bad input: file name, line number and problem in one line -------------------------------
+
+H = "time_s,marker,role,x_mm,y_mm\n"
+BAD = [
+    ("", None, "empty file"),
+    ("# only a comment\n\n", None, "empty file"),
+    (H, 1, "no samples"),
+    ("time_s,marker,x_mm,y_mm\n0,C1,1,2\n", 1, "missing required column 'role'"),
+    ("time_s,x,y\n0,1,2\n", 1, "missing required column 'marker'"),
+    ("# c\n" + H + "0,C1,body,1,2\n0.1,C1,body,1.2.3,2\n", 4, "text in number column x_mm: '1.2.3'"),
+    (H + "zero,C1,body,1,2\n", 2, "text in number column time_s: 'zero'"),
+    (H + "0,C1,body,1,2\n0.1,B1,wheel,1,2\n", 3, "role must be 'body' or 'lug', got 'wheel'"),
+    (H + "0,C1,body,1,2\n0.1,C1,lug,1,2\n", 3, "marker C1 changes role from body to lug"),
+    (H + "0.1,C1,body,1,2\n0,B1,lug,1,2\n0.0,C1,body,1,2\n", 4, "time going backwards for marker C1"),
+    (H + "0.1,C1,body,1,2\n0.1,C1,body,1,2\n", 3, "marker C1 appears twice at time_s = 0.1"),
+    (H + "0,C1,body,1,2\n,C1,body,1,2\n", 3, "empty value in column time_s"),
+    (H + "0,C1,body,1,2\nnan,C1,body,1,2\n", 3, "NaN value in column time_s"),
+    (H + "0,C1,body,1,2\n0.1,C1,body,inf,2\n", 3, "infinite value in column x_mm: 'inf'"),
+    (H + "0,C1,body,1\n", 2, "row has 4 fields, the header has 5"),
+    (H + "0,,body,1,2\n", 2, "empty marker id"),
+    ("time_s,marker,role,x_mm,y_mm,frame\n0,C1,body,1,2,1.5\n", 2, "column frame must hold integers"),
+    ("time_s,marker,role,x_mm,y_mm,sigma_mm\n0,C1,body,1,2,-0.1\n", 2, "sigma_mm must be > 0"),
+    ("# fps: fast\n" + H + "0,C1,body,1,2\n", 1, "metadata fps must be a number > 0"),
+    ("time_s,C1_x_mm,C1_y_mm,B1_x_mm\n0,1,2,3\n", 1, "column B1_x_mm has no partner column B1_y_mm"),
+    ("time_s,C1_x_mm,C1_y_mm\n0,1,2\n0,1,2\n", 3, "appears twice at time_s = 0.0"),
+    ("time_s,C1_x_mm,C1_y_mm\n0,1,2\n0.1,1,x\n", 3, "text in number column C1_y_mm: 'x'"),
+    ("C1_x_mm,C1_y_mm\n1,2\n", 1, "missing required column 'time_s'"),
+    (H.replace("role", "marker"), 1, "column 'marker' appears twice"),
+]
+
+
+@pytest.mark.parametrize("text,line,problem", BAD, ids=[b[2][:40] for b in BAD])
+def test_bad_input_names_file_line_and_problem(tmp_path, text, line, problem):
+    path = _write(tmp_path, text, "bad_input.csv")
+    with pytest.raises(InputError) as err:
+        read_trajectories(path)
+    message = str(err.value)
+    assert "\n" not in message
+    assert message.startswith(path + (f":{line}:" if line else ":"))
+    assert problem in message
+    assert err.value.line == line
+
+
+def test_missing_and_unreadable_files(tmp_path):
+    with pytest.raises(InputError, match=r"nowhere\.csv: file not found"):
+        read_trajectories(tmp_path / "nowhere.csv")
+    with pytest.raises(InputError, match="is a directory"):
+        read_trajectories(tmp_path)
+    path = tmp_path / "latin1.csv"
+    path.write_bytes(H.encode() + b"0,C\xe91,body,1,2\n")
+    with pytest.raises(InputError, match=r"latin1\.csv:2: not UTF-8"):
+        read_trajectories(path)
+
+
+def test_writer_refuses_what_would_not_read_back(tmp_path):
+    rec = Recording(markers=("C1",), roles=("body",), t=[0.0, 0.0], marker_index=[0, 0],
+                    x=[1.0, 2.0], y=[1.0, 2.0])
+    with pytest.raises(ValueError, match="strictly increasing"):
+        write_trajectories(tmp_path / "dup.csv", rec)
+    with pytest.raises(ValueError, match="cannot be written"):
+        write_trajectories(tmp_path / "m.csv", rec.with_(t=[0.0, 1.0]), meta={"a b": "c"})
+    assert not os.listdir(tmp_path)
+
+
+def test_recording_validates_its_arrays():
+    with pytest.raises(ValueError, match="role"):
+        Recording(markers=("A",), roles=("wheel",), t=[0.0], marker_index=[0], x=[0.0], y=[0.0])
+    with pytest.raises(ValueError, match="shape"):
+        Recording(markers=("A",), roles=("lug",), t=[0.0, 1.0], marker_index=[0], x=[0.0],
+                  y=[0.0])
+    with pytest.raises(ValueError, match="out of range"):
+        Recording(markers=("A",), roles=("lug",), t=[0.0], marker_index=[1], x=[0.0], y=[0.0])
+    rec = Recording(markers=("A",), roles=("lug",), t=[0.0], marker_index=[0], x=[0.0], y=[0.0])
+    with pytest.raises(KeyError, match="no marker 'Z'"):
+        rec.role_of("Z")
+    assert rec.fps is None
+
+
+# -- atomic writing -----------------------------------------------------------------------
+
+def test_failed_write_leaves_no_file_and_keeps_the_old_one(tmp_path, monkeypatch):
+    path = tmp_path / "traj.csv"
+    rec = _synthetic(with_optional=False)
+
+    class Failing:
+        def __init__(self, fh, **kw):
+            self.fh = fh
+
+        def writerow(self, row):
+            self.fh.write(",".join(row) + "\n")
+
+        def writerows(self, rows):
+            for i, row in enumerate(rows):
+                if i == 10:
+                    raise OSError("disk full")
+                self.writerow(row)
+
+    monkeypatch.setattr(_trajectories.csv, "writer", Failing)
+    with pytest.raises(OSError, match="disk full"):
+        write_trajectories(path, rec)
+    assert os.listdir(tmp_path) == []  # neither the file nor a temporary left behind
+
+    path.write_text("old contents\n")
+    with pytest.raises(OSError, match="disk full"):
+        write_trajectories(path, rec)
+    assert path.read_text() == "old contents\n"
+    assert os.listdir(tmp_path) == ["traj.csv"]
+
+
+def test_atomic_path_on_exception(tmp_path):
+    target = tmp_path / "out.txt"
+    with pytest.raises(RuntimeError):
+        with atomic_path(target) as tmp:
+            with open(tmp, "w") as fh:
+                fh.write("half")
+            raise RuntimeError("mid-way")
+    assert os.listdir(tmp_path) == []
+
+
+# -- rig.toml -------------------------------------------------------------------------------
+
+def test_rig_defaults_are_the_reference_robot():
+    rig = Rig()
+    assert (rig.load_bearing_length_mm, rig.lugs_in_contact) == (127.0, 8)  # MODEL.md section 2
+    assert rig.lug_pitch_mm is None and rig.mass_kg is None and rig.fps is None
+    assert Rig.reference() == Rig(lug_pitch_mm=18.36)
+
+
+def test_data_md_rig_example(tmp_path):
+    rig = read_rig(_write(tmp_path, DATA_MD_RIG, "rig.toml"))
+    assert rig == Rig(load_bearing_length_mm=127.0, lugs_in_contact=8, lug_pitch_mm=18.36,
+                      mass_kg=2.0, body_markers=("C1", "C2"))
+    assert rig.extra == {}
+    assert isinstance(rig.lugs_in_contact, int)
+
+
+def test_rig_round_trip_keeps_extra_tables_and_writes_only_set_keys(tmp_path):
+    text = 'note = "bench 3"\n' + DATA_MD_RIG + 'lug = ["B1"]\n[camera]\nfps = 2000\n' \
+           'model = "Phantom v9.1"\n[lighting]\nlamps = 2\ncolour = {r = 1, g = 0.5}\n'
+    rig = read_rig(_write(tmp_path, text, "rig.toml"))
+    assert rig.fps == 2000.0 and rig.lug_markers == ("B1",)
+    assert rig.extra == {"note": "bench 3", "camera": {"model": "Phantom v9.1"},
+                         "lighting": {"lamps": 2, "colour": {"r": 1, "g": 0.5}}}
+    out = tmp_path / "out.toml"
+    write_rig(out, rig)
+    assert read_rig(out) == rig
+    write_rig(out, Rig())
+    written = out.read_text()
+    assert "[track]" in written and "lug_pitch_mm" not in written and "[vehicle]" not in written
+    assert read_rig(out) == Rig()
+
+
+def test_rig_unknown_key_in_known_table_warns(tmp_path):
+    path = _write(tmp_path, "[track]\nlugs_in_contacts = 9\n", "rig.toml")
+    with pytest.warns(UserWarning, match=r"rig\.toml:2: \[track\] unknown key .lugs_in_contacts.*did you mean .lugs_in_contact."):
+        rig = read_rig(path)
+    assert rig.lugs_in_contact == 8 and rig.extra == {"track": {"lugs_in_contacts": 9}}
+
+
+RIG_BAD = [
+    ("[track]\nlugs_in_contact = 1.5\n", 2,
+     "[track] lugs_in_contact must be an integer >= 2, got 1.5"),
+    ("[track]\nload_bearing_length_mm = 0\n", 2, "[track] load_bearing_length_mm must be a number > 0"),
+    ("[track]\n\nlug_pitch_mm = \"18\"\n", 3, "[track] lug_pitch_mm must be a number > 0, got '18'"),
+    ("[vehicle]\nmass_kg = -2.0\n", 2, "[vehicle] mass_kg must be a number > 0, got -2.0"),
+    ("[camera]\nfps = nan\n", 2, "[camera] fps must be a number > 0"),
+    ("[markers]\nbody = \"C1\"\n", 2, "[markers] body must be a list of marker names"),
+    ("[markers]\nbody = [\"C1\"]\nlug = [\"C1\"]\n", 3, "marker C1 is listed both as body and as lug"),
+    ("track = 3\n", 1, "[track] must be a table"),
+    ("[track]\nlugs_in_contact 8\n", 2, "invalid TOML"),
+]
+
+
+@pytest.mark.parametrize("text,line,problem", RIG_BAD, ids=[b[2][:40] for b in RIG_BAD])
+def test_rig_validation(tmp_path, text, line, problem):
+    path = _write(tmp_path, text, "rig.toml")
+    with pytest.raises(InputError) as err:
+        read_rig(path)
+    assert str(err.value).startswith(f"{path}:{line}: ")
+    assert problem in str(err.value)
+
+
+def test_rig_validates_when_built_in_code():
+    with pytest.raises(InputError, match=r"\[vehicle\] mass_kg must be a number > 0"):
+        Rig(mass_kg=0)
+    with pytest.raises(InputError, match="lugs_in_contact"):
+        Rig(lugs_in_contact=True)
+    assert Rig(body_markers=["C1"]).body_markers == ("C1",)
+
+
+def test_find_rig(tmp_path):
+    csv_path = str(tmp_path / "run7.csv")
+    assert find_rig(csv_path) == Rig.reference()
+    write_rig(tmp_path / "rig.toml", Rig(mass_kg=3.0))
+    assert find_rig(csv_path).mass_kg == 3.0
+    write_rig(tmp_path / "run7.rig.toml", Rig(mass_kg=4.0))
+    assert find_rig(csv_path).mass_kg == 4.0  # the file's own rig wins
+    assert find_rig(str(tmp_path / "other.csv")).mass_kg == 3.0
+
+
+# -- JSON -----------------------------------------------------------------------------------
+
+def test_json_numpy_and_non_finite(tmp_path):
+    path = tmp_path / "fit.json"
+    obj = {"slip": {"value": np.float64(0.125), "std": np.float32(0.5), "ci95": np.array([0.1, 0.2])},
+           "n": np.int64(7), "ok": np.bool_(True), "bad": float("nan"),
+           "arr": np.array([[1.0, np.inf], [np.nan, -2.0]]), "t": (1, 2), 3: "key"}
+    write_json(path, obj)
+    text = path.read_text()
+    assert "NaN" not in text and "Infinity" not in text
+    assert text.startswith('{\n  "slip": {\n    "value": 0.125')
+    back = read_json(path)
+    assert back == {"slip": {"value": 0.125, "std": 0.5, "ci95": [0.1, 0.2]}, "n": 7, "ok": True,
+                    "bad": None, "arr": [[1.0, None], [None, -2.0]], "t": [1, 2], "3": "key"}
+    assert json.loads(text) == back
+
+
+def test_json_failures(tmp_path):
+    path = tmp_path / "fit.json"
+    path.write_text("{}\n")
+    with pytest.raises(TypeError, match=r"slip\.value"):
+        write_json(path, {"slip": {"value": object()}})
+    assert path.read_text() == "{}\n" and os.listdir(tmp_path) == ["fit.json"]
+    path.write_text('{\n  "a": 1,\n  "b": \n}\n')
+    with pytest.raises(InputError, match=r"fit\.json:4: column 1: invalid JSON: Expecting value"):
+        read_json(path)
+    path.write_text('{"a": NaN}')
+    with pytest.raises(InputError, match="NaN"):
+        read_json(path)
+
+
+def test_import_is_light():
+    code = ("import sys, fitlug.io; "
+            "print([m for m in ('jax', 'cv2', 'matplotlib') if m in sys.modules])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_large_file_reads_correctly(tmp_path):
+    # 10^5 rows: the vectorised path must give the same numbers as the values written
+    n_frames, markers = 20_000, ("C1", "C2", "B1", "B2", "B3")
+    rng = np.random.default_rng(5)
+    m = len(markers)
+    rec = Recording(markers=markers, roles=("body", "body", "lug", "lug", "lug"),
+                    t=np.tile(np.arange(n_frames) * 1e-3, m),
+                    marker_index=np.repeat(np.arange(m), n_frames),
+                    x=rng.normal(0, 100, m * n_frames), y=rng.normal(0, 100, m * n_frames))
+    path = tmp_path / "big.csv"
+    write_trajectories(path, rec)
+    assert path.read_text().count("\n") == m * n_frames + 1
+    back = read_trajectories(path)
+    assert back == rec
+    assert math.isclose(back.fps, 1000.0, rel_tol=1e-9)
