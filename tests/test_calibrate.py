@@ -261,3 +261,38 @@ def test_bad_calibration_inputs(tmp_path, synthetic_views):
     small = synthetic_views[:3] + [synthetic_views[3][:400]]
     with pytest.raises(InputError, match="image\\[3\\].*first one is 640x480"):
         calibrate(small, "chessboard:9x6", square_mm=25)
+
+
+# -- the command ------------------------------------------------------------------------------
+def test_cli_calibrate_with_scale_image(tmp_path, synthetic_views, capsys):
+    from fitlug.cli import main
+
+    folder = tmp_path / "views"
+    folder.mkdir()
+    for i, img in enumerate(synthetic_views):
+        cv2.imwrite(str(folder / f"view{i + 1}.png"), img)
+    # the board lying flat in the plane of motion, 500 mm in front of the camera
+    flat = render_chessboard(K_TRUE, D_TRUE, *_pose([0, 0, 0], (0, 0, 500)), (640, 480), 9, 6, 25.0)
+    cv2.imwrite(str(tmp_path / "flat.png"), flat)
+    out = tmp_path / "calib.json"
+    code = main(["calibrate", str(folder), "--board", "chessboard:9x6", "--square", "25",
+                 "--scale-image", str(tmp_path / "flat.png"), "-o", str(out)])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "RMS reprojection error" in printed and "scale" in printed
+    cal = load_calibration(out)
+    assert len(cal.per_view) == 6
+    # between 500/605 (rows) and 500/600 (columns)
+    assert 500 / 605 * 0.998 < cal.mm_per_px < 500 / 600 * 1.002
+
+
+def test_cli_reports_bad_arguments_on_one_line(tmp_path, capsys):
+    from fitlug.cli import main
+
+    code = main(["calibrate", str(tmp_path), "--board", "chess:9x6", "--square", "25"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "--board" in err
+    code = main(["calibrate", str(tmp_path / "nothing*.png"), "--board", "chessboard:9x6",
+                 "--square", "25", "--scale-points", "1,2,3", "-o", str(tmp_path / "c.json")])
+    assert code == 2 and "matches no file" in capsys.readouterr().err
+    assert not (tmp_path / "c.json").exists()

@@ -77,8 +77,26 @@ def calibration_to_dict(cal: Calibration) -> dict:
 
 def save_calibration(path: str | os.PathLike, cal: Calibration) -> None:
     """Write `cal` to `path` as calib.json, atomically (never half-written)."""
-    text = json.dumps(calibration_to_dict(cal), indent=2, allow_nan=False)
-    write_text_atomic(path, text + "\n")
+    write_text_atomic(path, _format(calibration_to_dict(cal)))
+
+
+def _format(data: dict) -> str:
+    # one key per line; numeric vectors and matrices on one line each, for people to read
+    lines = []
+    for key, value in data.items():
+        numeric = isinstance(value, list) and all(
+            isinstance(v, (int, float)) or (isinstance(v, list) and
+                                            all(isinstance(x, (int, float)) for x in v))
+            for v in value)
+        if numeric:
+            text = json.dumps(value, allow_nan=False)
+        elif isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
+            text = "[\n" + ",\n".join("    " + json.dumps(v, allow_nan=False)
+                                       for v in value) + "\n  ]"
+        else:
+            text = json.dumps(value, allow_nan=False)
+        lines.append(f"  {json.dumps(key)}: {text}")
+    return "{\n" + ",\n".join(lines) + "\n}\n"
 
 
 def _matrix(path, value, shape, key):

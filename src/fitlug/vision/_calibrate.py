@@ -55,6 +55,16 @@ def _name(image, index: int) -> str:
     return os.fspath(image) if isinstance(image, (str, os.PathLike)) else f"image[{index}]"
 
 
+def _common_folder(images) -> str | None:
+    """The one path that names all the images (for error messages), or None."""
+    paths = [os.fspath(i) for i in images if isinstance(i, (str, os.PathLike))]
+    if len(paths) != len(images):
+        return None
+    if len(paths) == 1:
+        return paths[0]
+    return os.path.commonpath([os.path.abspath(p) for p in paths]) or None
+
+
 def calibrate(images: Sequence, board: str | Board, *, square_mm: float,
               marker_mm: float | None = None, dictionary: str | None = None, flags: int = 0,
               subpix_window: int | None = None, progress: bool = False) -> Calibration:
@@ -100,10 +110,12 @@ def calibrate(images: Sequence, board: str | Board, *, square_mm: float,
         pts.append(img)
         names.append(name)
     if len(objs) < MIN_VIEWS:
-        why = "; ".join(f"{os.path.basename(r['image'])}: {r['reason']}" for r in rejected[:3])
-        raise InputError(_name(images[0], 0) if len(images) == 1 else None,
-                         f"the board ({board.describe()}) was found in {len(objs)} of "
-                         f"{len(images)} images; need at least {MIN_VIEWS}" +
+        reasons: dict[str, list[str]] = {}
+        for r in rejected:
+            reasons.setdefault(r["reason"], []).append(os.path.basename(r["image"]))
+        why = "; ".join(f"{', '.join(n)}: {reason}" for reason, n in reasons.items())
+        raise InputError(_common_folder(images), f"the board ({board.describe()}) was found in "
+                         f"{len(objs)} of {len(images)} images; need at least {MIN_VIEWS}" +
                          (f" ({why})" if why else ""))
     k0 = np.eye(3)  # fx = fy: the ratio CALIB_FIX_ASPECT_RATIO keeps
     rms, k, dist, _, _, std_in, _, per_view = cv2.calibrateCameraExtended(
