@@ -13,6 +13,7 @@ import glob
 import os
 import shutil
 import tracemalloc
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -29,7 +30,7 @@ pytestmark = pytest.mark.skipif(not os.path.isdir(CINE), reason="real .cine data
 
 
 def _read_rawi(path):
-    raw = open(path, "rb").read()
+    raw = Path(path).read_bytes()
     width, height, bytes_per_value = np.frombuffer(raw[:12], "<u4")
     assert bytes_per_value == 4
     return np.frombuffer(raw[12:], "<f4").reshape(height, width)
@@ -103,7 +104,7 @@ def test_not_a_cine_and_truncated(tmp_path):
     with pytest.raises(InputError, match="not a Phantom"):
         open_source(bogus)
     short = tmp_path / "short.cine"
-    data = open(os.path.join(CINE, "cine_legacy.cine"), "rb").read()
+    data = Path(CINE, "cine_legacy.cine").read_bytes()
     short.write_bytes(data[: len(data) // 2])
     with pytest.raises(InputError, match="truncated"):
         open_source(short)

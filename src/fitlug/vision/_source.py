@@ -219,9 +219,10 @@ class VideoSource(FrameSource):
             grey = _to_grey(img)
             self.shape = grey.shape
             self.bit_depth = 8 * grey.dtype.itemsize
-            count = int(self._cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
-            self.n_file_frames = count if count > 0 else self._count_frames()
             self._pos = 1  # index of the next frame `read` would return
+            count = int(self._cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
+            # some containers do not store the count: decode through once (grab only)
+            self.n_file_frames = count if count > 0 else self._count_frames()
             self._select(frames)
         except BaseException:
             self._cap.release()
