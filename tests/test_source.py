@@ -150,3 +150,29 @@ def test_bad_sources(tmp_path):
         open_source(single)
     with pytest.raises(InputError, match="positive"):
         open_source(tmp_path / "frames", fps=-3)
+
+
+def test_video_without_frame_count(tmp_path, monkeypatch):
+    # some containers store no frame count: the reader counts by decoding
+    frames = _frames(7, seed=6)
+    path = tmp_path / "clip.mkv"
+    _write_video(path, frames, 20)
+    real = cv2.VideoCapture
+
+    class NoCount:  # a wrapper: subclassing the C++ class crashes at garbage collection
+        def __init__(self, name):
+            self._cap = real(name)
+
+        def get(self, prop):
+            return 0.0 if prop == cv2.CAP_PROP_FRAME_COUNT else self._cap.get(prop)
+
+        def __getattr__(self, name):
+            return getattr(self._cap, name)
+
+    monkeypatch.setattr(cv2, "VideoCapture", NoCount)
+    with open_source(path) as src:
+        assert len(src) == 7
+        got = list(src)
+    assert [i for i, _, _ in got] == list(range(7))
+    for i, _, f in got:
+        np.testing.assert_array_equal(f, frames[i])
