@@ -1,0 +1,228 @@
+"""Find markers anywhere in a frame (or a region): COG discs and QS checkers.
+
+Used on the first frame, every few frames to pick up markers entering the view, and in
+small regions to re-find a lost marker. Positions come out refined (`_refine`, `_qs`).
+
+COG: pixels brighter than the local mean (box filter a few disc diameters wide) by more
+than a threshold set from the noise; connected regions that are round (area, fill ratio
+of the bounding box, aspect, farthest pixel against the equivalent radius).
+
+QS: saddle points of the smoothed image (most negative Hessian determinant, local
+extrema), kept only when the grey levels on circles around them follow the checker's
+pattern: two light and two dark quarters - most of the profile's variance in the second
+angular harmonic, a high correlation with a square wave, and the same phase at two radii.
+The same circles measure the checker's size when it is not given.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ._qs import refine_qs
+from ._refine import refine_cog
+
+COG, QS = "cog", "qs"
+
+
+@dataclass
+class Detections:
+    """Markers found in one frame: `xy` (N, 2) px (refined), `kind` (N,) 'cog'/'qs',
+    `size` (N,) px (COG disc radius, QS half side), `contrast` (N,) grey levels (QS signed),
+    `extra` per-kind refinement results (QS fit parameters) for warm starts."""
+
+    xy: np.ndarray
+    kind: np.ndarray
+    size: np.ndarray
+    contrast: np.ndarray
+    extra: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return int(self.xy.shape[0])
+
+    @classmethod
+    def empty(cls) -> "Detections":
+        return cls(np.zeros((0, 2)), np.zeros(0, dtype="<U3"), np.zeros(0), np.zeros(0))
+
+
+def estimate_noise(img: np.ndarray) -> float:
+    """Robust standard deviation of the pixel noise, grey levels (from row differences)."""
+    sub = np.asarray(img[:: max(1, img.shape[0] // 200)], dtype=np.float32)
+    d = np.diff(sub, axis=1).ravel()
+    if d.size == 0:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2.0))
+
+
+def _find_cog(img, noise, r_range, min_contrast):
+    import cv2
+
+    r_lo, r_hi = r_range
+    k = int(2 * round(3 * r_hi) + 1)
+    bg = cv2.blur(img, (k, k), borderType=cv2.BORDER_REFLECT)
+    thresh = max(8.0 * noise, float(min_contrast))
+    mask = ((img - bg) > thresh).astype(np.uint8)
+    n, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    if n <= 1:
+        return np.zeros((0, 2)), np.zeros(0)
+    x, y, w, h, area = (stats[1:, i].astype(np.float64) for i in range(5))
+    fill = area / (w * h)
+    keep = (area >= np.pi * r_lo ** 2 * 0.7) & (area <= np.pi * r_hi ** 2 * 1.3) \
+        & (fill > 0.6) & (fill < 0.93) & (w < 1.7 * h) & (h < 1.7 * w)
+    out, radii = [], []
+    for i in np.flatnonzero(keep):
+        x0, y0 = int(x[i]), int(y[i])
+        ys, xs = np.nonzero(labels[y0:y0 + int(h[i]), x0:x0 + int(w[i])] == i + 1)
+        c = cents[i + 1]
+        req = np.sqrt(area[i] / np.pi)
+        far = np.sqrt(((xs + x0 - c[0]) ** 2 + (ys + y0 - c[1]) ** 2).max()) + 0.5
+        if far <= 1.15 * req + 0.7:  # a disc; a square's corner reaches 1.25 req
+            out.append(c)
+            radii.append(req)
+    return np.asarray(out, dtype=np.float64).reshape(-1, 2), np.asarray(radii)
+
+
+def ring_profiles(img, centres, radii, n_angles=32):
+    """Grey levels on circles: (K, R, n_angles), bilinear; NaN outside the image."""
+    h, w = img.shape
+    phi = 2 * np.pi * np.arange(n_angles) / n_angles
+    px = centres[:, 0, None, None] + radii[None, :, None] * np.cos(phi)
+    py = centres[:, 1, None, None] + radii[None, :, None] * np.sin(phi)
+    x0, y0 = np.floor(px).astype(np.int64), np.floor(py).astype(np.int64)
+    fx, fy = px - x0, py - y0
+    ok = (x0 >= 0) & (y0 >= 0) & (x0 < w - 1) & (y0 < h - 1)
+    x0, y0 = np.clip(x0, 0, w - 2), np.clip(y0, 0, h - 2)
+    v = (img[y0, x0] * (1 - fx) * (1 - fy) + img[y0, x0 + 1] * fx * (1 - fy)
+         + img[y0 + 1, x0] * (1 - fx) * fy + img[y0 + 1, x0 + 1] * fx * fy)
+    return np.where(ok, v, np.nan)
+
+
+def checker_pattern(profiles):
+    """Per profile (..., A): (amplitude of the 2nd harmonic, its phase, correlation with
+    the square wave of that phase, fraction of the variance in the 2nd harmonic)."""
+    a = profiles.shape[-1]
+    phi = 2 * np.pi * np.arange(a) / a
+    p = profiles - profiles.mean(axis=-1, keepdims=True)
+    f2 = (p * np.exp(-2j * phi)).sum(axis=-1)
+    phase = -np.angle(f2)  # p ≈ amplitude · cos(2φ - phase)
+    sqw = np.sign(np.cos(2 * phi - phase[..., None]))
+    var = (p * p).sum(axis=-1)
+    safe = np.where(var > 0, var, 1.0)
+    corr = (p * sqw).sum(axis=-1) / np.sqrt(safe * a)
+    frac = 2 * np.abs(f2) ** 2 / (a * safe)
+    return 2 * np.abs(f2) / a, phase, np.where(var > 0, corr, 0.0), np.where(var > 0, frac, 0.0)
+
+
+def _find_qs(img, noise, qs_half, min_contrast, max_candidates=200):
+    import cv2
+
+    sigma = 1.5 if qs_half is None else float(np.clip(0.12 * qs_half, 1.0, 4.0))
+    g = cv2.GaussianBlur(img, (0, 0), sigma)
+    ixx = cv2.Sobel(g, cv2.CV_32F, 2, 0, ksize=3)
+    iyy = cv2.Sobel(g, cv2.CV_32F, 0, 2, ksize=3)
+    ixy = cv2.Sobel(g, cv2.CV_32F, 1, 1, ksize=3)
+    resp = ixy * ixy - ixx * iyy  # minus the Hessian determinant: large at saddles
+    k = int(2 * round(max(3.0, 0.5 * (qs_half or 6))) + 1)
+    peaks = (resp >= cv2.dilate(resp, np.ones((k, k), np.uint8))) & (resp > 0)
+    ys, xs = np.nonzero(peaks)
+    if xs.size == 0:
+        return np.zeros((0, 2)), np.zeros(0), np.zeros(0)
+    vals = resp[ys, xs]
+    top = np.argsort(vals)[::-1][:max_candidates]
+    top = top[vals[top] > 0.02 * vals[top[0]]]
+    cand = np.stack([xs[top], ys[top]], axis=1).astype(np.float64)
+    radii = np.arange(2.0, 41.0) if qs_half is None else \
+        np.array([0.35, 0.55, 0.75]) * float(qs_half)
+    amp, phase, corr, frac = checker_pattern(ring_profiles(g, cand, radii))
+    amp, corr, frac = (np.nan_to_num(v) for v in (amp, corr, frac))
+    thresh = max(6.0 * noise, 0.5 * float(min_contrast))
+    if qs_half is None:
+        # size: the largest radius at which the pattern still has (nearly) full strength
+        pattern = (corr > 0.85) & (frac > 0.6) & (amp > thresh)
+        strong = pattern & (amp >= 0.85 * amp.max(axis=1, keepdims=True))
+        last = radii.size - 1 - np.argmax(strong[:, ::-1], axis=1)
+        upto = np.arange(radii.size)[None, :] <= last[:, None]
+        good = strong.any(axis=1) & (pattern | ~upto | (radii < 3)).all(axis=1) & (radii[last] >= 4)
+        half = radii[last]
+        ph = phase[:, 2:5]
+    else:
+        good = ((corr > 0.85) & (frac > 0.6) & (amp > thresh)).all(axis=1)
+        half = np.full(cand.shape[0], float(qs_half))
+        ph = phase
+    dphase = np.angle(np.exp(1j * (ph - ph[:, :1])))
+    good &= (np.abs(dphase) < 0.35).all(axis=1)
+    return cand[good], half[good], vals[top][good]
+
+
+def _suppress(xy, score, radius):
+    """Keep the strongest of candidates closer than `radius` to each other."""
+    order = np.argsort(score)[::-1]
+    kept = []
+    for i in order:
+        if all(np.hypot(*(xy[i] - xy[j])) >= radius for j in kept):
+            kept.append(i)
+    return np.asarray(kept, dtype=np.int64)
+
+
+def detect_markers(frame: np.ndarray, *, kinds=(COG, QS), cog_radius=None, qs_half=None,
+                   cog_radius_range=(3.5, 40.0), min_contrast: float = 0.0, roi=None,
+                   noise: float | None = None) -> Detections:
+    """Find and refine COG and QS markers in a frame.
+
+    frame: (H, W) grey image; kinds: which marker types to look for; cog_radius: disc
+    radius px if known (else any in cog_radius_range); qs_half: half side of the checkers
+    px if known (else measured); min_contrast: least marker contrast, grey levels (the
+    default threshold is 8x the noise); roi: (x0, y0, x1, y1) px to search only there;
+    noise: pixel noise std if known. Returns Detections in full-frame pixels.
+    """
+    x0 = y0 = 0
+    img = frame
+    if roi is not None:
+        h, w = frame.shape
+        x0, y0 = max(int(roi[0]), 0), max(int(roi[1]), 0)
+        x1, y1 = min(int(roi[2]), w), min(int(roi[3]), h)
+        if x1 - x0 < 8 or y1 - y0 < 8:
+            return Detections.empty()
+        img = frame[y0:y1, x0:x1]
+    img = np.ascontiguousarray(img, dtype=np.float32)
+    if noise is None:
+        noise = estimate_noise(img)
+    off = np.array([x0, y0], dtype=np.float64)
+    xy_l, kind_l, size_l, con_l = [], [], [], []
+    extra = {}
+    qs_xy, qs_hs = np.zeros((0, 2)), 0.0
+    if QS in kinds:
+        cand, half, score = _find_qs(img, noise, qs_half, min_contrast)
+        if cand.shape[0]:
+            keep = _suppress(cand, score, max(4.0, float(np.median(half))))
+            cand, half = cand[keep], half[keep]
+            hs = float(np.median(half)) if qs_half is None else float(qs_half)
+            fit = refine_qs(frame, cand + off, hs, search=2, n_iter=8)
+            good = np.isfinite(fit.xy).all(axis=1) & (fit.rms < 0.35 * np.abs(fit.contrast))
+            qs_xy, qs_hs = fit.xy[good], hs
+            xy_l.append(qs_xy)
+            kind_l.append(np.full(int(good.sum()), QS))
+            size_l.append(np.full(int(good.sum()), hs))
+            con_l.append(fit.contrast[good])
+            extra["qs_params"] = fit.params[good]
+    if COG in kinds:
+        r_range = cog_radius_range if cog_radius is None else (0.7 * cog_radius, 1.3 * cog_radius)
+        cand, radii = _find_cog(img, noise, r_range, min_contrast)
+        if cand.shape[0]:
+            cand = cand + off
+            if qs_xy.shape[0]:  # light quarters of a checker are not discs
+                d = np.hypot(*(cand[:, None, :] - qs_xy[None, :, :]).transpose(2, 0, 1))
+                far = (d > 2.0 * qs_hs).all(axis=1)
+                cand, radii = cand[far], radii[far]
+            r = radii if cog_radius is None else np.full(radii.shape, float(cog_radius))
+            fit = refine_cog(frame, cand, r)
+            good = np.isfinite(fit.xy).all(axis=1) & (fit.contrast > max(8.0 * noise, min_contrast))
+            xy_l.append(fit.xy[good])
+            kind_l.append(np.full(int(good.sum()), COG))
+            size_l.append(fit.radius[good])
+            con_l.append(fit.contrast[good])
+    if not xy_l:
+        return Detections.empty()
+    return Detections(np.concatenate(xy_l), np.concatenate(kind_l), np.concatenate(size_l),
+                      np.concatenate(con_l), extra)

@@ -1,0 +1,333 @@
+"""Follow markers from frame to frame, keeping their identities (`Tracker`, `track_frames`).
+
+Each frame, every live track predicts where its marker is (constant acceleration from its
+last three samples, constant velocity from two) and its marker is refined in a small
+window there, all markers of a kind in one batch. A sample is kept only when it looks like
+the marker it follows: flux, size and shape (COG) or fit residual and contrast (QS) close
+to the track's running references, and close to the prediction; else the frame is a gap.
+A track that misses is searched for around its prediction for `max_gap` frames (a region
+detection), then closed: a marker seen again later gets a new id, never an old one.
+Full-frame detection runs on the first frame and every `redetect_every` frames to pick up
+markers that enter; a detection on a live track's marker is not a new marker.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ._detect import COG, QS, Detections, detect_markers, estimate_noise
+from ._qs import _B, N_PARAMS, refine_qs
+from ._refine import refine_cog
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Settings of the tracker (sizes in px, times in frames).
+
+    kinds: marker types to track; roles: role per kind (COG -> lug, QS -> body by default);
+    cog_radius / qs_half: disc radius and half checker side if known (else measured on
+    detection); min_contrast: least marker contrast, grey levels (default: from the noise);
+    redetect_every: frames between full-frame searches for new markers; max_gap: frames a
+    lost marker is searched for before its track is closed; max_step: the farthest a marker
+    may move between two frames before its speed is known; min_quality: samples below it
+    are gaps; min_length: shorter tracks are dropped; qs_iter: Gauss-Newton steps per frame.
+    """
+
+    kinds: tuple = (COG, QS)
+    roles: dict = field(default_factory=lambda: {COG: "lug", QS: "body"})
+    cog_radius: float | None = None
+    qs_half: float | None = None
+    min_contrast: float = 0.0
+    redetect_every: int = 50
+    max_gap: int = 8
+    max_step: float = 30.0
+    min_quality: float = 0.5
+    min_length: int = 5
+    qs_iter: int = 3
+
+
+class _Track:
+    __slots__ = ("uid", "kind", "size", "frames", "xs", "ys", "qs", "misses", "alive",
+                 "flux", "radius", "elong", "rms", "contrast", "params", "confirmed")
+
+    def __init__(self, uid, kind, size, frame, xy, contrast, params=None):
+        self.uid, self.kind, self.size = uid, kind, float(size)
+        self.frames, self.xs, self.ys, self.qs = [frame], [float(xy[0])], [float(xy[1])], [1.0]
+        self.misses, self.alive, self.confirmed = 0, True, False
+        self.flux = self.radius = self.elong = self.rms = None
+        self.contrast = float(contrast)
+        self.params = params
+
+    def predict(self, frame: int):
+        """Predicted (x, y) at `frame` and how far off it may be, px (None: speed unknown)."""
+        f, xs, ys = self.frames, self.xs, self.ys
+        k = frame - f[-1]
+        if len(f) >= 3 and f[-1] - f[-3] == 2:
+            vx, vy = 1.5 * xs[-1] - 2 * xs[-2] + 0.5 * xs[-3], 1.5 * ys[-1] - 2 * ys[-2] + 0.5 * ys[-3]
+            ax, ay = xs[-1] - 2 * xs[-2] + xs[-3], ys[-1] - 2 * ys[-2] + ys[-3]
+            unc = 0.3 + 0.5 * (abs(ax) + abs(ay)) * k * k + 1.5 * (k - 1)
+            return (xs[-1] + k * vx + 0.5 * k * k * ax, ys[-1] + k * vy + 0.5 * k * k * ay), unc
+        if len(f) >= 2:
+            d = f[-1] - f[-2]
+            vx, vy = (xs[-1] - xs[-2]) / d, (ys[-1] - ys[-2]) / d
+            return (xs[-1] + k * vx, ys[-1] + k * vy), 1.5 + 2.0 * (k - 1) + 0.3 * k * np.hypot(vx, vy)
+        return (xs[-1], ys[-1]), None
+
+    def add(self, frame, xy, q):
+        self.frames.append(frame)
+        self.xs.append(float(xy[0]))
+        self.ys.append(float(xy[1]))
+        self.qs.append(float(q))
+        self.misses = 0
+
+
+def _ema(old, new, a=0.2):
+    return new if old is None else (1 - a) * old + a * new
+
+
+def _score(dev, tol):
+    """1 at no deviation, 0.5 at the tolerance, 0 at twice it."""
+    return np.clip(1.0 - 0.5 * np.abs(dev) / tol, 0.0, 1.0)
+
+
+class Tracker:
+    """Stateful frame-by-frame tracker; feed frames in order with `step`, then `result`."""
+
+    def __init__(self, config: TrackerConfig | None = None):
+        self.config = config or TrackerConfig()
+        self.tracks: list[_Track] = []
+        self.frames: list[int] = []
+        self.times: list[float] = []
+        self.noise = None
+        self._n = 0
+
+    # -- helpers ---------------------------------------------------------------------------
+    def _detect(self, frame, roi=None, kinds=None):
+        cfg = self.config
+        return detect_markers(frame, kinds=kinds or cfg.kinds, cog_radius=cfg.cog_radius,
+                              qs_half=cfg.qs_half, min_contrast=cfg.min_contrast, roi=roi,
+                              noise=self.noise)
+
+    def _new_track(self, det: Detections, j: int, frame_no: int, qs_row=None):
+        params = None
+        if det.kind[j] == QS and qs_row is not None:
+            params = det.extra["qs_params"][qs_row].copy()
+        t = _Track(len(self.tracks), str(det.kind[j]), det.size[j], frame_no, det.xy[j],
+                   det.contrast[j], params)
+        self.tracks.append(t)
+        return t
+
+    # -- one frame -------------------------------------------------------------------------
+    def step(self, frame_no: int, time_s: float, frame: np.ndarray) -> None:
+        """Track the markers in one frame (frames must come in increasing order)."""
+        cfg = self.config
+        if self.noise is None:
+            self.noise = max(estimate_noise(frame), 1e-3)
+        self.frames.append(int(frame_no))
+        self.times.append(float(time_s))
+        live = [t for t in self.tracks if t.alive]
+        batch = {COG: [], QS: []}
+        search = []
+        for t in live:
+            xy, unc = t.predict(frame_no)
+            if unc is None or unc > 2.5:
+                search.append((t, xy, unc))
+            else:
+                batch[t.kind].append((t, xy, unc))
+        found = {}
+        if batch[COG]:
+            self._refine_cog(frame, frame_no, batch[COG], found)
+        if batch[QS]:
+            self._refine_qs(frame, frame_no, batch[QS], found)
+        for t, xy, unc in search:
+            self._search(frame, frame_no, t, xy, unc, found)
+        self._accept(frame_no, found)
+        if self._n % cfg.redetect_every == 0:
+            self._pick_up(frame, frame_no)
+        self._n += 1
+
+    def _refine_cog(self, frame, frame_no, items, found):
+        tracks = [it[0] for it in items]
+        pred = np.array([it[1] for it in items])
+        fit = refine_cog(frame, pred, np.array([t.size for t in tracks]), blur_px=2.0)
+        for i, t in enumerate(tracks):
+            if not np.isfinite(fit.xy[i, 0]):
+                continue
+            q = 1.0
+            if t.flux is not None:
+                q = min(_score(fit.flux[i] / t.flux - 1, 0.03), _score(fit.radius[i] / t.radius - 1, 0.03),
+                        _score(fit.elongation[i] - t.elong, 0.02))
+            d = np.hypot(*(fit.xy[i] - pred[i]))
+            if d <= 1.0 + 3.0 * items[i][2]:
+                found[t.uid] = (fit.xy[i], q, (fit.flux[i], fit.radius[i], fit.elongation[i]))
+
+    def _refine_qs(self, frame, frame_no, items, found):
+        cfg = self.config
+        tracks = [it[0] for it in items]
+        pred = np.array([it[1] for it in items])
+        unc = max(it[2] for it in items)
+        params = np.array([t.params if t.params is not None else np.zeros(N_PARAMS) for t in tracks])
+        warm = all(t.params is not None for t in tracks)
+        half = min(t.size for t in tracks)
+        fit = refine_qs(frame, pred, half, params=params if warm else None,
+                        search=0 if unc < 0.75 else int(np.ceil(unc)) + 1, n_iter=cfg.qs_iter)
+        for i, t in enumerate(tracks):
+            if not np.isfinite(fit.xy[i, 0]):
+                continue
+            q = _score(fit.contrast[i] / t.contrast - 1, 0.1)
+            if t.rms is not None:  # occlusion or a wrong fit: the residual jumps
+                q = min(q, _score(fit.rms[i] / max(t.rms, self.noise) - 1, 1.0))
+            d = np.hypot(*(fit.xy[i] - pred[i]))
+            if d <= 1.0 + 3.0 * items[i][2]:
+                found[t.uid] = (fit.xy[i], q, (fit.rms[i], fit.contrast[i], fit.params[i]))
+
+    def _search(self, frame, frame_no, t, xy, unc, found):
+        cfg = self.config
+        reach = cfg.max_step if unc is None else min(unc * 3.0 + 2.0, cfg.max_step * 2)
+        pad = reach + 2.5 * t.size + 4
+        roi = (xy[0] - pad, xy[1] - pad, xy[0] + pad + 1, xy[1] + pad + 1)
+        det = self._detect(frame, roi=roi, kinds=(t.kind,))
+        if len(det) == 0:
+            return
+        d = np.hypot(*(det.xy - np.asarray(xy)).T)
+        order = np.argsort(d)
+        j = order[0]
+        if d[j] > reach or (d.size > 1 and d[order[1]] < 1.5 * d[j] + 2.0):
+            return  # nothing there, or not clearly one marker
+        if t.kind == COG:
+            fit = refine_cog(frame, det.xy[j:j + 1], t.size, blur_px=2.0)
+            extra = (fit.flux[0], fit.radius[0], fit.elongation[0])
+            q = 1.0 if t.flux is None else min(_score(fit.flux[0] / t.flux - 1, 0.03),
+                                               _score(fit.radius[0] / t.radius - 1, 0.03))
+        else:
+            row = int(np.flatnonzero(det.kind[:j + 1] == QS).size - 1)
+            p = det.extra["qs_params"][row]
+            q = _score(p[_B] / t.contrast - 1, 0.1)
+            extra = (None, p[_B], p)
+        found[t.uid] = (det.xy[j], q, extra)
+
+    def _accept(self, frame_no, found):
+        cfg = self.config
+        uids = list(found)
+        # two tracks on one marker: neither sample can be trusted
+        if len(uids) > 1:
+            xy = np.array([found[u][0] for u in uids])
+            size = np.array([self.tracks[u].size for u in uids])
+            d = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
+            np.fill_diagonal(d, np.inf)
+            clash = (d < np.maximum(size[:, None], size[None, :])).any(axis=1)
+            for u, c in zip(uids, clash):
+                if c:
+                    del found[u]
+        for t in self.tracks:
+            if not t.alive:
+                continue
+            got = found.get(t.uid)
+            if got is None or got[1] < cfg.min_quality:
+                t.misses += 1
+                if t.misses > cfg.max_gap or (not t.confirmed and t.misses > 1):
+                    t.alive = False
+                continue
+            xy, q, extra = got
+            t.add(frame_no, xy, q)
+            if len(t.frames) >= cfg.min_length:
+                t.confirmed = True
+            if t.kind == COG:
+                t.flux, t.radius = _ema(t.flux, extra[0]), _ema(t.radius, extra[1])
+                t.elong = _ema(t.elong, extra[2])
+            else:
+                if extra[0] is not None:
+                    t.rms = _ema(t.rms, extra[0])
+                t.contrast = _ema(t.contrast, extra[1])
+                t.params = extra[2]
+
+    def _pick_up(self, frame, frame_no):
+        det = self._detect(frame)
+        if len(det) == 0:
+            return
+        qs_rows = np.cumsum(det.kind == QS) - 1
+        live = [t for t in self.tracks if t.alive]
+        for j in range(len(det)):
+            near = False
+            for t in live:
+                if t.kind != det.kind[j]:
+                    continue
+                if t.frames[-1] == frame_no:
+                    near = np.hypot(t.xs[-1] - det.xy[j, 0], t.ys[-1] - det.xy[j, 1]) < 2 * t.size
+                else:
+                    (px, py), unc = t.predict(frame_no)
+                    near = np.hypot(px - det.xy[j, 0], py - det.xy[j, 1]) < 2 * t.size + 3 * (unc or 0)
+                if near:
+                    break
+            if not near:
+                self._new_track(det, j, frame_no, qs_rows[j] if det.kind[j] == QS else None)
+
+    # -- the outcome -----------------------------------------------------------------------
+    def result(self) -> "TrackResult":
+        """The confirmed tracks as arrays, ids given by role in order of first appearance."""
+        cfg = self.config
+        frames = np.asarray(self.frames, dtype=np.int64)
+        keep = [t for t in self.tracks if len(t.frames) >= cfg.min_length]
+        keep.sort(key=lambda t: (t.frames[0], t.xs[0]))
+        pos = {f: i for i, f in enumerate(self.frames)}
+        xy = np.full((frames.size, len(keep), 2), np.nan)
+        quality = np.full((frames.size, len(keep)), np.nan)
+        counters = {"body": 0, "lug": 0}
+        ids, roles, kinds = [], [], []
+        for m, t in enumerate(keep):
+            rows = [pos[f] for f in t.frames]
+            xy[rows, m, 0], xy[rows, m, 1] = t.xs, t.ys
+            quality[rows, m] = t.qs
+            role = cfg.roles.get(t.kind, "lug" if t.kind == COG else "body")
+            counters[role] += 1
+            ids.append(f"C{counters[role]}" if role == "body" else f"B{counters[role]:02d}")
+            roles.append(role)
+            kinds.append(t.kind)
+        return TrackResult(ids, roles, kinds, frames, np.asarray(self.times), xy, quality)
+
+
+@dataclass
+class TrackResult:
+    """Tracked markers: `markers` ids (body C1, C2, ...; lug B01, B02, ...), `roles`,
+    `kinds` ('cog'/'qs'), `frames` (F,) frame numbers, `times` (F,) s, `xy_px` (F, M, 2)
+    image positions (NaN: a gap), `quality` (F, M) in [0, 1] (NaN: a gap)."""
+
+    markers: list
+    roles: list
+    kinds: list
+    frames: np.ndarray
+    times: np.ndarray
+    xy_px: np.ndarray
+    quality: np.ndarray
+
+    @property
+    def detection_rate(self) -> np.ndarray:
+        """(M,) fraction of frames from each marker's first to its last sample with a sample."""
+        ok = np.isfinite(self.xy_px[..., 0])
+        out = np.zeros(ok.shape[1])
+        for m in range(ok.shape[1]):
+            idx = np.flatnonzero(ok[:, m])
+            out[m] = idx.size / (idx[-1] - idx[0] + 1) if idx.size else 0.0
+        return out
+
+
+def track_frames(frames, *, config: TrackerConfig | None = None, total: int | None = None,
+                 progress: bool = False) -> TrackResult:
+    """Track markers through `frames`, an iterable of (frame_number, time_s, image (H, W)).
+
+    total: number of frames (for the progress bar); progress: show a bar on stderr (only
+    when stderr is a terminal).
+    """
+    tracker = Tracker(config)
+    if progress:
+        import sys
+
+        from tqdm.auto import tqdm
+
+        frames = tqdm(frames, total=total, desc="track", unit="frame", file=sys.stderr,
+                      disable=not sys.stderr.isatty())
+    for number, time_s, image in frames:
+        tracker.step(number, time_s, image)
+    return tracker.result()
