@@ -1,0 +1,82 @@
+"""The `fit-lug` command: a thin layer over the library.
+
+``fit-lug trajectories.csv [...]`` fits a recording (the default sub-command);
+``fit-lug SUBCOMMAND ...`` runs one of the others. Each sub-command lives in its own
+module ``fitlug.cli._<name>`` with ``add_arguments(parser)`` and ``run(args) -> int``,
+imported only when it is used so that start-up stays cheap.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from .._version import __version__
+
+# name -> (module, one-line help)
+SUBCOMMANDS = {
+    "fit": ("_fit", "fit a recording (trajectories.csv) and write fit.json and the report"),
+    "simulate": ("_simulate", "write a simulated recording (and optionally its video)"),
+    "report": ("_report", "rebuild report.html from a fit folder"),
+    "track": ("_track", "track the markers in a video, frame folder or .cine file"),
+    "calibrate": ("_calibrate", "calibrate the camera from board images -> calib.json"),
+    "noise": ("_noise", "measurement noise per marker type from a stationary recording"),
+}
+
+
+def _build_parser(name: str) -> argparse.ArgumentParser:
+    module, help_ = SUBCOMMANDS[name]
+    prog = "fit-lug" if name == "fit" else f"fit-lug {name}"
+    parser = argparse.ArgumentParser(prog=prog, description=help_)
+    parser.add_argument("--version", action="version", version=f"fitlug {__version__}")
+    mod = importlib.import_module(f"{__name__}.{module}")
+    mod.add_arguments(parser)
+    return parser, mod
+
+
+def _top_help() -> str:
+    lines = [
+        "usage: fit-lug TRAJECTORIES.csv [--rig RIG] [--out DIR] [options]",
+        "       fit-lug SUBCOMMAND [options]",
+        "",
+        "Measure and explain the slippage of a rubber track from marker trajectories.",
+        "",
+        "sub-commands:",
+    ]
+    for name, (_, help_) in SUBCOMMANDS.items():
+        lines.append(f"  {name:<10} {help_}")
+    lines += ["", "`fit-lug SUBCOMMAND --help` (or `fit-lug fit --help`) for the options of each.",
+              "options: -h/--help, --version"]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of `fit-lug`; returns the process exit status."""
+    from .._errors import FitlugError
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in ("-h", "--help"):
+        print(_top_help())
+        return 0 if argv else 2
+    if argv[0] == "--version":
+        print(f"fitlug {__version__}")
+        return 0
+    if argv[0] in SUBCOMMANDS:
+        name, rest = argv[0], argv[1:]
+    else:
+        name, rest = "fit", argv
+    parser, mod = _build_parser(name)
+    args = parser.parse_args(rest)
+    try:
+        return int(mod.run(args) or 0)
+    except FitlugError as exc:
+        print(f"fit-lug: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("fit-lug: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
