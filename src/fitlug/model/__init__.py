@@ -1,0 +1,23 @@
+"""The differentiable track model (MODEL.md §2) and its catalog of extensions (§3)."""
+
+from ._model import (
+    Layout as Layout,
+    default_params as default_params,
+    hermite as hermite,
+    integrate as integrate,
+    kinematics as kinematics,
+    make_layout as make_layout,
+    param_names as param_names,
+    predict as predict,
+    segments as segments,
+    slip_law as slip_law,
+    steady_slip as steady_slip,
+)
+from ._path import belt_length as belt_length, stadium as stadium
+from ._physics import (
+    delta_l as delta_l,
+    physical as physical,
+    reference_slip as reference_slip,
+)
+from ._knots import place_knots as place_knots
+from .effects import CATALOG as CATALOG, Effect as Effect
