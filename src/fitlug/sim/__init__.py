@@ -1,0 +1,11 @@
+"""Simulated recordings with known truth (MODEL.md §2 and any catalog effects)."""
+
+from ._profile import speed_profile as speed_profile
+from ._scenario import REFERENCE_SLIP as REFERENCE_SLIP, Scenario as Scenario
+from ._simulate import (
+    rig_of as rig_of,
+    scenario_from_json as scenario_from_json,
+    simulate as simulate,
+    truth_params as truth_params,
+    write_simulation as write_simulation,
+)
