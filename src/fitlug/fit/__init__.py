@@ -1,0 +1,15 @@
+"""Least-squares fit (optimistix) and posterior (emcee) of the track model."""
+
+from ._fit import (
+    fit as fit,
+    fit_problem as fit_problem,
+    free_parameters as free_parameters,
+    refit_noise as refit_noise,
+    residual_noise as residual_noise,
+    reweighted as reweighted,
+)
+from ._lsq import covariance as covariance, least_squares as least_squares, residuals as residuals
+from ._noise import estimate_noise as estimate_noise
+from ._posterior import Posterior as Posterior, sample_posterior as sample_posterior
+from ._problem import Problem as Problem, build_problem as build_problem
+from ._result import Estimate as Estimate, FitResult as FitResult, derived as derived

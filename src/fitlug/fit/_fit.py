@@ -1,0 +1,106 @@
+"""The least-squares fit of a recording: one verb, one structured result."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+from .._errors import FitError
+from ..model import param_names
+from ..model.effects import CATALOG
+from ._lsq import covariance, least_squares
+from ._noise import fourth_differences, noise_from_differences
+from ._problem import Problem, build_problem
+from ._result import FitResult, compute_quantities
+
+
+def free_parameters(lay) -> list[str]:
+    """All parameters of the layout except those its effects hold fixed in fits."""
+    fixed = {k for e in lay.effects for k in CATALOG[e].fixed_in_fit}
+    return [k for k in param_names(lay) if k not in fixed]
+
+
+def fit_problem(prob: Problem, p_start: dict | None = None, *, free=None, max_steps: int = 300,
+                require_convergence: bool = True) -> FitResult:
+    """Fit `prob` from `p_start` (default: the data-derived start) by Levenberg-Marquardt.
+
+    Raises FitError when the solver does not converge (unless require_convergence=False,
+    in which case the result says converged=False).
+    """
+    p0 = dict(prob.p0 if p_start is None else p_start)
+    free = free_parameters(prob.lay) if free is None else list(free)
+    out = least_squares(p0, free, prob.lay, prob.obs, max_steps=max_steps)
+    chi2 = float(np.sum(out.r ** 2))
+    n_data = prob.n_valid
+    cov = covariance(out.J)
+    fixed = {k: v for k, v in out.params.items() if k not in out.packing.names}
+    q = compute_quantities(out.params, out.packing, out.flat, cov, prob.lay, prob.rig.mass_kg,
+                           fixed)
+    res = FitResult(problem=prob, params={k: np.asarray(v) for k, v in out.params.items()},
+                    packing=out.packing, flat=out.flat, cov=cov, residuals=out.r, chi2=chi2,
+                    dof=n_data - len(out.flat), converged=out.converged, steps=out.steps,
+                    quantities=q)
+    if require_convergence and not (out.converged and np.isfinite(chi2)):
+        raise FitError(f"{prob.rec.path or 'recording'}: the least-squares fit did not converge "
+                       f"after {out.steps} steps (chi2/dof = {res.chi2_per_dof:.3g}); "
+                       "check the marker roles and the rig file")
+    return res
+
+
+def residual_noise(res: FitResult) -> dict:
+    """Noise per role from 4th differences of the fit's (unweighted) residuals per marker.
+
+    The model removes the path's curvature jumps that bias the raw-data estimate, and
+    4th differences remove any slow misfit, so this measures the noise alone.
+    """
+    prob = res.problem
+    w = np.concatenate([np.asarray(prob.obs[k]) for k in ("lug_w", "lug_w", "body_w", "body_w")])
+    raw = np.where(w > 0, res.residuals / np.where(w > 0, w, 1.0), np.nan)
+    S_l, S_b = len(prob.lug_rows), len(prob.body_rows)
+    parts = {"lug": (raw[:S_l], raw[S_l:2 * S_l], np.asarray(prob.lay.lug_i),
+                     np.asarray(prob.lay.lug_t)),
+             "body": (raw[2 * S_l:2 * S_l + S_b], raw[2 * S_l + S_b:],
+                      np.asarray(prob.lay.body_j), np.asarray(prob.lay.body_t))}
+    out = {}
+    for role, (rx, ry, idx, t) in parts.items():
+        diffs = []
+        for m in np.unique(idx):
+            sel = (idx == m) & np.isfinite(rx)
+            for v in (rx[sel], ry[sel]):
+                diffs.append(fourth_differences(t[sel], v))
+        out[role] = noise_from_differences(diffs)[0]
+    return out
+
+
+def reweighted(prob: Problem, noise: dict) -> Problem:
+    """The same problem with per-role noise `noise` in its weights."""
+    obs = dict(prob.obs)
+    for role, key in (("lug", "lug_w"), ("body", "body_w")):
+        obs[key] = jnp.where(obs[key] > 0, 1.0 / noise[role], 0.0)
+    return Problem(**{**prob.__dict__, "obs": obs, "noise": dict(noise),
+                      "noise_source": "residual differences"})
+
+
+def fit(rec, rig=None, *, effects=(), noise: dict | None = None, **kw) -> FitResult:
+    """Fit the base model (plus `effects`) to a recording; see :func:`fit_problem`.
+
+    Without a sigma_mm column or a given `noise`, the noise per role is re-estimated
+    from the first fit's residuals and the fit repeated with those weights.
+    """
+    from ..io import Rig
+
+    rig = Rig.reference() if rig is None else rig
+    prob = build_problem(rec, rig, effects=effects, noise=noise)
+    res = fit_problem(prob, **kw)
+    if noise is None and prob.noise_source == "differences":
+        res = refit_noise(res, **kw)
+    return res
+
+
+def refit_noise(res: FitResult, **kw) -> FitResult:
+    """Re-estimate the noise from `res`'s residuals and refit from its parameters."""
+    new = residual_noise(res)
+    if not all(np.isfinite(v) and v > 0 for v in new.values()):
+        return res
+    kw.pop("p_start", None)
+    return fit_problem(reweighted(res.problem, new), p_start=res.params, **kw)

@@ -1,0 +1,162 @@
+"""Initial estimates from the data itself, so no hand-tuned start is ever needed.
+
+1. Body reference X(t): body markers' x minus their position at t = 0, averaged.
+2. Geometry from the lug tracks relative to the body: the y extremes give the bottom and
+   top runs (2R + 2e apart), the x extremes the arcs (D/2 + R + e from the middle);
+   R alone from timing: on the straight top run markers move at the belt speed v_t,
+   on the arcs they turn at v_t / R about the wheel centres.
+3. Belt length P = 2D + 2 pi R, lugs on the belt N = round(P / pitch).
+4. Belt coordinate u of every lug sample by projection onto the stadium; the slip s and
+   each marker's sigma_0 by a 1-D search: u = sigma_0 + X(t) / (1 - s) (mod P) must hold
+   for one sigma_0 per marker.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._errors import InputError
+
+
+def body_reference(rec, body_ids):
+    """(times, X) at the body markers' unique times, and their offsets (cx, cy)."""
+    tracks = []
+    cx, cy = [], []
+    for m in body_ids:
+        sel = (rec.marker_index == m) & np.isfinite(rec.x) & np.isfinite(rec.y)
+        t, x, y = rec.t[sel], rec.x[sel], rec.y[sel]
+        if len(t) < 2:
+            raise InputError(rec.path, f"body marker {rec.markers[m]} has fewer than 2 valid samples")
+        c = float(np.interp(0.0, t, x))
+        tracks.append((t, x - c))
+        cx.append(c)
+        cy.append(float(np.median(y)))
+    tu = np.unique(np.concatenate([t for t, _ in tracks]))
+    acc = np.zeros_like(tu)
+    cnt = np.zeros_like(tu)
+    for t, xr in tracks:
+        idx = np.searchsorted(tu, t)
+        acc[idx] += xr
+        cnt[idx] += 1
+    X = acc / np.maximum(cnt, 1)
+    return tu, X, np.array(cx), np.array(cy)
+
+
+def _project(px, py, R, D, e):
+    """Belt coordinate u of relative points (px, py) on the stadium (mm)."""
+    u = np.empty_like(px)
+    front = px > D / 2
+    rear = px < -D / 2
+    mid = ~(front | rear)
+    phi_f = np.mod(np.arctan2(px[front] - D / 2, py[front] - R), 2 * np.pi)
+    u[front] = 2 * D + np.pi * R + R * np.clip(phi_f, 0, np.pi)
+    phi_r = np.mod(np.arctan2(-D / 2 - px[rear], R - py[rear]), 2 * np.pi)
+    u[rear] = D + R * np.clip(phi_r, 0, np.pi)
+    top = mid & (py > R)
+    bot = mid & ~top
+    u[bot] = D / 2 - px[bot]
+    u[top] = D + np.pi * R + px[top] + D / 2
+    return u
+
+
+def _rate(t, v):
+    """Finite-difference rate of consecutive samples of one track (NaN across gaps)."""
+    dt = np.diff(t)
+    r = np.full(len(t), np.nan)
+    ok = dt > 0
+    mid = np.where(ok, np.diff(v) / np.where(ok, dt, 1), np.nan)
+    r[1:-1] = 0.5 * (mid[:-1] + mid[1:])
+    return r
+
+
+def lug_geometry(rec, lug_ids, tX, X):
+    """Estimates R, D, e, x_off, y_off from the lug tracks (mm)."""
+    rel = []
+    for m in lug_ids:
+        sel = (rec.marker_index == m) & np.isfinite(rec.x) & np.isfinite(rec.y)
+        t = rec.t[sel]
+        rel.append((m, t, rec.x[sel] - np.interp(t, tX, X), rec.y[sel]))
+    allx = np.concatenate([r[2] for r in rel])
+    ally = np.concatenate([r[3] for r in rel])
+    if len(allx) < 10:
+        raise InputError(rec.path, "too few valid lug-marker samples to fit the track")
+    ylo, yhi = np.percentile(ally, [0.5, 99.5])
+    xlo, xhi = np.percentile(allx, [0.2, 99.8])
+    rho = (yhi - ylo) / 2  # R + e
+    x_off = (xlo + xhi) / 2
+    half = (xhi - xlo) / 2
+    D = 2 * (half - rho)
+    yc = ylo + rho  # wheel centres' height
+    # R from timing: arcs turn at v_t / R, the top run moves at v_t
+    t_top, v_top, t_arc, w_arc = [], [], [], []
+    for _, t, xr, y in rel:
+        px, py = xr - x_off, y - yc
+        vx = _rate(t, px)
+        top = (np.abs(px) < 0.4 * D) & (py > 0.8 * rho)
+        t_top.append(t[top])
+        v_top.append(vx[top])
+        for sgn in (1, -1):
+            arc = sgn * px > D / 2 + 0.2 * rho
+            ang = np.unwrap(np.arctan2(sgn * (px - sgn * D / 2), py))
+            w = np.abs(_rate(t, ang))
+            # only consecutive arc samples
+            w[~arc] = np.nan
+            w[1:-1][~(arc[:-2] & arc[2:])] = np.nan
+            t_arc.append(t)
+            w_arc.append(w)
+    t_top, v_top = np.concatenate(t_top), np.concatenate(v_top)
+    t_arc, w_arc = np.concatenate(t_arc), np.concatenate(w_arc)
+    ok = np.isfinite(v_top)
+    R = rho
+    if ok.sum() > 10 and np.isfinite(w_arc).sum() > 10:
+        order = np.argsort(t_top[ok])
+        ts, vs = t_top[ok][order], v_top[ok][order]
+        # smooth belt speed in time (running median over ~0.1 s)
+        vt = np.interp(t_arc, ts, vs)
+        good = np.isfinite(w_arc) & (vt > 0.3 * np.nanmax(vs)) & (w_arc > 0)
+        if good.sum() > 10:
+            R = float(np.median(vt[good] / w_arc[good]))
+            R = float(np.clip(R, 0.5 * rho, 1.2 * rho))
+    e = rho - R
+    return {"R": R, "D": D, "e": e, "x_off": x_off, "y_off": ylo + e}, rel
+
+
+def slip_and_phases(rel, geom, tX, X, P):
+    """(s, sigma0 per lug marker) by a 1-D search on the belt-coordinate consistency."""
+    us = []
+    for _, t, xr, y in rel:
+        u = _project(xr - geom["x_off"], y - geom["y_off"], geom["R"], geom["D"], geom["e"])
+        us.append((t, u))
+
+    def spread(s):
+        tot = 0.0
+        phases = []
+        for t, u in us:
+            z = np.exp(2j * np.pi * (u - np.interp(t, tX, X) / (1 - s)) / P)
+            mz = z.mean()
+            tot += 1 - abs(mz)
+            phases.append(np.angle(mz))
+        return tot, phases
+
+    grid = np.linspace(-0.1, 0.5, 241)
+    vals = [spread(s)[0] for s in grid]
+    k = int(np.argmin(vals))
+    lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
+    fine = np.linspace(lo, hi, 41)
+    s = float(fine[int(np.argmin([spread(x)[0] for x in fine]))])
+    phases = spread(s)[1]
+    sigma0 = np.mod(np.array(phases) * P / (2 * np.pi), P)
+    return s, sigma0
+
+
+def infer_n_belt(P: float, pitch: float | None, sigma0: np.ndarray) -> int:
+    """Lugs on the belt: from the rig's pitch, else the smallest common marker spacing."""
+    if pitch is not None:
+        return max(int(round(P / pitch)), 1)
+    if len(sigma0) < 2:
+        return max(int(round(P / 18.0)), 1)
+    d = sigma0 - sigma0[0]
+    for N in range(4, 200):
+        if np.all(np.abs(np.mod(d * N / P + 0.5, 1) - 0.5) < 0.08):
+            return N
+    return max(int(round(P / 18.0)), 1)

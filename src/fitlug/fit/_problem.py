@@ -1,0 +1,190 @@
+"""A recording and a rig turned into a model layout, observations and a starting point."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import jax.numpy as jnp
+import numpy as np
+
+from .._errors import InputError
+from ..model import belt_length, make_layout, param_names, place_knots
+from ..model._model import BASE_SCALARS, default_params
+from ..model.effects import CATALOG
+from . import _init
+from ._noise import estimate_noise
+
+MIN_FRAMES = 20
+
+
+@dataclass
+class Problem:
+    """Everything a fit of one recording needs; built by :func:`build_problem`."""
+
+    rec: object  # fitlug.io.Recording
+    rig: object  # fitlug.io.Rig
+    lay: object  # fitlug.model.Layout
+    obs: dict  # lug_x, lug_y, lug_w, body_x, body_y, body_w (jnp arrays; w = valid / sigma)
+    lug_ids: list  # marker indices (into rec.markers) of lug index 0..n_lug-1
+    body_ids: list
+    lug_rows: np.ndarray  # rows of rec for each lug sample of the layout
+    body_rows: np.ndarray
+    noise: dict  # role -> sigma (mm) used in the weights
+    noise_source: str  # 'differences' | 'sigma_mm column' | 'residuals'
+    p0: dict  # starting parameters
+    init_info: dict = field(default_factory=dict)
+
+    @property
+    def n_valid(self) -> int:
+        return int(2 * (np.sum(np.asarray(self.obs["lug_w"]) > 0)
+                        + np.sum(np.asarray(self.obs["body_w"]) > 0)))
+
+    @property
+    def effects(self) -> tuple:
+        return self.lay.effects
+
+    def with_effects(self, effects, params: dict | None = None) -> tuple["Problem", dict]:
+        """The same problem under another effect set, and params extended with identities."""
+        lay = self.lay.with_effects(effects)
+        base = dict(self.p0 if params is None else params)
+        p = {k: v for k, v in base.items() if k in _BASE_KEYS}
+        p.update(default_params(lay))
+        p.update({k: v for k, v in base.items() if k in p})
+        prob = Problem(**{**self.__dict__, "lay": lay})
+        return prob, p
+
+
+_BASE_KEYS = {"v", *BASE_SCALARS, "sigma0", "cx", "cy"}
+
+
+def _rows(rec, ids):
+    sel = np.isin(rec.marker_index, ids)
+    rows = np.flatnonzero(sel)
+    return rows
+
+
+def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem:
+    """Validate a recording for fitting and build its :class:`Problem`.
+
+    Raises InputError (naming the file) for: no body or no lug markers, too few frames,
+    fewer valid samples than parameters.
+    """
+    path = rec.path
+    body_ids = [m for m, r in enumerate(rec.roles) if r == "body"]
+    lug_ids = [m for m, r in enumerate(rec.roles) if r == "lug"]
+    if not body_ids:
+        raise InputError(path, "no body markers (role 'body'): the body position X(t) "
+                               "cannot be measured")
+    if not lug_ids:
+        raise InputError(path, "no lug markers (role 'lug'): nothing measures the belt")
+    valid = np.isfinite(rec.x) & np.isfinite(rec.y)
+    frames = np.unique(rec.t[valid])
+    if len(frames) < MIN_FRAMES:
+        raise InputError(path, f"only {len(frames)} frames with valid samples; "
+                               f"at least {MIN_FRAMES} are needed")
+    fps = _fps(rec, frames)
+
+    tX, X, cx, cy = _init.body_reference(rec, body_ids)
+    geom, rel = _init.lug_geometry(rec, lug_ids, tX, X)
+    P = float(belt_length(geom["R"], geom["D"]))
+    s, sigma0 = _init.slip_and_phases(rel, geom, tX, X, P)
+    N = _init.infer_n_belt(P, rig.lug_pitch_mm, sigma0)
+
+    t_all = rec.t[valid]
+    t_lo = min(0.0, float(t_all.min())) - 3.0 / fps
+    t_hi = float(t_all.max()) + 3.0 / fps
+    breaks = place_knots(tX, X, t_lo=t_lo, t_hi=t_hi, R=geom["R"], pitch=P / N, slip=s)
+
+    lug_rows = _rows(rec, lug_ids)
+    body_rows = _rows(rec, body_ids)
+    lug_index = {m: i for i, m in enumerate(lug_ids)}
+    body_index = {m: j for j, m in enumerate(body_ids)}
+    lay = make_layout(
+        breaks=breaks, t_lo=t_lo, t_hi=t_hi, fps=fps, lug_t=rec.t[lug_rows],
+        lug_i=np.array([lug_index[m] for m in rec.marker_index[lug_rows]]),
+        body_t=rec.t[body_rows],
+        body_j=np.array([body_index[m] for m in rec.marker_index[body_rows]]),
+        n_lug=len(lug_ids), n_body=len(body_ids), n_belt=N,
+        n_contact=rig.lugs_in_contact, L=rig.load_bearing_length_mm, effects=effects)
+
+    # noise: the file's sigma_mm column, else from the data's 4th differences
+    if rec.sigma is not None and np.all(np.isfinite(rec.sigma[valid])):
+        src = "sigma_mm column"
+        sig = np.asarray(rec.sigma, float)
+        noise = {r: float(np.median(sig[valid & np.isin(rec.marker_index, ids)]))
+                 for r, ids in (("body", body_ids), ("lug", lug_ids))}
+        w_l, w_b = 1.0 / sig[lug_rows], 1.0 / sig[body_rows]
+    else:
+        src = "given" if noise else "differences"
+        noise = dict(noise or estimate_noise(rec))
+        for role in ("body", "lug"):
+            if not np.isfinite(noise.get(role, np.nan)) or noise[role] <= 0:
+                raise InputError(path, f"cannot estimate the {role}-marker noise (too few "
+                                       "consecutive samples); add a sigma_mm column")
+        w_l = np.full(len(lug_rows), 1.0 / noise["lug"])
+        w_b = np.full(len(body_rows), 1.0 / noise["body"])
+    vl, vb = valid[lug_rows], valid[body_rows]
+    obs = {
+        "lug_x": np.where(vl, rec.x[lug_rows], 0.0), "lug_y": np.where(vl, rec.y[lug_rows], 0.0),
+        "lug_w": np.where(vl, w_l, 0.0),
+        "body_x": np.where(vb, rec.x[body_rows], 0.0),
+        "body_y": np.where(vb, rec.y[body_rows], 0.0), "body_w": np.where(vb, w_b, 0.0),
+    }
+    obs = {k: jnp.asarray(v, float) for k, v in obs.items()}
+
+    coef, cx = _init_speed(lay, obs, cx)
+    p0 = {"v": coef, "s0": s, "beta": 0.0, **geom, "sigma0": sigma0, "cx": cx, "cy": cy}
+    p0 = {k: jnp.asarray(v, float) for k, v in p0.items()}
+    p0.update(default_params(lay))
+    n_par = sum(int(np.size(p0[k])) for k in param_names(lay))
+    valid_count = int(2 * vl.sum() + 2 * vb.sum())
+    if valid_count <= n_par:
+        raise InputError(path, f"fewer valid samples ({valid_count} coordinates) than "
+                               f"parameters ({n_par})")
+    info = {"fps": fps, "n_belt": N, "breaks": breaks, "geometry0": geom, "slip0": s}
+    return Problem(rec=rec, rig=rig, lay=lay, obs=obs, lug_ids=lug_ids, body_ids=body_ids,
+                   lug_rows=lug_rows, body_rows=body_rows, noise=noise, noise_source=src,
+                   p0=p0, init_info=info)
+
+
+def _fps(rec, frames):
+    fps = None
+    try:
+        fps = float(rec.meta.get("fps")) if rec.meta.get("fps") else None
+    except (TypeError, ValueError):
+        fps = None
+    if not fps or not np.isfinite(fps) or fps <= 0:
+        d = np.diff(frames)
+        fps = 1.0 / float(np.median(d[d > 0]))
+    return fps
+
+
+def _init_speed(lay, obs, cx0):
+    """Speed-spline coefficients and cx by linear least squares on the body x samples."""
+    Bn, Bm = np.asarray(lay.Bn), np.asarray(lay.Bm)
+    h = lay.h
+    # integrated basis at nodes (Simpson, cumulative), then Hermite at the body times
+    I = np.vstack([np.zeros(Bn.shape[1]), np.cumsum(h / 6 * (Bn[:-1] + 4 * Bm + Bn[1:]), 0)])
+    grid = np.asarray(lay.grid)
+
+    def herm(t):
+        u = (t - grid[0]) / h
+        i = np.clip(np.floor(u).astype(int), 0, len(grid) - 2)
+        tau = (u - i)[:, None]
+        t2, t3 = tau * tau, tau ** 3
+        return ((2 * t3 - 3 * t2 + 1) * I[i] + (t3 - 2 * t2 + tau) * h * Bn[i]
+                + (-2 * t3 + 3 * t2) * I[i + 1] + (t3 - t2) * h * Bn[i + 1])
+
+    tb = np.asarray(lay.body_t)
+    A = herm(tb) - herm(np.zeros(1))
+    w = np.asarray(obs["body_w"])
+    J = np.asarray(lay.body_j)
+    C = np.zeros((len(tb), lay.n_body))
+    C[np.arange(len(tb)), J] = 1.0
+    M = np.hstack([A, C]) * w[:, None]
+    sol = np.linalg.lstsq(M, np.asarray(obs["body_x"]) * w, rcond=None)[0]
+    return sol[:A.shape[1]], sol[A.shape[1]:]
+
+
+def effect_ids(effects) -> tuple:
+    return tuple(e for e in CATALOG if e in set(effects))

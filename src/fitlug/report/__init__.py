@@ -1,0 +1,3 @@
+"""Reports: fit.json for machines, report.html with plots for people."""
+
+from ._fitjson import fit_json as fit_json
