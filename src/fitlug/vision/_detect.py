@@ -85,17 +85,10 @@ def _find_cog(img, noise, r_range, min_contrast):
 
 def ring_profiles(img, centres, radii, n_angles=32):
     """Grey levels on circles: (K, R, n_angles), bilinear; NaN outside the image."""
-    h, w = img.shape
     phi = 2 * np.pi * np.arange(n_angles) / n_angles
     px = centres[:, 0, None, None] + radii[None, :, None] * np.cos(phi)
     py = centres[:, 1, None, None] + radii[None, :, None] * np.sin(phi)
-    x0, y0 = np.floor(px).astype(np.int64), np.floor(py).astype(np.int64)
-    fx, fy = px - x0, py - y0
-    ok = (x0 >= 0) & (y0 >= 0) & (x0 < w - 1) & (y0 < h - 1)
-    x0, y0 = np.clip(x0, 0, w - 2), np.clip(y0, 0, h - 2)
-    v = (img[y0, x0] * (1 - fx) * (1 - fy) + img[y0, x0 + 1] * fx * (1 - fy)
-         + img[y0 + 1, x0] * (1 - fx) * fy + img[y0 + 1, x0 + 1] * fx * fy)
-    return np.where(ok, v, np.nan)
+    return ring_like(img, px, py)
 
 
 def checker_pattern(profiles):
@@ -155,6 +148,59 @@ def _find_qs(img, noise, qs_half, min_contrast, max_candidates=200):
     return cand[good], half[good], vals[top][good]
 
 
+def measure_qs_half(img, xy, angle, half_guess, noise):
+    """Half side (M,) px of QS markers at known centres: where the grey level crosses half
+    way between each quarter and the surface around it, on lines through the middles of
+    the quarters (NaN where the marker does not stand out from its surroundings)."""
+    h0 = np.asarray(half_guess, dtype=np.float64).reshape(-1, 1)
+    t = np.linspace(-1.5, 1.5, 241)[None, :] * h0  # along a line, px
+    est = []
+    for axis in (0, 1):  # lines along u (x), then along v (y)
+        for side in (-0.5, 0.5):
+            for k in (-1.0, 0.0, 1.0):
+                off = side * h0 + k  # the line's distance from the centre, px
+                u, v = (t, off + 0 * t) if axis == 0 else (off + 0 * t, t)
+                c, s_ = np.cos(angle)[:, None], np.sin(angle)[:, None]
+                px = xy[:, 0, None] + c * u - s_ * v
+                py = xy[:, 1, None] + s_ * u + c * v
+                prof = ring_like(img, px, py)
+                for sign in (-1, 1):
+                    sel = lambda lo, hi: (sign * t >= lo * h0) & (sign * t <= hi * h0)
+                    quad = np.nanmedian(np.where(sel(0.3, 0.8), prof, np.nan), axis=1)
+                    bg = np.nanmedian(np.where(sel(1.25, 1.5), prof, np.nan), axis=1)
+                    mid = 0.5 * (quad + bg)
+                    d = (prof - mid[:, None]) * np.sign(quad - bg)[:, None]
+                    # last sample inside (d > 0) going outwards from the middle of the quarter
+                    inner = np.where(sel(0.3, 1.5) & (d > 0), sign * t, -np.inf).max(axis=1)
+                    est_side = np.full(xy.shape[0], np.nan)
+                    for i in range(xy.shape[0]):
+                        if not np.isfinite(inner[i]) or abs(quad[i] - bg[i]) < 6 * noise:
+                            continue
+                        j = np.argmin(np.abs(sign * t[i] - inner[i]))
+                        j2 = j + sign
+                        if 0 <= j2 < t.shape[1] and d[i, j] > 0 >= d[i, j2]:
+                            f = d[i, j] / (d[i, j] - d[i, j2])
+                            est_side[i] = abs(t[i, j] + f * (t[i, j2] - t[i, j]))
+                    est.append(est_side)
+    est = np.array(est)
+    ok = np.isfinite(est).sum(axis=0) >= 4
+    out = np.full(xy.shape[0], np.nan)
+    out[ok] = np.nanmedian(est[:, ok], axis=0)
+    return out
+
+
+def ring_like(img, px, py):
+    """Bilinear grey levels at points (px, py) of any shape; NaN outside the image."""
+    h, w = img.shape
+    x0, y0 = np.floor(px).astype(np.int64), np.floor(py).astype(np.int64)
+    fx, fy = px - x0, py - y0
+    ok = (x0 >= 0) & (y0 >= 0) & (x0 < w - 1) & (y0 < h - 1)
+    x0, y0 = np.clip(x0, 0, w - 2), np.clip(y0, 0, h - 2)
+    v = (img[y0, x0] * (1 - fx) * (1 - fy) + img[y0, x0 + 1] * fx * (1 - fy)
+         + img[y0 + 1, x0] * (1 - fx) * fy + img[y0 + 1, x0 + 1] * fx * fy)
+    return np.where(ok, v, np.nan)
+
+
 def _suppress(xy, score, radius):
     """Keep the strongest of candidates closer than `radius` to each other."""
     order = np.argsort(score)[::-1]
@@ -167,15 +213,19 @@ def _suppress(xy, score, radius):
 
 def detect_markers(frame: np.ndarray, *, kinds=(COG, QS), cog_radius=None, qs_half=None,
                    cog_radius_range=(3.5, 40.0), min_contrast: float = 0.0, roi=None,
-                   noise: float | None = None) -> Detections:
+                   noise: float | None = None, scale: int = 1) -> Detections:
     """Find and refine COG and QS markers in a frame.
 
     frame: (H, W) grey image; kinds: which marker types to look for; cog_radius: disc
     radius px if known (else any in cog_radius_range); qs_half: half side of the checkers
     px if known (else measured); min_contrast: least marker contrast, grey levels (the
     default threshold is 8x the noise); roi: (x0, y0, x1, y1) px to search only there;
-    noise: pixel noise std if known. Returns Detections in full-frame pixels.
+    noise: pixel noise std if known; scale: search on the frame shrunk by this factor
+    (1 or 2; faster, for markers of known size), refine at full resolution.
+    Returns Detections in full-frame pixels.
     """
+    import cv2
+
     x0 = y0 = 0
     img = frame
     if roi is not None:
@@ -189,34 +239,47 @@ def detect_markers(frame: np.ndarray, *, kinds=(COG, QS), cog_radius=None, qs_ha
     if noise is None:
         noise = estimate_noise(img)
     off = np.array([x0, y0], dtype=np.float64)
+    search, k = img, 1.0
+    if scale > 1 and min(img.shape) >= 16 * scale:
+        k = float(int(scale))
+        search = cv2.resize(img, (img.shape[1] // int(k), img.shape[0] // int(k)),
+                            interpolation=cv2.INTER_AREA)
+    # a search pixel (i, j) covers full pixels k i .. k i + k - 1: its centre is k i + (k-1)/2
+    to_full = lambda xy: xy * k + 0.5 * (k - 1) + off  # noqa: E731
+    s_noise = noise / k
     xy_l, kind_l, size_l, con_l = [], [], [], []
     extra = {}
     qs_xy, qs_hs = np.zeros((0, 2)), 0.0
     if QS in kinds:
-        cand, half, score = _find_qs(img, noise, qs_half, min_contrast)
+        cand, half, score = _find_qs(search, s_noise, None if qs_half is None else qs_half / k,
+                                     min_contrast)
         if cand.shape[0]:
             keep = _suppress(cand, score, max(4.0, float(np.median(half))))
-            cand, half = cand[keep], half[keep]
-            hs = float(np.median(half)) if qs_half is None else float(qs_half)
-            fit = refine_qs(frame, cand + off, hs, search=2, n_iter=8)
+            cand, half = to_full(cand[keep]), half[keep] * k
+            hs = half if qs_half is None else np.full(half.shape, float(qs_half))
+            fit = refine_qs(frame, cand, hs, search=max(2, int(k) + 1), n_iter=8)
+            if qs_half is None:  # the ring scan gives the size to a pixel: measure it
+                hm = measure_qs_half(img, fit.xy - off, fit.angle, hs, noise)
+                hs = np.where(np.isfinite(hm) & (np.abs(hm - hs) < 0.35 * hs), hm, hs)
+                fit = refine_qs(frame, fit.xy, hs, params=fit.params, search=0, n_iter=4)
             good = np.isfinite(fit.xy).all(axis=1) & (fit.rms < 0.35 * np.abs(fit.contrast))
-            qs_xy, qs_hs = fit.xy[good], hs
+            qs_xy, qs_hs = fit.xy[good], float(np.max(hs, initial=0.0))
             xy_l.append(qs_xy)
             kind_l.append(np.full(int(good.sum()), QS))
-            size_l.append(np.full(int(good.sum()), hs))
+            size_l.append(hs[good])
             con_l.append(fit.contrast[good])
             extra["qs_params"] = fit.params[good]
     if COG in kinds:
         r_range = cog_radius_range if cog_radius is None else (0.7 * cog_radius, 1.3 * cog_radius)
-        cand, radii = _find_cog(img, noise, r_range, min_contrast)
+        cand, radii = _find_cog(search, s_noise, (r_range[0] / k, r_range[1] / k), min_contrast)
         if cand.shape[0]:
-            cand = cand + off
+            cand, radii = to_full(cand), radii * k
             if qs_xy.shape[0]:  # light quarters of a checker are not discs
                 d = np.hypot(*(cand[:, None, :] - qs_xy[None, :, :]).transpose(2, 0, 1))
                 far = (d > 2.0 * qs_hs).all(axis=1)
                 cand, radii = cand[far], radii[far]
             r = radii if cog_radius is None else np.full(radii.shape, float(cog_radius))
-            fit = refine_cog(frame, cand, r)
+            fit = refine_cog(frame, cand, r, blur_px=1.0, n_iter=3)
             good = np.isfinite(fit.xy).all(axis=1) & (fit.contrast > max(8.0 * noise, min_contrast))
             xy_l.append(fit.xy[good])
             kind_l.append(np.full(int(good.sum()), COG))

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._refine import cut_windows
+from ._refine import cut_disc, cut_windows
 
 N_PARAMS = 11  # x0, y0, θ, blur_u, blur_v, A, a_x, a_y, B, b_x, b_y
 _A, _B = 5, 8  # offset plane and contrast plane start here
@@ -29,7 +29,7 @@ class QsFit:
     window left the frame or the fit failed), `angle` (rad), `widths` (M, 2) blur
     across the two edges, px, `contrast` (half the light-dark difference, signed: > 0 when the top-left quadrant
     is light), `rms` (fit residual, grey levels), `inside` (bool), `params` (M, N_PARAMS) for
-    warm starts."""
+    warm starts (position in the frame, levels at the marker's centre)."""
 
     xy: np.ndarray
     angle: np.ndarray
@@ -42,21 +42,25 @@ class QsFit:
 
 _SIGNS = np.array([[s1, s2] for s1 in (1.0, -1.0) for s2 in (1.0, -1.0)])
 _PARITY = _SIGNS.prod(axis=1)
+# (zp @ _DMAT) gives Σ ± z and Σ ± z · s2 / 2: the sums behind dS/du and dS/db
+_DMAT = np.stack([_PARITY, 0.5 * _PARITY * _SIGNS[:, 1]], axis=1)
 
 
-def _edge(u, b):
+def _edge(u, b, derivatives=True):
     """A straight edge seen by the camera: a step blurred by two boxes - the pixel (1 px)
     and the blur across the edge (b px: motion blur and optics) - as a value in [-1, 1].
 
-    u: (M, n, n) signed distance from the edge, px; b: (M, 1, 1) blur width, px.
-    Returns S, dS/du and dS/db (each (M, n, n)).
+    u: (M, N) signed distance from the edge, px; b: (M, 1) blur width, px.
+    Returns S, and with `derivatives` dS/du and dS/db (each (M, N)).
     """
     off = 0.5 * (_SIGNS[:, 0] + _SIGNS[:, 1] * b[..., None])
-    zp = np.maximum(u[..., None] + off, 0.0)  # (M, n, n, 4)
-    e = ((zp * zp) @ _PARITY) * (0.5 / b)  # Σ ± z²/2 / b: the blurred unit step
-    du = (zp @ _PARITY) / b
-    db = (zp @ (0.5 * _PARITY * _SIGNS[:, 1])) / b - e / b
-    return 2 * e - 1, 2 * du, 2 * db
+    zp = np.maximum(u[..., None] + off, 0.0)  # (M, N, 4)
+    inv = 1.0 / b
+    e = ((zp * zp) @ _PARITY) * (0.5 * inv)  # Σ ± z²/2 / b: the blurred unit step
+    if not derivatives:
+        return 2 * e - 1
+    d = zp @ _DMAT
+    return 2 * e - 1, (2 * inv) * d[..., 0], (2 * inv) * (d[..., 1] - e)
 
 
 def qs_coarse(win: np.ndarray, half_q: int, search: int):
@@ -97,45 +101,92 @@ def qs_coarse(win: np.ndarray, half_q: int, search: int):
     return np.stack([off[ix] + fx, off[iy] + fy], axis=1), score[rows, iy, ix]
 
 
-def _fit(win, rfit, g, p, n_iter):
-    """Damped Gauss-Newton on the checker model; p (M, N_PARAMS) is updated and returned.
+def _model(win, rfit, x, y, p, jacobian=True):
+    """Weighted residuals (M, N), their Jacobian (M, N_PARAMS, N) (None unless asked for),
+    the cost (M,) and the sum of the weights (M,), for pixels at offsets x, y (N,) from the
+    window centre."""
+    dx, dy = x - p[:, 0, None], y - p[:, 1, None]
+    m = np.clip(rfit + 0.5 - np.sqrt(dx * dx + dy * dy), 0.0, 1.0)
+    c, s = np.cos(p[:, 2, None]), np.sin(p[:, 2, None])
+    u, v = c * dx + s * dy, c * dy - s * dx
+    gain = p[:, _B, None] + p[:, _B + 1, None] * x + p[:, _B + 2, None] * y
+    base = p[:, _A, None] + p[:, _A + 1, None] * x + p[:, _A + 2, None] * y
+    if not jacobian:
+        prod = _edge(u, p[:, 3, None], False) * _edge(v, p[:, 4, None], False)
+        res = (win - base - gain * prod) * m
+        return res, None, (res * res).sum(axis=1), m.sum(axis=1)
+    su, du, dbu = _edge(u, p[:, 3, None])
+    sv, dv, dbv = _edge(v, p[:, 4, None])
+    prod = su * sv
+    res = (win - base - gain * prod) * m
+    gm = gain * m
+    a, b = gm * du * sv, gm * su * dv
+    pm = prod * m
+    jac = np.stack([s * b - c * a, -(s * a + c * b), v * a - u * b, gm * dbu * sv,
+                    gm * su * dbv, m, x * m, y * m, pm, x * pm, y * pm], axis=1)
+    return res, jac, (res * res).sum(axis=1), m.sum(axis=1)
 
+
+def _fit(win, rfit, x, y, p, n_iter, prior=None):
+    """Levenberg-Marquardt on the checker model, all markers at once.
+
+    p (M, N_PARAMS) is the start; returns the best parameters found and the residual RMS.
     The pixels are weighted by a soft disc of radius rfit centred on the current estimate:
     a window symmetric about the centre keeps whatever the model leaves unexplained (it is
-    point-symmetric too) from pulling the centre.
+    point-symmetric too) from pulling the centre. A step that raises the cost is undone
+    and retried with more damping. prior: blur widths (M, 2) to stay near (those of the
+    previous frame), held with a small fraction of the data's own weight so that a flat
+    direction of the cost cannot wander off frame after frame.
     """
-    x = g[None, None, :]
-    y = g[None, :, None]
-    eye = np.eye(N_PARAMS)
-    for _ in range(n_iter):
-        x0, y0, th, bu, bv = (p[:, i, None, None] for i in range(5))
-        dx, dy = x - x0, y - y0
-        m = np.clip(rfit + 0.5 - np.sqrt(dx * dx + dy * dy), 0.0, 1.0)
-        c, s = np.cos(th), np.sin(th)
-        u, v = c * dx + s * dy, c * dy - s * dx
-        su, du, dbu = _edge(u, bu)
-        sv, dv, dbv = _edge(v, bv)
-        prod = su * sv
-        gain = p[:, _B, None, None] + p[:, _B + 1, None, None] * x + p[:, _B + 2, None, None] * y
-        model = p[:, _A, None, None] + p[:, _A + 1, None, None] * x + p[:, _A + 2, None, None] * y \
-            + gain * prod
-        a, b = gain * du * sv, gain * su * dv
-        ones = np.ones_like(prod)
-        jac = np.stack([-c * a + s * b, -s * a - c * b, v * a - u * b, gain * dbu * sv,
-                        gain * su * dbv, ones, x * ones, y * ones,
-                        prod, x * prod, y * prod], axis=1) * m[:, None]
-        jac = jac.reshape(jac.shape[0], N_PARAMS, -1)
-        res = ((win - model) * m).reshape(jac.shape[0], -1)
-        hess = jac @ jac.transpose(0, 2, 1)
-        grad = (jac @ res[:, :, None])[..., 0]
-        damp = 1e-3 * np.einsum("mii->mi", hess)[:, :, None] * eye + 1e-9 * eye
-        step = np.linalg.solve(hess + damp, grad[..., None])[..., 0]
+    diag = np.arange(N_PARAMS)
+    lam = np.full(p.shape[0], 1e-3)
+    best, best_cost = p, np.full(p.shape[0], np.inf)
+    best_data = weight = hess = grad = pw = None
+    for it in range(n_iter + 1):
+        last = it == n_iter
+        # the last evaluation only checks the last step: no Jacobian needed
+        res, jac, data_cost, w = _model(win, rfit, x, y, p, jacobian=not last)
+        cost = data_cost
+        if prior is not None:
+            dev = p[:, 3:5] - prior
+            if pw is None:
+                pw = 0.05 * np.einsum("mpn,mpn->mp", jac[:, 3:5], jac[:, 3:5])
+            cost = cost + (pw * dev * dev).sum(axis=1)
+        better = cost <= best_cost
+        if last or not better.any():
+            if better.any():
+                best = np.where(better[:, None], p, best)
+                best_data = np.where(better, data_cost, best_data)
+                weight = np.where(better, w, weight)
+            if last:
+                break
+        else:
+            h = jac @ jac.transpose(0, 2, 1)
+            gr = (jac @ res[:, :, None])[..., 0]
+            if prior is not None:
+                h[:, 3, 3] += pw[:, 0]
+                h[:, 4, 4] += pw[:, 1]
+                gr[:, 3:5] -= pw * dev
+            if hess is None:
+                best, best_data, weight, hess, grad = p, data_cost, w, h, gr
+            else:
+                best = np.where(better[:, None], p, best)
+                best_data = np.where(better, data_cost, best_data)
+                weight = np.where(better, w, weight)
+                hess = np.where(better[:, None, None], h, hess)
+                grad = np.where(better[:, None], gr, grad)
+        best_cost = np.where(better, cost, best_cost)
+        lam = np.where(better, 0.3 * lam, 10.0 * lam)
+        damped = hess.copy()
+        damped[:, diag, diag] *= 1.0 + lam[:, None]
+        damped[:, diag, diag] += 1e-9
+        step = np.linalg.solve(damped, grad[..., None])[..., 0]
         step[:, :2] = np.clip(step[:, :2], -1.0, 1.0)
-        step[:, 3:5] = np.clip(step[:, 3:5], -0.5, 0.5)
-        p = p + step
+        step[:, 3:5] = np.clip(step[:, 3:5], -0.25, 0.25)
+        p = best + step
         p[:, 3:5] = np.clip(p[:, 3:5], 0.05, 8.0)
-    rms = np.sqrt((res ** 2).sum(axis=1) / np.maximum(m.sum(axis=(1, 2)) - N_PARAMS, 1))
-    return p, rms
+    rms = np.sqrt(best_data / np.maximum(weight - N_PARAMS, 1))
+    return best, rms
 
 
 def _edge_widths(win):
@@ -157,19 +208,19 @@ def refine_qs(frame: np.ndarray, xy0: np.ndarray, half_size, *, params: np.ndarr
     """Centres of QS markers near first guesses.
 
     frame: (H, W) grey image; xy0: (M, 2) first guesses px; half_size: half the side of
-    the checker, px (scalar: one window size for the batch); params: (M, N_PARAMS) results
-    of the previous frame (warm start: angle, widths and levels), or None; search: ± range
-    of the coarse search, px (0: trust xy0 and skip it).
+    the checkers, px, scalar or (M,); params: (M, N_PARAMS) results of the previous frame
+    (warm start: angle, blur widths and levels), or None; search: ± range of the coarse
+    search, px (0: trust xy0 and skip it). The fit uses the pixels of the largest disc
+    inside the checker that the blur of its outer edge does not reach.
     """
     xy0 = np.asarray(xy0, dtype=np.float64).reshape(-1, 2)
     m = xy0.shape[0]
     ok = np.isfinite(xy0).all(axis=1)
-    hs = float(half_size)
-    rfit = max(2.5, 0.85 * hs - 1.5)  # pixels well inside the checker only
+    hs = np.broadcast_to(np.asarray(half_size, dtype=np.float64), (m,))
     base = np.where(ok[:, None], np.rint(xy0), 0).astype(np.int64)
     inside = ok.copy()
     if search > 0:
-        hq = max(2, int(0.7 * hs))
+        hq = max(2, int(0.7 * hs.min()))
         win, ins = cut_windows(frame, base, hq + search + 1)
         offs, _ = qs_coarse(win, hq, search)
         inside &= ins
@@ -177,29 +228,30 @@ def refine_qs(frame: np.ndarray, xy0: np.ndarray, half_size, *, params: np.ndarr
     else:
         start = np.where(ok[:, None], xy0, 0.0)
     base = np.rint(start).astype(np.int64)
-    half = int(np.ceil(rfit + 1.5))
-    win, ins = cut_windows(frame, base, half)
-    inside &= ins
-    g = np.arange(-half, half + 1, dtype=np.float64)
-    mask = (g[None, :] ** 2 + g[:, None] ** 2) <= rfit ** 2
     p = np.zeros((m, N_PARAMS))
     p[:, :2] = start - base
-    if params is not None:
+    if params is None:
+        sq, _ = cut_windows(frame, base, max(5, int(0.5 * hs.min())))
+        p[:, 3:5] = _edge_widths(sq)
+    else:  # levels come at the marker's centre: refer them to this window's centre
         p[:, 2:] = params[:, 2:]
-        p[:, _A + 1:_A + 3] = 0.0  # planar terms are relative to the window: start flat
-        p[:, _B + 1:_B + 3] = 0.0
-    else:
-        p[:, 3:5] = _edge_widths(win)
-    # levels from the data: mean, and the checker's signed half-contrast
-    sx = np.sign(g[None, None, :] - p[:, 0, None, None])
-    sy = np.sign(g[None, :, None] - p[:, 1, None, None])
-    n = mask.sum()
-    p[:, _A] = (win * mask).sum(axis=(1, 2)) / n
-    p[:, _B] = ((win - p[:, _A, None, None]) * sx * sy * mask).sum(axis=(1, 2)) / n
-    if params is not None:  # keep the known polarity if the guess is poor
-        p[:, _B] = np.where(np.sign(p[:, _B]) == np.sign(params[:, _B]), p[:, _B], params[:, _B])
-    p, rms = _fit(win, rfit, g, p, n_iter)
+        p[:, _A] -= p[:, _A + 1] * p[:, 0] + p[:, _A + 2] * p[:, 1]
+        p[:, _B] -= p[:, _B + 1] * p[:, 0] + p[:, _B + 2] * p[:, 1]
+    rfit = np.maximum(hs - 1.0 - 0.5 * p[:, 3:5].max(axis=1) - 0.25, 2.5)[:, None]
+    win, x, y, ins = cut_disc(frame, base, float(rfit.max()) + 1.25)
+    inside &= ins
+    if params is None:  # levels from the data: mean, and the checker's signed half-contrast
+        mask = ((x - p[:, :1]) ** 2 + (y - p[:, 1:2]) ** 2 <= rfit ** 2).astype(np.float64)
+        n = mask.sum(axis=1)
+        p[:, _A] = (win * mask).sum(axis=1) / n
+        sign = np.sign(x - p[:, :1]) * np.sign(y - p[:, 1:2])
+        p[:, _B] = ((win - p[:, _A, None]) * sign * mask).sum(axis=1) / n
+    p, rms = _fit(win, rfit, x, y, p, n_iter, None if params is None else params[:, 3:5])
     xy = base + p[:, :2]
-    bad = ~inside | ~np.isfinite(xy).all(axis=1) | (np.abs(p[:, :2]) > half).any(axis=1)
+    bad = ~inside | ~np.isfinite(xy).all(axis=1) | (np.abs(p[:, :2]) > 2).any(axis=1)
     xy[bad] = np.nan
-    return QsFit(xy, p[:, 2].copy(), p[:, 3:5].copy(), p[:, _B].copy(), rms, inside, p)
+    out = p.copy()  # levels at the marker's centre, position in the frame: for warm starts
+    out[:, :2] = xy
+    out[:, _A] += p[:, _A + 1] * p[:, 0] + p[:, _A + 2] * p[:, 1]
+    out[:, _B] += p[:, _B + 1] * p[:, 0] + p[:, _B + 2] * p[:, 1]
+    return QsFit(xy, p[:, 2].copy(), p[:, 3:5].copy(), out[:, _B].copy(), rms, inside, out)

@@ -1,27 +1,30 @@
-"""Subpixel positions of many markers at once: COG discs and QS checkers.
+"""Subpixel centres of COG markers (bright discs), many at once; window cutting for both kinds.
 
-Both work on small windows cut around a first guess, for all markers of one kind in one
-batch (arrays (M, n, n)): the per-frame cost is a few dozen numpy calls, whatever the
-number of markers.
+`refine_cog` works on small windows cut around first guesses, for all discs of a frame
+in one batch (arrays (M, N) of the N pixels of each window), with the sums done as one
+matrix product against the pixel coordinates: the per-frame cost is a few dozen numpy
+calls whatever the number of markers.
 
-COG (`refine_cog`): intensity-weighted centre of gravity of the disc with the local
-background removed - a plane fitted to an annulus just outside the disc is subtracted,
-then the centroid is taken in a soft circular aperture that holds the whole disc, and the
-aperture is re-centred on the result. With the background at zero, the aperture's edge
-only sees zero-mean noise, so the estimate has no pixel-locking bias.
+The estimate is the intensity-weighted centre of gravity of the disc with its local
+background removed:
 
-QS (`refine_qs`): the point of quadrant symmetry, found in two steps. Coarse: the integer
-position maximising the correlation with an ideal ±1 checker (box sums over an integral
-image), with a parabola through the peak. Fine: a least-squares fit of a 2x2 checker
-model to the window - two pixel-integrated tanh edges crossing at (x0, y0) at an angle
-θ, with their own widths (optics, motion blur), a planar offset and a planar contrast
-(lighting gradient) - by Gauss-Newton. The model is point-symmetric about (x0, y0), so
-the fitted centre is the centre of symmetry; an edge profile that is not exactly tanh is
-symmetric too and does not bias it.
+1. a plane fitted to an annulus just outside the disc is subtracted (local background);
+2. a centroid in a soft circular aperture holding the whole disc (its anti-aliased edge
+   and motion blur included) moves the guess onto the disc;
+3. the final centroid, in the aperture re-centred there, of the window divided by the
+   disc's own brightness plane (fitted on its interior) and with the interior replaced
+   by that plane's level.
+
+Step 3 matters: a lighting gradient across the disc pulls an intensity-weighted centroid
+by (relative slope) x (second moment), which flat-fielding removes; the interior pixels
+carry noise but no position information, which replacing them removes. With the
+background at zero the aperture's edge only sees zero-mean noise, so the estimate has no
+pixel-locking bias.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,104 +45,120 @@ def cut_windows(frame: np.ndarray, centres: np.ndarray, half: int):
     return frame[ys[:, :, None], xs[:, None, :]].astype(np.float64), inside
 
 
+@functools.lru_cache(maxsize=64)
+def _disc_offsets(radius: float):
+    half = int(np.ceil(radius))
+    off = np.arange(-half, half + 1)
+    yy, xx = np.meshgrid(off, off, indexing="ij")
+    keep = (xx * xx + yy * yy) <= radius * radius
+    return half, xx[keep], yy[keep], xx[keep].astype(np.float64), yy[keep].astype(np.float64)
+
+
+def cut_disc(frame: np.ndarray, centres: np.ndarray, radius: float):
+    """The pixels within `radius` of integer centres (M, 2): values (M, N) float64, their
+    offsets X, Y (N,) from the centre, and `inside` (M,) as in `cut_windows`."""
+    half, xs, ys, fx, fy = _disc_offsets(np.ceil(float(radius) * 4.0) / 4.0)  # few sizes
+    h, w = frame.shape
+    cx, cy = centres[:, 0], centres[:, 1]
+    inside = (cx - half >= 0) & (cx + half < w) & (cy - half >= 0) & (cy + half < h)
+    if inside.all():
+        vals = frame[cy[:, None] + ys, cx[:, None] + xs]
+    else:
+        vals = frame[np.clip(cy[:, None] + ys, 0, h - 1), np.clip(cx[:, None] + xs, 0, w - 1)]
+    return vals.astype(np.float64), fx, fy, inside
+
+
 @dataclass
 class CogFit:
     """Result of `refine_cog`, arrays over markers (M,): `xy` (M, 2) px (NaN when the
     window left the frame), `flux` (background-free sum, grey levels x px), `contrast`
-    (disc level above the background), `radius` (disc radius from the second moment, px),
-    `elongation` ((λ1 - λ2) / (λ1 + λ2) of the second moments), `noise` (background
-    residual std), `inside` (bool)."""
+    (mean disc level above the background), `radius` (disc radius from the second moment
+    across the blur, px), `streak` (motion-blur length from the second moments, px),
+    `noise` (background residual std), `slope` (M, 2) relative brightness slope of the
+    disc used for flat-fielding, 1/px, `inside` (bool)."""
 
     xy: np.ndarray
     flux: np.ndarray
     contrast: np.ndarray
     radius: np.ndarray
-    elongation: np.ndarray
+    streak: np.ndarray
     noise: np.ndarray
+    slope: np.ndarray
     inside: np.ndarray
 
 
-def _plane_fit(win, mask, gx, gy):
-    """Least-squares plane over the masked pixels of each window: (M, n, n) values."""
-    m = mask.astype(np.float64)
-    x = gx[None, None, :]
-    y = gy[None, :, None]
-    s1 = m.sum(axis=(1, 2))
-    sx, sy = (m * x).sum(axis=(1, 2)), (m * y).sum(axis=(1, 2))
-    sxx, syy, sxy = (m * x * x).sum(axis=(1, 2)), (m * y * y).sum(axis=(1, 2)), (m * x * y).sum(axis=(1, 2))
-    mv = m * win
-    b = np.stack([mv.sum(axis=(1, 2)), (mv * x).sum(axis=(1, 2)), (mv * y).sum(axis=(1, 2))], axis=1)
-    a = np.stack([np.stack([s1, sx, sy], 1), np.stack([sx, sxx, sxy], 1),
-                  np.stack([sy, sxy, syy], 1)], axis=1)
-    coef = np.linalg.solve(a + 1e-9 * np.eye(3), b[..., None])[..., 0]
-    plane = coef[:, 0, None, None] + coef[:, 1, None, None] * x + coef[:, 2, None, None] * y
-    resid = np.sqrt((m * (win - plane) ** 2).sum(axis=(1, 2)) / np.maximum(s1 - 3, 1))
-    return plane, resid
+def _weighted_plane(weights, values, basis):
+    """Least-squares plane a + b x + c y through `values` (M, N) with `weights` (M, N).
+
+    basis: (N, 6) columns 1, x, y, x², xy, y². Returns coefficients (M, 3)."""
+    s0, sx, sy, sxx, sxy, syy = (weights @ basis).T  # the normal matrix, by Cramer's rule
+    b0, b1, b2 = ((weights * values) @ basis[:, :3]).T
+    c00, c01, c02 = syy * sxx - sxy * sxy, sxy * sy - syy * sx, sx * sxy - sxx * sy
+    c11, c12, c22 = s0 * syy - sy * sy, sx * sy - s0 * sxy, s0 * sxx - sx * sx
+    det = s0 * c00 + sx * c01 + sy * c02
+    det = np.where(np.abs(det) > 1e-12, det, 1.0)
+    return np.stack([c00 * b0 + c01 * b1 + c02 * b2, c01 * b0 + c11 * b1 + c12 * b2,
+                     c02 * b0 + c12 * b1 + c22 * b2], axis=1) / det[:, None]
 
 
-def _interior_slope(win, mask, dx, dy):
-    """Level and (x, y) slope of a plane fitted to the masked pixels, about (dx, dy) = 0."""
-    m = mask.astype(np.float64)
-    n = np.maximum(m.sum(axis=(1, 2)), 1.0)
-    mx, my = (m * dx).sum(axis=(1, 2)) / n, (m * dy).sum(axis=(1, 2)) / n
-    ex, ey = (dx - mx[:, None, None]) * m, (dy - my[:, None, None]) * m
-    sxx, syy, sxy = (ex * ex).sum(axis=(1, 2)), (ey * ey).sum(axis=(1, 2)), (ex * ey).sum(axis=(1, 2))
-    bx, by = (ex * win).sum(axis=(1, 2)), (ey * win).sum(axis=(1, 2))
-    det = np.where(sxx * syy - sxy ** 2 > 0, sxx * syy - sxy ** 2, 1.0)
-    ax, ay = (syy * bx - sxy * by) / det, (sxx * by - sxy * bx) / det
-    level = (m * win).sum(axis=(1, 2)) / n - ax * mx - ay * my
-    return level, np.stack([ax, ay], axis=1)
-
-
-def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px: float = 0.0,
-               n_iter: int = 3) -> CogFit:
+def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, n_iter: int = 1,
+               gain_slope=None) -> CogFit:
     """Centre of gravity of bright discs near first guesses.
 
     frame: (H, W) grey image (any numeric dtype); xy0: (M, 2) first guesses, px, within
     about one radius of the centres; radius: disc radius px, scalar or (M,); blur_px:
-    longest motion-blur streak expected, px (widens the aperture).
+    motion-blur streak expected, px, scalar or (M,) (widens the aperture); n_iter:
+    plain centroid steps before the final one (1 is enough from a guess within a pixel);
+    gain_slope: (M, 2) relative brightness slope of each disc, 1/px, if known, else
+    fitted on the disc's interior.
     """
     xy0 = np.asarray(xy0, dtype=np.float64).reshape(-1, 2)
-    r = np.broadcast_to(np.asarray(radius, dtype=np.float64), xy0.shape[:1])
-    ra = r + 1.0 + 0.5 * blur_px  # aperture: whole disc, its anti-aliased edge, the blur
-    half = int(np.ceil(ra.max() + 4.5)) if r.size else 1
+    m = xy0.shape[0]
+    r = np.broadcast_to(np.asarray(radius, dtype=np.float64), (m,))[:, None]
+    blur = np.broadcast_to(np.asarray(blur_px, dtype=np.float64), (m,))[:, None]
+    ra = r + 1.0 + 0.5 * blur  # aperture: disc, anti-aliased edge, blur
     ok = np.isfinite(xy0).all(axis=1)
     base = np.where(ok[:, None], np.rint(xy0), 0).astype(np.int64)
-    win, inside = cut_windows(frame, base, half)
-    g = np.arange(-half, half + 1, dtype=np.float64)
-    c = np.where(ok[:, None], xy0 - base, 0.0)  # guess relative to the window centre
-    rho2 = (g[None, None, :] - c[:, 0, None, None]) ** 2 + (g[None, :, None] - c[:, 1, None, None]) ** 2
-    ring = (rho2 >= ((ra + 1.0) ** 2)[:, None, None]) & (rho2 <= ((ra + 3.5) ** 2)[:, None, None])
-    plane, noise = _plane_fit(win, ring, g, g)
-    win = win - plane
+    win, gx, gy, inside = cut_disc(frame, base, float(ra.max()) + 4.0 if m else 1.0)
+    basis = np.stack([np.ones_like(gx), gx, gy, gx * gx, gx * gy, gy * gy], axis=1)
+    rho0 = np.sqrt(gx * gx + gy * gy)[None, :]
+    # 1. local background: a plane through an annulus outside the disc (about the window
+    #    centre, within half a pixel of the guess)
+    ring = ((rho0 >= ra + 1.0) & (rho0 <= ra + 3.5)).astype(np.float64)
+    coef = _weighted_plane(ring, win, basis)
+    win = win - coef @ basis[:, :3].T
+    noise = np.sqrt((ring * win * win).sum(axis=1) / np.maximum(ring.sum(axis=1) - 3, 1))
+    # 2. plain centroid steps in the aperture
+    c = np.where(ok[:, None], xy0 - base, 0.0)
     for _ in range(n_iter):
-        dx = g[None, None, :] - c[:, 0, None, None]
-        dy = g[None, :, None] - c[:, 1, None, None]
-        rho = np.sqrt(dx * dx + dy * dy)
-        wgt = win * np.clip(ra[:, None, None] + 0.5 - rho, 0.0, 1.0)
-        flux = wgt.sum(axis=(1, 2))
-        safe = np.where(flux > 0, flux, 1.0)
-        c = c + np.stack([(wgt * dx).sum(axis=(1, 2)), (wgt * dy).sum(axis=(1, 2))], axis=1) / safe[:, None]
-    dx = g[None, None, :] - c[:, 0, None, None]
-    dy = g[None, :, None] - c[:, 1, None, None]
-    wgt = win * np.clip(ra[:, None, None] + 0.5 - np.sqrt(dx * dx + dy * dy), 0.0, 1.0)
-    flux = wgt.sum(axis=(1, 2))
-    safe = np.where(flux > 0, flux, 1.0)
-    mxx, myy = (wgt * dx * dx).sum(axis=(1, 2)) / safe, (wgt * dy * dy).sum(axis=(1, 2)) / safe
-    mxy = (wgt * dx * dy).sum(axis=(1, 2)) / safe
-    # Flat-field: the disc's own brightness slope (lighting gradient, vignetting) pulls an
-    # intensity-weighted centroid by slope x second moment; fit the slope on the disc's
-    # interior and take that pull off. (It also takes off most of the interior pixels'
-    # noise, which carries no position information.)
-    inner = (np.sqrt(dx * dx + dy * dy) <= (r - 0.75 - 0.5 * blur_px)[:, None, None])
-    lvl, slope = _interior_slope(win, inner, dx, dy)
-    rel = slope / np.where(np.abs(lvl) > 0, lvl, 1.0)[:, None]
-    c = c - np.stack([rel[:, 0] * mxx + rel[:, 1] * mxy, rel[:, 0] * mxy + rel[:, 1] * myy], axis=1)
-    tr = mxx + myy
-    elong = np.sqrt((mxx - myy) ** 2 + 4 * mxy ** 2) / np.where(tr > 0, tr, 1.0)
-    radius_m = np.sqrt(np.maximum(2 * tr, 0))  # uniform disc: <ρ²> = R²/2
+        dx, dy = gx - c[:, :1], gy - c[:, 1:]
+        wgt = win * np.clip(ra + 0.5 - np.sqrt(dx * dx + dy * dy), 0.0, 1.0)
+        mom = wgt @ basis[:, :3]
+        c = mom[:, 1:3] / np.where(mom[:, :1] > 0, mom[:, :1], 1.0)
+    # 3. flat-fielded centroid, the interior replaced by its fitted level
+    dx, dy = gx - c[:, :1], gy - c[:, 1:]
+    rho = np.sqrt(dx * dx + dy * dy)
+    wi = np.clip(r - 0.5 - 0.5 * blur - rho, 0.0, 1.0)
+    coef = _weighted_plane(wi, win, basis)
+    level = coef[:, 0] + coef[:, 1] * c[:, 0] + coef[:, 2] * c[:, 1]
+    safe = np.where(np.abs(level) > 0, level, 1.0)
+    rel = coef[:, 1:3] / safe[:, None]
+    if gain_slope is not None:
+        rel = np.asarray(gain_slope, dtype=np.float64).reshape(-1, 2)
+    flat = win / (1.0 + rel[:, :1] * dx + rel[:, 1:] * dy)
+    wgt = (flat + wi * (level[:, None] - flat)) * np.clip(ra + 0.5 - rho, 0.0, 1.0)
+    mom = wgt @ basis  # raw moments about the window centre
+    flux = mom[:, 0]
+    f = np.where(flux > 0, flux, 1.0)
+    mx, my = mom[:, 1] / f, mom[:, 2] / f
+    mxx, mxy, myy = mom[:, 3] / f - mx * mx, mom[:, 4] / f - mx * my, mom[:, 5] / f - my * my
+    # A disc of radius R blurred along a streak of length L, sampled by pixels: second
+    # moments R²/4 + 1/12 across the streak and R²/4 + 1/12 + L²/12 along it.
+    half_tr, half_diff = 0.5 * (mxx + myy), np.sqrt(0.25 * (mxx - myy) ** 2 + mxy ** 2)
+    radius_m = 2.0 * np.sqrt(np.maximum(half_tr - half_diff - 1.0 / 12.0, 0.0))
+    streak = np.sqrt(24.0 * half_diff)
     contrast = flux / (np.pi * np.maximum(radius_m, 1e-9) ** 2)
-    xy = base + c
+    xy = base + np.stack([mx, my], axis=1)
     bad = ~(ok & inside & (flux > 0))
     xy[bad] = np.nan
-    return CogFit(xy, flux, contrast, radius_m, elong, noise, inside & ok)
+    return CogFit(xy, flux, contrast, radius_m, streak, noise, rel, inside & ok)

@@ -45,18 +45,18 @@ class TrackerConfig:
     max_step: float = 30.0
     min_quality: float = 0.5
     min_length: int = 5
-    qs_iter: int = 3
+    qs_iter: int = 2
 
 
 class _Track:
     __slots__ = ("uid", "kind", "size", "frames", "xs", "ys", "qs", "misses", "alive",
-                 "flux", "radius", "elong", "rms", "contrast", "params", "confirmed")
+                 "flux", "radius", "streak", "rms", "contrast", "params", "confirmed")
 
     def __init__(self, uid, kind, size, frame, xy, contrast, params=None):
         self.uid, self.kind, self.size = uid, kind, float(size)
         self.frames, self.xs, self.ys, self.qs = [frame], [float(xy[0])], [float(xy[1])], [1.0]
         self.misses, self.alive, self.confirmed = 0, True, False
-        self.flux = self.radius = self.elong = self.rms = None
+        self.flux = self.radius = self.streak = self.rms = None
         self.contrast = float(contrast)
         self.params = params
 
@@ -89,7 +89,7 @@ def _ema(old, new, a=0.2):
 
 def _score(dev, tol):
     """1 at no deviation, 0.5 at the tolerance, 0 at twice it."""
-    return np.clip(1.0 - 0.5 * np.abs(dev) / tol, 0.0, 1.0)
+    return min(max(1.0 - 0.5 * abs(float(dev)) / tol, 0.0), 1.0)
 
 
 class Tracker:
@@ -101,14 +101,22 @@ class Tracker:
         self.frames: list[int] = []
         self.times: list[float] = []
         self.noise = None
+        self.cog_radius = self.config.cog_radius
+        self.qs_half = self.config.qs_half
         self._n = 0
 
     # -- helpers ---------------------------------------------------------------------------
-    def _detect(self, frame, roi=None, kinds=None):
+    def _detect(self, frame, roi=None, kinds=None, scale=1):
         cfg = self.config
-        return detect_markers(frame, kinds=kinds or cfg.kinds, cog_radius=cfg.cog_radius,
-                              qs_half=cfg.qs_half, min_contrast=cfg.min_contrast, roi=roi,
-                              noise=self.noise)
+        det = detect_markers(frame, kinds=kinds or cfg.kinds, cog_radius=self.cog_radius,
+                             qs_half=self.qs_half, min_contrast=cfg.min_contrast, roi=roi,
+                             noise=self.noise, scale=scale)
+        # sizes measured on the first markers found make the later searches cheaper
+        if self.cog_radius is None and np.any(det.kind == COG):
+            self.cog_radius = float(np.median(det.size[det.kind == COG]))
+        if self.qs_half is None and np.any(det.kind == QS):
+            self.qs_half = float(np.median(det.size[det.kind == QS]))
+        return det
 
     def _new_track(self, det: Detections, j: int, frame_no: int, qs_row=None):
         params = None
@@ -148,20 +156,27 @@ class Tracker:
             self._pick_up(frame, frame_no)
         self._n += 1
 
+    def _cog_quality(self, t, flux, radius, streak):
+        """How much a COG sample looks like the track's marker: a partly hidden or merged
+        disc changes its flux, its width across the blur or its streak."""
+        if t.flux is None:
+            return 1.0
+        return min(_score(flux / t.flux - 1, 0.03), _score(radius / t.radius - 1, 0.03),
+                   _score(streak - t.streak, 0.5 + 0.2 * t.streak))
+
     def _refine_cog(self, frame, frame_no, items, found):
         tracks = [it[0] for it in items]
         pred = np.array([it[1] for it in items])
-        fit = refine_cog(frame, pred, np.array([t.size for t in tracks]), blur_px=2.0)
+        radius = np.array([t.size for t in tracks])
+        blur = np.array([1.0 if t.streak is None else t.streak + 0.5 for t in tracks])
+        fit = refine_cog(frame, pred, radius, blur_px=blur)
         for i, t in enumerate(tracks):
             if not np.isfinite(fit.xy[i, 0]):
                 continue
-            q = 1.0
-            if t.flux is not None:
-                q = min(_score(fit.flux[i] / t.flux - 1, 0.03), _score(fit.radius[i] / t.radius - 1, 0.03),
-                        _score(fit.elongation[i] - t.elong, 0.02))
+            q = self._cog_quality(t, fit.flux[i], fit.radius[i], fit.streak[i])
             d = np.hypot(*(fit.xy[i] - pred[i]))
             if d <= 1.0 + 3.0 * items[i][2]:
-                found[t.uid] = (fit.xy[i], q, (fit.flux[i], fit.radius[i], fit.elongation[i]))
+                found[t.uid] = (fit.xy[i], q, (fit.flux[i], fit.radius[i], fit.streak[i]))
 
     def _refine_qs(self, frame, frame_no, items, found):
         cfg = self.config
@@ -170,7 +185,7 @@ class Tracker:
         unc = max(it[2] for it in items)
         params = np.array([t.params if t.params is not None else np.zeros(N_PARAMS) for t in tracks])
         warm = all(t.params is not None for t in tracks)
-        half = min(t.size for t in tracks)
+        half = np.array([t.size for t in tracks])
         fit = refine_qs(frame, pred, half, params=params if warm else None,
                         search=0 if unc < 0.75 else int(np.ceil(unc)) + 1, n_iter=cfg.qs_iter)
         for i, t in enumerate(tracks):
@@ -178,7 +193,7 @@ class Tracker:
                 continue
             q = _score(fit.contrast[i] / t.contrast - 1, 0.1)
             if t.rms is not None:  # occlusion or a wrong fit: the residual jumps
-                q = min(q, _score(fit.rms[i] / max(t.rms, self.noise) - 1, 1.0))
+                q = min(q, _score(fit.rms[i] / max(t.rms, self.noise) - 1, 0.25))
             d = np.hypot(*(fit.xy[i] - pred[i]))
             if d <= 1.0 + 3.0 * items[i][2]:
                 found[t.uid] = (fit.xy[i], q, (fit.rms[i], fit.contrast[i], fit.params[i]))
@@ -197,10 +212,10 @@ class Tracker:
         if d[j] > reach or (d.size > 1 and d[order[1]] < 1.5 * d[j] + 2.0):
             return  # nothing there, or not clearly one marker
         if t.kind == COG:
-            fit = refine_cog(frame, det.xy[j:j + 1], t.size, blur_px=2.0)
-            extra = (fit.flux[0], fit.radius[0], fit.elongation[0])
-            q = 1.0 if t.flux is None else min(_score(fit.flux[0] / t.flux - 1, 0.03),
-                                               _score(fit.radius[0] / t.radius - 1, 0.03))
+            blur = 1.0 if t.streak is None else t.streak + 0.5
+            fit = refine_cog(frame, det.xy[j:j + 1], t.size, blur_px=blur, n_iter=3)
+            extra = (fit.flux[0], fit.radius[0], fit.streak[0])
+            q = self._cog_quality(t, fit.flux[0], fit.radius[0], fit.streak[0])
         else:
             row = int(np.flatnonzero(det.kind[:j + 1] == QS).size - 1)
             p = det.extra["qs_params"][row]
@@ -236,7 +251,8 @@ class Tracker:
                 t.confirmed = True
             if t.kind == COG:
                 t.flux, t.radius = _ema(t.flux, extra[0]), _ema(t.radius, extra[1])
-                t.elong = _ema(t.elong, extra[2])
+                t.streak = _ema(t.streak, extra[2])
+                t.size = t.radius
             else:
                 if extra[0] is not None:
                     t.rms = _ema(t.rms, extra[0])
@@ -244,7 +260,10 @@ class Tracker:
                 t.params = extra[2]
 
     def _pick_up(self, frame, frame_no):
-        det = self._detect(frame)
+        known = self.cog_radius is not None or self.qs_half is not None
+        # with the sizes known and the markers big enough, search a half-size image
+        small = min(r for r in (self.cog_radius, self.qs_half) if r is not None) if known else 0
+        det = self._detect(frame, scale=2 if small >= 6 else 1)
         if len(det) == 0:
             return
         qs_rows = np.cumsum(det.kind == QS) - 1
