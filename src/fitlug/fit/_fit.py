@@ -92,9 +92,29 @@ def fit(rec, rig=None, *, effects=(), noise: dict | None = None, **kw) -> FitRes
     rig = Rig.reference() if rig is None else rig
     prob = build_problem(rec, rig, effects=effects, noise=noise)
     res = fit_problem(prob, **kw)
+    res = _check_lug_count(res, **kw)
     if noise is None and prob.noise_source == "differences":
         res = refit_noise(res, **kw)
     return res
+
+
+def _check_lug_count(res: FitResult, **kw) -> FitResult:
+    """N = round(P / pitch) again with the fitted belt length P (the start's P may be off)."""
+    prob = res.problem
+    pitch = prob.rig.lug_pitch_mm
+    if pitch is None:
+        return res
+    P = float(2 * res.params["D"] + 2 * np.pi * res.params["R"])
+    N = max(int(round(P / pitch)), 1)
+    if N == prob.lay.n_belt:
+        return res
+    import equinox as eqx
+
+    lay = eqx.tree_at(lambda l: l.n_belt, prob.lay, N)
+    prob2 = Problem(**{**prob.__dict__, "lay": lay,
+                       "init_info": {**prob.init_info, "n_belt": N}})
+    kw.pop("p_start", None)
+    return fit_problem(prob2, p_start=res.params, **kw)
 
 
 def refit_noise(res: FitResult, **kw) -> FitResult:

@@ -87,36 +87,39 @@ def lug_geometry(rec, lug_ids, tX, X):
     half = (xhi - xlo) / 2
     D = 2 * (half - rho)
     yc = ylo + rho  # wheel centres' height
-    # R from timing: arcs turn at v_t / R, the top run moves at v_t
-    t_top, v_top, t_arc, w_arc = [], [], [], []
+    # R from timing: arcs turn at v_t / R while the straight runs move at v_t; pair
+    # samples of the same frame so that accelerations do not bias the ratio
+    straight_t, straight_v, arc_t, arc_w = [], [], [], []
     for _, t, xr, y in rel:
         px, py = xr - x_off, y - yc
-        vx = _rate(t, px)
-        top = (np.abs(px) < 0.4 * D) & (py > 0.8 * rho)
-        t_top.append(t[top])
-        v_top.append(vx[top])
+        vx = np.abs(_rate(t, px))
+        run = (np.abs(px) < 0.4 * D) & (np.abs(py) > 0.8 * rho)
+        straight_t.append(t[run])
+        straight_v.append(vx[run])
         for sgn in (1, -1):
             arc = sgn * px > D / 2 + 0.2 * rho
             ang = np.unwrap(np.arctan2(sgn * (px - sgn * D / 2), py))
             w = np.abs(_rate(t, ang))
-            # only consecutive arc samples
             w[~arc] = np.nan
             w[1:-1][~(arc[:-2] & arc[2:])] = np.nan
-            t_arc.append(t)
-            w_arc.append(w)
-    t_top, v_top = np.concatenate(t_top), np.concatenate(v_top)
-    t_arc, w_arc = np.concatenate(t_arc), np.concatenate(w_arc)
-    ok = np.isfinite(v_top)
+            arc_t.append(t)
+            arc_w.append(w)
     R = rho
-    if ok.sum() > 10 and np.isfinite(w_arc).sum() > 10:
-        order = np.argsort(t_top[ok])
-        ts, vs = t_top[ok][order], v_top[ok][order]
-        # smooth belt speed in time (running median over ~0.1 s)
-        vt = np.interp(t_arc, ts, vs)
-        good = np.isfinite(w_arc) & (vt > 0.3 * np.nanmax(vs)) & (w_arc > 0)
+    st, sv = np.concatenate(straight_t), np.concatenate(straight_v)
+    at, aw = np.concatenate(arc_t), np.concatenate(arc_w)
+    ok_s, ok_a = np.isfinite(sv), np.isfinite(aw)
+    st, sv, at, aw = st[ok_s], sv[ok_s], at[ok_a], aw[ok_a]
+    if len(st) > 10 and len(at) > 10:
+        frames, inv = np.unique(np.round(st * 1e6).astype(np.int64), return_inverse=True)
+        v_frame = np.bincount(inv, sv) / np.bincount(inv)
+        k = np.searchsorted(frames, np.round(at * 1e6).astype(np.int64))
+        k = np.clip(k, 0, len(frames) - 1)
+        same = frames[k] == np.round(at * 1e6).astype(np.int64)
+        vt = v_frame[k[same]]
+        w = aw[same]
+        good = (vt > 0.3 * np.max(v_frame)) & (w > 0)
         if good.sum() > 10:
-            R = float(np.median(vt[good] / w_arc[good]))
-            R = float(np.clip(R, 0.5 * rho, 1.2 * rho))
+            R = float(np.clip(np.median(vt[good] / w[good]), 0.5 * rho, 1.2 * rho))
     e = rho - R
     return {"R": R, "D": D, "e": e, "x_off": x_off, "y_off": ylo + e}, rel
 

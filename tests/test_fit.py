@@ -1,0 +1,162 @@
+"""Least-squares fit against known truth: simulated, independently generated, perturbed."""
+
+import dataclasses
+import json
+import os
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import independent_sim
+from fitlug import FitError, InputError
+from fitlug.fit import build_problem, fit, fit_problem
+from fitlug.io import Recording, Rig, read_rig, read_trajectories
+from fitlug.sim import Scenario, rig_of, simulate
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+QUANTITIES = ("slip", "delta_l_mm", "stiffness_N_per_mm", "rolling_resistance")
+GEOMETRY = ("R_mm", "D_mm", "e_mm", "pitch_mm")
+
+
+def assert_within(res, truth, n_sigma=3.0, names=QUANTITIES + GEOMETRY):
+    for k in names:
+        tv = truth[k] if k in truth else truth["geometry"][k]
+        if tv is None:
+            continue
+        q = res.quantities[k]
+        assert q.std > 0 and np.isfinite(q.std), k
+        assert abs(q.value - tv) <= n_sigma * q.std, f"{k}: {q.value} vs {tv} ± {q.std}"
+
+
+@pytest.fixture(scope="module")
+def reference_fit():
+    path = os.path.join(ROOT, "data", "reference", "trajectories.csv")
+    rec = read_trajectories(path)
+    rig = read_rig(os.path.join(ROOT, "data", "reference", "rig.toml"))
+    with open(os.path.join(ROOT, "data", "reference", "truth.json")) as fh:
+        truth = json.load(fh)
+    return fit(rec, rig), truth
+
+
+def test_bundled_reference_recovers_truth(reference_fit):
+    res, truth = reference_fit
+    assert res.converged
+    assert_within(res, truth)
+    assert 0.9 < res.chi2_per_dof < 1.1
+    # the noise per role, estimated from the data, within 5 % of the truth
+    for role in ("body", "lug"):
+        assert abs(res.problem.noise[role] / truth["noise_mm"][role] - 1) < 0.05
+
+
+@pytest.mark.parametrize("case", ["seed7", "geometry", "one_body_marker"])
+def test_simulate_fit_recovers_every_parameter(case):
+    sc = {
+        "seed7": Scenario(duration_s=4.0, travel_mm=420.0, rest_s=0.3, ramp_s=0.9),
+        "geometry": Scenario(duration_s=4.0, travel_mm=420.0, rest_s=0.3, ramp_s=0.9,
+                             R_mm=32.0, lug_pitch_mm=20.5, n_belt=20, e_mm=4.0, slip=0.045,
+                             rolling_resistance=0.06, ramp="smoothstep", lug_markers=8,
+                             lug_spacing=1, mass_kg=4.0, noise_lug_mm=0.01),
+        "one_body_marker": Scenario(duration_s=4.0, travel_mm=420.0, rest_s=0.3, ramp_s=0.9,
+                                    body_markers=((10.0, 80.0),), ramp="quintic",
+                                    slip=0.11, rolling_resistance=0.15),
+    }[case]
+    seed = {"seed7": 7, "geometry": 3, "one_body_marker": 11}[case]
+    rec, truth = simulate(sc, seed=seed)
+    res = fit(rec, rig_of(sc))
+    assert res.converged
+    assert_within(res, truth)
+    assert 0.9 < res.chi2_per_dof < 1.1
+
+
+def test_independent_recording_fits_at_chi2_one():
+    """A recording generated from MODEL.md by separate code (tests/independent_sim.py)."""
+    rec, rig, truth = independent_sim.make(seed=0)
+    res = fit(rec, rig)
+    assert 0.95 < res.chi2_per_dof < 1.05
+    assert_within(res, truth)
+
+
+def test_convergence_from_perturbed_starts(reference_fit):
+    res, truth = reference_fit
+    prob = res.problem
+    rng = np.random.default_rng(1)
+    for _ in range(2):
+        p = dict(prob.p0)
+        p["s0"] = p["s0"] + 0.02 * rng.choice([-1, 1])
+        p["R"] = p["R"] + rng.normal(0, 0.5)
+        p["e"] = p["e"] + rng.normal(0, 0.5)
+        p["D"] = p["D"] + rng.normal(0, 1.0)
+        p["sigma0"] = p["sigma0"] + rng.normal(0, 1.0, np.shape(p["sigma0"]))
+        p["v"] = p["v"] * (1 + 0.01 * rng.normal(size=np.shape(p["v"])))
+        r2 = fit_problem(prob, {k: jnp.asarray(v) for k, v in p.items()})
+        assert abs(r2.slip.value - res.slip.value) < 0.1 * res.slip.std
+        assert abs(r2.chi2 - res.chi2) < 1e-3 * res.chi2
+
+
+def test_data_derived_start_is_close(reference_fit):
+    res, truth = reference_fit
+    g0 = res.problem.init_info["geometry0"]
+    assert abs(g0["R"] - truth["geometry"]["R_mm"]) < 1.0
+    assert abs(g0["e"] - truth["geometry"]["e_mm"]) < 1.0
+    assert abs(res.problem.init_info["slip0"] - truth["slip"]) < 0.01
+    assert res.problem.lay.n_belt == truth["geometry"]["n_belt"]
+
+
+def test_no_mass_means_no_stiffness():
+    sc = Scenario(duration_s=4.0, travel_mm=420.0, rest_s=0.3, ramp_s=0.9, mass_kg=None)
+    rec, truth = simulate(sc, seed=2)
+    res = fit(rec, rig_of(sc))
+    assert "stiffness_N_per_mm" not in res.quantities
+    assert_within(res, truth, names=("slip", "rolling_resistance"))
+
+
+def test_not_converged_is_an_error(reference_fit):
+    res, _ = reference_fit
+    with pytest.raises(FitError, match="did not converge"):
+        fit_problem(res.problem, max_steps=2)
+    r = fit_problem(res.problem, max_steps=2, require_convergence=False)
+    assert not r.converged
+
+
+def _drop_role(rec, role):
+    """The recording without the markers of `role` (gone from the marker list too)."""
+    kept = [m for m, r in enumerate(rec.roles) if r != role]
+    new_index = {m: i for i, m in enumerate(kept)}
+    keep = np.isin(rec.marker_index, kept)
+    return rec.with_(markers=tuple(rec.markers[m] for m in kept),
+                     roles=tuple(rec.roles[m] for m in kept),
+                     t=rec.t[keep], x=rec.x[keep], y=rec.y[keep],
+                     marker_index=np.array([new_index[m] for m in rec.marker_index[keep]]),
+                     frame=None if rec.frame is None else rec.frame[keep])
+
+
+def test_bad_recordings_get_one_line_errors():
+    sc = Scenario(duration_s=2.0, travel_mm=150.0, rest_s=0.2, ramp_s=0.6)
+    rec, _ = simulate(sc, seed=0)
+    rec = rec.with_(path="rec.csv")
+    rig = rig_of(sc)
+    for role, text in (("body", "no body markers"), ("lug", "no lug markers")):
+        with pytest.raises(InputError, match=text) as ei:
+            build_problem(_drop_role(rec, role), rig)
+        assert "rec.csv" in str(ei.value) and "\n" not in str(ei.value)
+    # a body marker that is listed but never found
+    x = np.where(rec.marker_index == rec.markers.index("C1"), np.nan, rec.x)
+    with pytest.raises(InputError, match="body marker C1 has fewer than 2 valid samples"):
+        build_problem(rec.with_(x=x), rig)
+    short = rec.t < 0.1
+    few = rec.with_(t=rec.t[short], marker_index=rec.marker_index[short], x=rec.x[short],
+                    y=rec.y[short], frame=rec.frame[short])
+    with pytest.raises(InputError, match="frames"):
+        build_problem(few, rig)
+
+
+def test_missing_samples_are_gaps_not_errors():
+    sc = Scenario(duration_s=4.0, travel_mm=420.0, rest_s=0.3, ramp_s=0.9)
+    rec, truth = simulate(sc, seed=4)
+    rng = np.random.default_rng(0)
+    x = rec.x.copy()
+    x[rng.random(len(x)) < 0.05] = np.nan  # 5 % of the samples lost
+    res = fit(rec.with_(x=x), rig_of(sc))
+    assert_within(res, truth, names=("slip", "R_mm", "e_mm"))
+    assert res.n_data < 2 * len(x)
