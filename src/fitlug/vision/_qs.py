@@ -40,12 +40,6 @@ class QsFit:
     params: np.ndarray
 
 
-_SIGNS = np.array([[s1, s2] for s1 in (1.0, -1.0) for s2 in (1.0, -1.0)])
-_PARITY = _SIGNS.prod(axis=1)
-# (zp @ _DMAT) gives Σ ± z and Σ ± z · s2 / 2: the sums behind dS/du and dS/db
-_DMAT = np.stack([_PARITY, 0.5 * _PARITY * _SIGNS[:, 1]], axis=1)
-
-
 def _edge(u, b, derivatives=True):
     """A straight edge seen by the camera: a step blurred by two boxes - the pixel (1 px)
     and the blur across the edge (b px: motion blur and optics) - as a value in [-1, 1].
@@ -53,14 +47,20 @@ def _edge(u, b, derivatives=True):
     u: (M, N) signed distance from the edge, px; b: (M, 1) blur width, px.
     Returns S, and with `derivatives` dS/du and dS/db (each (M, N)).
     """
-    off = 0.5 * (_SIGNS[:, 0] + _SIGNS[:, 1] * b[..., None])
-    zp = np.maximum(u[..., None] + off, 0.0)  # (M, N, 4)
+    # the unit step convolved with two boxes: Σ ± (z)₊² / 2b over the four corners
+    # z = u ± 1/2 ± b/2 (a piecewise quadratic ramp from -(1+b)/2 to (1+b)/2)
+    hb = 0.5 * b
+    z1 = np.maximum(u + (0.5 + hb), 0.0)
+    z2 = np.maximum(u + (0.5 - hb), 0.0)
+    z3 = np.maximum(u - (0.5 - hb), 0.0)
+    z4 = np.maximum(u - (0.5 + hb), 0.0)
     inv = 1.0 / b
-    e = ((zp * zp) @ _PARITY) * (0.5 * inv)  # Σ ± z²/2 / b: the blurred unit step
+    e = (z1 * z1 - z2 * z2 - z3 * z3 + z4 * z4) * (0.5 * inv)
     if not derivatives:
-        return 2 * e - 1
-    d = zp @ _DMAT
-    return 2 * e - 1, (2 * inv) * d[..., 0], (2 * inv) * (d[..., 1] - e)
+        return 2.0 * e - 1.0
+    du = (z1 - z2 - z3 + z4) * (2.0 * inv)
+    db = (z1 + z2 - z3 - z4 - 2.0 * e) * inv
+    return 2.0 * e - 1.0, du, db
 
 
 def qs_coarse(win: np.ndarray, half_q: int, search: int):
@@ -106,7 +106,7 @@ def _model(win, rfit, x, y, p, jacobian=True):
     the cost (M,) and the sum of the weights (M,), for pixels at offsets x, y (N,) from the
     window centre."""
     dx, dy = x - p[:, 0, None], y - p[:, 1, None]
-    m = np.clip(rfit + 0.5 - np.sqrt(dx * dx + dy * dy), 0.0, 1.0)
+    m = np.minimum(np.maximum(rfit + 0.5 - np.sqrt(dx * dx + dy * dy), 0.0), 1.0)
     c, s = np.cos(p[:, 2, None]), np.sin(p[:, 2, None])
     u, v = c * dx + s * dy, c * dy - s * dx
     gain = p[:, _B, None] + p[:, _B + 1, None] * x + p[:, _B + 2, None] * y
@@ -121,9 +121,18 @@ def _model(win, rfit, x, y, p, jacobian=True):
     res = (win - base - gain * prod) * m
     gm = gain * m
     a, b = gm * du * sv, gm * su * dv
-    pm = prod * m
-    jac = np.stack([s * b - c * a, -(s * a + c * b), v * a - u * b, gm * dbu * sv,
-                    gm * su * dbv, m, x * m, y * m, pm, x * pm, y * pm], axis=1)
+    jac = np.empty((p.shape[0], N_PARAMS, x.size))
+    jac[:, 0] = s * b - c * a
+    jac[:, 1] = -(s * a + c * b)
+    jac[:, 2] = v * a - u * b
+    jac[:, 3] = gm * dbu * sv
+    jac[:, 4] = gm * su * dbv
+    jac[:, 5] = m
+    jac[:, 6] = x * m
+    jac[:, 7] = y * m
+    jac[:, 8] = prod * m
+    jac[:, 9] = x * jac[:, 8]
+    jac[:, 10] = y * jac[:, 8]
     return res, jac, (res * res).sum(axis=1), m.sum(axis=1)
 
 

@@ -156,3 +156,29 @@ def render_video(out_dir: str | os.PathLike, t, markers: Sequence[str], roles: S
             "seed": seed, "options": asdict(opt)}
     write_text_atomic(os.path.join(out_dir, "render.json"), json.dumps(info, indent=2) + "\n")
     return {"frames": int(t.size), "origin_mm": origin, "calib": calib_path, "truth": truth_path}
+
+
+def render_recording(out_dir: str | os.PathLike, scenario, *, seed: int = 0,
+                     frames: int | None = None, progress: bool = True, **kwargs) -> dict:
+    """Render a simulated recording (`fitlug.sim.Scenario`) as camera frames.
+
+    The markers are drawn at their noise-free positions (the camera adds its own noise);
+    lug markers as COG discs, body markers as QS checkers. frames: render only the first
+    N frames. Other keyword arguments go to `render_video` (mm_per_px, image_size,
+    origin_mm, camera, options). Returns what `render_video` returns.
+    """
+    from ..sim import simulate
+
+    rec, _ = simulate(scenario.replace(noise_lug_mm=0.0, noise_body_mm=0.0), seed)
+    t = np.unique(rec.t)
+    if frames is not None:
+        if frames < 1:
+            raise ValueError(f"frames must be at least 1, got {frames}")
+        t = t[:frames]
+    xy = np.full((t.size, rec.n_markers, 2), np.nan)
+    row = np.searchsorted(t, rec.t)
+    keep = (row < t.size) & (t[np.minimum(row, t.size - 1)] == rec.t)
+    xy[row[keep], rec.marker_index[keep], 0] = rec.x[keep]
+    xy[row[keep], rec.marker_index[keep], 1] = rec.y[keep]
+    return render_video(out_dir, t, list(rec.markers), list(rec.roles), xy, seed=seed,
+                        progress=progress, **kwargs)
