@@ -18,8 +18,8 @@ import numpy as np
 from .._errors import InputError
 
 
-def body_reference(rec, body_ids):
-    """(times, X) at the body markers' unique times, and their offsets (cx, cy)."""
+def body_reference(rec, body_ids, t_ref=0.0):
+    """(times, X) at the body markers' unique times, and their offsets (cx, cy); X(t_ref) = 0."""
     tracks = []
     cx, cy = [], []
     for m in body_ids:
@@ -27,7 +27,7 @@ def body_reference(rec, body_ids):
         t, x, y = rec.t[sel], rec.x[sel], rec.y[sel]
         if len(t) < 2:
             raise InputError(rec.path, f"body marker {rec.markers[m]} has fewer than 2 valid samples")
-        c = float(np.interp(0.0, t, x))
+        c = float(np.interp(t_ref, t, x))
         tracks.append((t, x - c))
         cx.append(c)
         cy.append(float(np.median(y)))

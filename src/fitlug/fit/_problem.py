@@ -84,14 +84,17 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
                                f"at least {MIN_FRAMES} are needed")
     fps = _fps(rec, frames)
 
-    tX, X, cx, cy = _init.body_reference(rec, body_ids)
+    tX, X, cx, cy = _init.body_reference(rec, body_ids, t_ref=_first_time(rec, valid, fps))
     geom, rel = _init.lug_geometry(rec, lug_ids, tX, X)
     P = float(belt_length(geom["R"], geom["D"]))
     s, sigma0 = _init.slip_and_phases(rel, geom, tX, X, P)
     N = _init.infer_n_belt(P, rig.lug_pitch_mm, sigma0)
 
     t_all = rec.t[valid]
-    t_lo = min(0.0, float(t_all.min())) - 3.0 / fps
+    # MODEL.md's gauge: X(0) = 0, sigma_i0 at t = 0; a recording that starts later than
+    # its first frame interval takes its first sample as t = 0's stand-in
+    t_ref = 0.0 if float(t_all.min()) <= 1.0 / fps + 1e-9 else float(t_all.min())
+    t_lo = min(t_ref, float(t_all.min())) - 3.0 / fps
     t_hi = float(t_all.max()) + 3.0 / fps
     breaks = place_knots(tX, X, t_lo=t_lo, t_hi=t_hi, R=geom["R"], pitch=P / N, slip=s)
 
@@ -105,7 +108,8 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
         body_t=rec.t[body_rows],
         body_j=np.array([body_index[m] for m in rec.marker_index[body_rows]]),
         n_lug=len(lug_ids), n_body=len(body_ids), n_belt=N,
-        n_contact=rig.lugs_in_contact, L=rig.load_bearing_length_mm, effects=effects)
+        n_contact=rig.lugs_in_contact, L=rig.load_bearing_length_mm, effects=effects,
+        t_ref=t_ref)
 
     # noise: the file's sigma_mm column, else from the data's 4th differences
     if rec.sigma is not None and np.all(np.isfinite(rec.sigma[valid])):
@@ -147,6 +151,11 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
                    p0=p0, init_info=info)
 
 
+def _first_time(rec, valid, fps):
+    t0 = float(rec.t[valid].min())
+    return 0.0 if t0 <= 1.0 / fps + 1e-9 else t0
+
+
 def _fps(rec, frames):
     fps = None
     try:
@@ -164,7 +173,7 @@ def _init_speed(lay, obs, cx0):
     Bn, Bm = np.asarray(lay.Bn), np.asarray(lay.Bm)
     h = lay.h
     # integrated basis at nodes (Simpson, cumulative), then Hermite at the body times
-    I = np.vstack([np.zeros(Bn.shape[1]), np.cumsum(h / 6 * (Bn[:-1] + 4 * Bm + Bn[1:]), 0)])
+    I = np.vstack([np.zeros(Bn.shape[1]), np.cumsum(h / 6 * (Bn[:-1] + 4 * Bm + Bn[1:]), 0)])  # noqa: E741
     grid = np.asarray(lay.grid)
 
     def herm(t):
@@ -176,7 +185,7 @@ def _init_speed(lay, obs, cx0):
                 + (-2 * t3 + 3 * t2) * I[i + 1] + (t3 - t2) * h * Bn[i + 1])
 
     tb = np.asarray(lay.body_t)
-    A = herm(tb) - herm(np.zeros(1))
+    A = herm(tb) - herm(np.full(1, lay.t_ref))
     w = np.asarray(obs["body_w"])
     J = np.asarray(lay.body_j)
     C = np.zeros((len(tb), lay.n_body))

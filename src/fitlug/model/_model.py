@@ -48,6 +48,7 @@ class Layout(eqx.Module):
     L: float = eqx.field(static=True)  # load-bearing length, mm
     effects: tuple = eqx.field(static=True)
     breaks: tuple = eqx.field(static=True)
+    t_ref: float = eqx.field(static=True, default=0.0)  # X(t_ref) = psi(t_ref) = 0
 
     @property
     def n_coef(self) -> int:
@@ -65,8 +66,10 @@ class Layout(eqx.Module):
 
 
 def make_layout(*, breaks, t_lo, t_hi, fps, lug_t, lug_i, body_t, body_j, n_lug, n_body,
-                n_belt, n_contact=8, L=127.0, effects=(), substeps=2) -> Layout:
-    """Build a :class:`Layout`. The grid spans [t_lo, t_hi] (must contain 0 and every sample)."""
+                n_belt, n_contact=8, L=127.0, effects=(), substeps=2, t_ref=0.0) -> Layout:
+    """Build a :class:`Layout`. The grid spans [t_lo, t_hi] (must contain t_ref and every
+    sample); X and psi are 0 at t_ref (MODEL.md's t = 0; the first sample's time when a
+    recording starts later)."""
     h = 1.0 / (float(fps) * substeps)
     G = int(np.ceil((t_hi - t_lo) / h)) + 1
     grid = t_lo + h * np.arange(G)
@@ -77,7 +80,8 @@ def make_layout(*, breaks, t_lo, t_hi, fps, lug_t, lug_i, body_t, body_j, n_lug,
                  dBm=f(mid, 1), lug_t=jnp.asarray(lug_t, float), lug_i=jnp.asarray(lug_i, int),
                  body_t=jnp.asarray(body_t, float), body_j=jnp.asarray(body_j, int), h=h,
                  n_lug=int(n_lug), n_body=int(n_body), n_belt=int(n_belt),
-                 n_contact=int(n_contact), L=float(L), effects=(), breaks=tuple(br.tolist()))
+                 n_contact=int(n_contact), L=float(L), effects=(), breaks=tuple(br.tolist()),
+                 t_ref=float(t_ref))
     return lay.with_effects(effects)
 
 
@@ -137,7 +141,7 @@ def _rates(p, lay, ctx, v0, a0, psi):
 
 
 def integrate(p, lay: Layout):
-    """Node values (X, psi, dX/dt, dpsi/dt), each (G,), with X(0) = psi(0) = 0."""
+    """Node values (X, psi, dX/dt, dpsi/dt), each (G,), with X = psi = 0 at lay.t_ref."""
     ctx = ctx_of(p, lay)
     c = p["v"]
     v0n, a0n, v0m, a0m = lay.Bn @ c, lay.dBn @ c, lay.Bm @ c, lay.dBm @ c
@@ -165,8 +169,9 @@ def integrate(p, lay: Layout):
         X = jnp.concatenate([jnp.zeros(1), Xs])
         psi = jnp.concatenate([jnp.zeros(1), Ps])
         vn, dpn = _rates(p, lay, ctx, v0n, a0n, psi)
-    X0 = hermite(lay, jnp.zeros(()), X, vn)
-    psi0 = hermite(lay, jnp.zeros(()), psi, dpn)
+    t0 = jnp.asarray(lay.t_ref, float)
+    X0 = hermite(lay, t0, X, vn)
+    psi0 = hermite(lay, t0, psi, dpn)
     return X - X0, psi - psi0, vn, dpn
 
 
