@@ -47,12 +47,16 @@ class Detections:
 
 
 def estimate_noise(img: np.ndarray) -> float:
-    """Robust standard deviation of the pixel noise, grey levels (from row differences)."""
+    """Robust standard deviation of the pixel noise, grey levels, from differences of
+    neighbouring pixels along rows (edges and markers are left out as outliers; the spread
+    of the rest, not their median, so that the rounding of quiet 8-bit frames counts)."""
     sub = np.asarray(img[:: max(1, img.shape[0] // 200)], dtype=np.float32)
     d = np.diff(sub, axis=1).ravel()
     if d.size == 0:
         return 0.0
-    return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2.0))
+    mad = 1.4826 * float(np.median(np.abs(d - np.median(d))))
+    keep = d[np.abs(d) <= max(4.0 * mad, 2.0)]
+    return float(np.sqrt(np.mean(keep.astype(np.float64) ** 2) / 2.0)) if keep.size else 0.0
 
 
 def _find_cog(img, noise, r_range, min_contrast):

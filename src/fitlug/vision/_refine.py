@@ -74,8 +74,10 @@ class CogFit:
     window left the frame), `flux` (background-free sum, grey levels x px), `contrast`
     (mean disc level above the background), `radius` (disc radius from the second moment
     across the blur, px), `streak` (motion-blur length from the second moments, px),
-    `noise` (background residual std), `slope` (M, 2) relative brightness slope of the
-    disc used for flat-fielding, 1/px, `inside` (bool)."""
+    `noise` (background residual std), `level` (the disc's brightness above the
+    background at its centre, fitted on its interior), `slope` (M, 2) relative brightness
+    slope of the disc used for flat-fielding, 1/px, `inside` (bool). flux / level is the
+    disc's area whatever the lighting: a partly hidden disc shows less."""
 
     xy: np.ndarray
     flux: np.ndarray
@@ -83,6 +85,7 @@ class CogFit:
     radius: np.ndarray
     streak: np.ndarray
     noise: np.ndarray
+    level: np.ndarray
     slope: np.ndarray
     inside: np.ndarray
 
@@ -161,4 +164,4 @@ def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, n_ite
     xy = base + np.stack([mx, my], axis=1)
     bad = ~(ok & inside & (flux > 0))
     xy[bad] = np.nan
-    return CogFit(xy, flux, contrast, radius_m, streak, noise, rel, inside & ok)
+    return CogFit(xy, flux, contrast, radius_m, streak, noise, level, rel, inside & ok)

@@ -29,10 +29,12 @@ class TrackerConfig:
     kinds: marker types to track; roles: role per kind (COG -> lug, QS -> body by default);
     cog_radius / qs_half: disc radius and half checker side if known (else measured on
     detection); min_contrast: least marker contrast, grey levels (default: from the noise);
-    redetect_every: frames between full-frame searches for new markers; max_gap: frames a
-    lost marker is searched for before its track is closed; max_step: the farthest a marker
-    may move between two frames before its speed is known; min_quality: samples below it
-    are gaps; min_length: shorter tracks are dropped; qs_iter: Gauss-Newton steps per frame.
+    redetect_every: frames between full-frame searches for new markers; edge_every: frames
+    between searches along the frame's edges for markers coming into view (0: never);
+    max_gap: frames a lost marker is searched for before its track is closed; max_step:
+    the farthest a marker may move between two frames before its speed is known;
+    min_quality: samples below it are gaps; min_length: shorter tracks are dropped;
+    qs_iter: Levenberg-Marquardt steps per frame.
     """
 
     kinds: tuple = (COG, QS)
@@ -41,11 +43,18 @@ class TrackerConfig:
     qs_half: float | None = None
     min_contrast: float = 0.0
     redetect_every: int = 50
+    edge_every: int = 1
     max_gap: int = 8
     max_step: float = 30.0
     min_quality: float = 0.5
     min_length: int = 5
     qs_iter: int = 2
+
+
+# least-squares parabola through samples at t = -4..0: value at t = [1, t, t²] @ _P5
+_T5 = np.arange(-4.0, 1.0)
+_P5 = np.linalg.pinv(np.stack([np.ones(5), _T5, _T5 * _T5], axis=1))
+_W5_NEXT = tuple(float(v) for v in np.array([1.0, 1.0, 1.0]) @ _P5)
 
 
 class _Track:
@@ -61,9 +70,18 @@ class _Track:
         self.params = params
 
     def predict(self, frame: int):
-        """Predicted (x, y) at `frame` and how far off it may be, px (None: speed unknown)."""
+        """Predicted (x, y) at `frame` and how far off it may be, px (None: speed unknown).
+
+        A parabola through the last five samples when they are consecutive (least squares:
+        less noise than through three), else constant acceleration or velocity."""
         f, xs, ys = self.frames, self.xs, self.ys
         k = frame - f[-1]
+        if len(f) >= 5 and f[-1] - f[-5] == 4:
+            w = _W5_NEXT if k == 1 else tuple(np.array([1.0, k, k * k]) @ _P5)
+            x = w[0] * xs[-5] + w[1] * xs[-4] + w[2] * xs[-3] + w[3] * xs[-2] + w[4] * xs[-1]
+            y = w[0] * ys[-5] + w[1] * ys[-4] + w[2] * ys[-3] + w[3] * ys[-2] + w[4] * ys[-1]
+            ax, ay = xs[-1] - 2 * xs[-2] + xs[-3], ys[-1] - 2 * ys[-2] + ys[-3]
+            return (x, y), 0.3 + 0.5 * (abs(ax) + abs(ay)) * k * k + 1.5 * (k - 1)
         if len(f) >= 3 and f[-1] - f[-3] == 2:
             vx, vy = 1.5 * xs[-1] - 2 * xs[-2] + 0.5 * xs[-3], 1.5 * ys[-1] - 2 * ys[-2] + 0.5 * ys[-3]
             ax, ay = xs[-1] - 2 * xs[-2] + xs[-3], ys[-1] - 2 * ys[-2] + ys[-3]
@@ -154,14 +172,17 @@ class Tracker:
         self._accept(frame_no, found)
         if self._n % cfg.redetect_every == 0:
             self._pick_up(frame, frame_no)
+        elif cfg.edge_every and self._n % cfg.edge_every == 0:
+            self._pick_up_at_edges(frame, frame_no)
         self._n += 1
 
-    def _cog_quality(self, t, flux, radius, streak):
+    def _cog_quality(self, t, area, radius, streak):
         """How much a COG sample looks like the track's marker: a partly hidden or merged
-        disc changes its flux, its width across the blur or its streak."""
+        disc changes its area (flux over interior level, whatever the lighting), its width
+        across the blur or its streak."""
         if t.flux is None:
             return 1.0
-        return min(_score(flux / t.flux - 1, 0.03), _score(radius / t.radius - 1, 0.03),
+        return min(_score(area / t.flux - 1, 0.03), _score(radius / t.radius - 1, 0.03),
                    _score(streak - t.streak, 0.5 + 0.2 * t.streak))
 
     def _refine_cog(self, frame, frame_no, items, found):
@@ -170,13 +191,14 @@ class Tracker:
         radius = np.array([t.size for t in tracks])
         blur = np.array([1.0 if t.streak is None else t.streak + 0.5 for t in tracks])
         fit = refine_cog(frame, pred, radius, blur_px=blur)
+        area = fit.flux / np.where(fit.level > 0, fit.level, np.inf)
         for i, t in enumerate(tracks):
             if not np.isfinite(fit.xy[i, 0]):
                 continue
-            q = self._cog_quality(t, fit.flux[i], fit.radius[i], fit.streak[i])
+            q = self._cog_quality(t, area[i], fit.radius[i], fit.streak[i])
             d = np.hypot(*(fit.xy[i] - pred[i]))
             if d <= 1.0 + 3.0 * items[i][2]:
-                found[t.uid] = (fit.xy[i], q, (fit.flux[i], fit.radius[i], fit.streak[i]))
+                found[t.uid] = (fit.xy[i], q, (area[i], fit.radius[i], fit.streak[i]))
 
     def _refine_qs(self, frame, frame_no, items, found):
         cfg = self.config
@@ -188,12 +210,20 @@ class Tracker:
         half = np.array([t.size for t in tracks])
         fit = refine_qs(frame, pred, half, params=params if warm else None,
                         search=0 if unc < 0.75 else int(np.ceil(unc)) + 1, n_iter=cfg.qs_iter)
+        # a fit still on its way (residual well above the track's) gets more steps
+        ref = np.array([max(t.rms, self.noise) if t.rms is not None else np.inf for t in tracks])
+        slow = np.isfinite(fit.xy[:, 0]) & (fit.rms > 1.2 * ref)
+        if slow.any():
+            more = refine_qs(frame, fit.xy[slow], half[slow], params=fit.params[slow], search=0,
+                             n_iter=4)
+            for name in ("xy", "rms", "contrast", "params"):
+                getattr(fit, name)[slow] = getattr(more, name)
         for i, t in enumerate(tracks):
             if not np.isfinite(fit.xy[i, 0]):
                 continue
             q = _score(fit.contrast[i] / t.contrast - 1, 0.1)
             if t.rms is not None:  # occlusion or a wrong fit: the residual jumps
-                q = min(q, _score(fit.rms[i] / max(t.rms, self.noise) - 1, 0.25))
+                q = min(q, _score(max(fit.rms[i] / max(t.rms, self.noise) - 1, 0.0), 0.25))
             d = np.hypot(*(fit.xy[i] - pred[i]))
             if d <= 1.0 + 3.0 * items[i][2]:
                 found[t.uid] = (fit.xy[i], q, (fit.rms[i], fit.contrast[i], fit.params[i]))
@@ -214,8 +244,9 @@ class Tracker:
         if t.kind == COG:
             blur = 1.0 if t.streak is None else t.streak + 0.5
             fit = refine_cog(frame, det.xy[j:j + 1], t.size, blur_px=blur, n_iter=3)
-            extra = (fit.flux[0], fit.radius[0], fit.streak[0])
-            q = self._cog_quality(t, fit.flux[0], fit.radius[0], fit.streak[0])
+            area = fit.flux[0] / fit.level[0] if fit.level[0] > 0 else 0.0
+            extra = (area, fit.radius[0], fit.streak[0])
+            q = self._cog_quality(t, area, fit.radius[0], fit.streak[0])
         else:
             row = int(np.flatnonzero(det.kind[:j + 1] == QS).size - 1)
             p = det.extra["qs_params"][row]
@@ -256,14 +287,41 @@ class Tracker:
             else:
                 if extra[0] is not None:
                     t.rms = _ema(t.rms, extra[0])
-                t.contrast = _ema(t.contrast, extra[1])
+                t.contrast = float(extra[1])  # the last one: lighting drifts along the track
                 t.params = extra[2]
 
-    def _pick_up(self, frame, frame_no):
-        known = self.cog_radius is not None or self.qs_half is not None
+    def _search_scale(self):
         # with the sizes known and the markers big enough, search a half-size image
-        small = min(r for r in (self.cog_radius, self.qs_half) if r is not None) if known else 0
-        det = self._detect(frame, scale=2 if small >= 6 else 1)
+        known = [r for r in (self.cog_radius, self.qs_half) if r is not None]
+        return 2 if known and min(known) >= 6 else 1
+
+    def _pick_up(self, frame, frame_no):
+        """Whole-frame search for markers no track follows."""
+        self._add_new(self._detect(frame, scale=self._search_scale()), frame_no)
+
+    def _pick_up_at_edges(self, frame, frame_no):
+        """Markers come into view across the frame's edges: search the strips along them
+        where something stands out (a cheap test on every other pixel first)."""
+        known = [r for r in (self.cog_radius, self.qs_half) if r is not None]
+        if not known:
+            return
+        h, w = frame.shape
+        width = int(2.5 * max(known) + self.config.max_step + 4)
+        if 2 * width >= min(h, w):
+            return
+        thresh = 10.0 * self.noise + self.config.min_contrast
+        for x0, y0, x1, y1 in ((0, 0, width, h), (w - width, 0, w, h), (width, 0, w - width, width),
+                               (width, h - width, w - width, h)):
+            sub = frame[y0:y1:2, x0:x1:2]
+            if float(sub.max()) - float(sub.mean()) < thresh and \
+                    float(sub.mean()) - float(sub.min()) < thresh:
+                continue
+            pad = int(2 * max(known)) + 2  # markers straddling the strip's inner side too
+            roi = (max(x0 - pad, 0), max(y0 - pad, 0), min(x1 + pad, w), min(y1 + pad, h))
+            self._add_new(self._detect(frame, roi=roi, scale=self._search_scale()), frame_no)
+
+    def _add_new(self, det, frame_no):
+        """Start a track for each detection that no live track is following."""
         if len(det) == 0:
             return
         qs_rows = np.cumsum(det.kind == QS) - 1
@@ -281,7 +339,8 @@ class Tracker:
                 if near:
                     break
             if not near:
-                self._new_track(det, j, frame_no, qs_rows[j] if det.kind[j] == QS else None)
+                live.append(self._new_track(det, j, frame_no,
+                                            qs_rows[j] if det.kind[j] == QS else None))
 
     # -- the outcome -----------------------------------------------------------------------
     def result(self) -> "TrackResult":
