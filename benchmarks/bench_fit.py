@@ -86,8 +86,8 @@ def main():
         flat_list.append(packing.pack(base.p0 if pb is None else pb.p0))
     obs_b = {k: jnp.stack([o[k] for o in obs_list[:args.batch]]) for k in obs_list[0]}
     flat_b = jnp.stack(flat_list[:args.batch])
-    solve_b = jax.jit(jax.vmap(lambda f0, ob: _solve(f0, {}, base.lay, ob, packing, 300, 1e-9,
-                                                     1e-9)[0]))
+    solve_b = jax.jit(jax.vmap(lambda f0, ob: _solve(f0, {}, base.lay, ob, packing, 300, 1e-8,
+                                                     1e-6)[0]))
     jax.block_until_ready(solve_b(flat_b, obs_b))  # compile
     t_b, out = timed(lambda: jax.block_until_ready(solve_b(flat_b, obs_b)), repeat=1)
     k = args.scipy_batch

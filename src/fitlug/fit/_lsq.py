@@ -3,7 +3,9 @@
 The free parameters are packed into one vector and scaled so that every Jacobian column
 has unit norm at the start (LM's damping is isotropic, and our parameters span 1e-9
 (lens k1, per mm^2) to 1e2 (mm)). `throw=False` keeps the compiled solver cacheable;
-the result code is checked here instead.
+the result code is checked here instead. Tolerances are in those scaled units (a unit
+step moves the residual norm by about one sigma): atol 1e-6 stops far below any
+statistical relevance, and halves the steps of 1e-9 with the same optimum.
 """
 
 from __future__ import annotations
@@ -96,8 +98,8 @@ class LsqOutput(NamedTuple):
     packing: Packing
 
 
-def least_squares(p0: dict, free, lay, obs, *, max_steps: int = 200, rtol: float = 1e-9,
-                  atol: float = 1e-9) -> LsqOutput:
+def least_squares(p0: dict, free, lay, obs, *, max_steps: int = 200, rtol: float = 1e-8,
+                  atol: float = 1e-6) -> LsqOutput:
     """Minimise |residuals|^2 over the `free` parameters of `p0` (others held fixed)."""
     packing = Packing.of(p0, free)
     fixed = {k: jnp.asarray(v, float) for k, v in p0.items() if k not in packing.names}
