@@ -73,7 +73,9 @@ class CogFit:
     """Result of `refine_cog`, arrays over markers (M,): `xy` (M, 2) px (NaN when the
     window left the frame), `flux` (background-free sum, grey levels x px), `contrast`
     (mean disc level above the background), `radius` (disc radius from the second moment
-    across the blur, px), `streak` (motion-blur length from the second moments, px),
+    across the blur, px), `streak` (motion-blur length from the second moments, px; noise
+    makes it come out long: average `shear` over frames instead), `shear` (M, 2) the
+    traceless second moments ((mxx - myy) / 2, mxy), px²,
     `noise` (background residual std), `level` (the disc's brightness above the
     background at its centre, fitted on its interior), `slope` (M, 2) relative brightness
     slope of the disc used for flat-fielding, 1/px, `inside` (bool). flux / level is the
@@ -84,6 +86,7 @@ class CogFit:
     contrast: np.ndarray
     radius: np.ndarray
     streak: np.ndarray
+    shear: np.ndarray
     noise: np.ndarray
     level: np.ndarray
     slope: np.ndarray
@@ -164,4 +167,5 @@ def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, n_ite
     xy = base + np.stack([mx, my], axis=1)
     bad = ~(ok & inside & (flux > 0))
     xy[bad] = np.nan
-    return CogFit(xy, flux, contrast, radius_m, streak, noise, level, rel, inside & ok)
+    shear = np.stack([0.5 * (mxx - myy), mxy], axis=1)
+    return CogFit(xy, flux, contrast, radius_m, streak, shear, noise, level, rel, inside & ok)
