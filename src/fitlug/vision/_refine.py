@@ -107,13 +107,15 @@ def _weighted_plane(weights, values, basis):
                      c02 * b0 + c12 * b1 + c22 * b2], axis=1) / det[:, None]
 
 
-def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, n_iter: int = 1,
-               gain_slope=None) -> CogFit:
+def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, blur_dir=None,
+               n_iter: int = 1, gain_slope=None) -> CogFit:
     """Centre of gravity of bright discs near first guesses.
 
     frame: (H, W) grey image (any numeric dtype); xy0: (M, 2) first guesses, px, within
     about one radius of the centres; radius: disc radius px, scalar or (M,); blur_px:
-    motion-blur streak expected, px, scalar or (M,) (widens the aperture); n_iter:
+    motion-blur streak expected, px, scalar or (M,) (widens the aperture); blur_dir: (M, 2)
+    unit vectors along the streaks if known (the aperture and the interior then follow
+    the streak's shape, a stadium and a lens, rather than widening all round); n_iter:
     plain centroid steps before the final one (1 is enough from a guess within a pixel);
     gain_slope: (M, 2) relative brightness slope of each disc, 1/px, if known, else
     fitted on the disc's interior.
@@ -144,7 +146,20 @@ def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, n_ite
     # 3. flat-fielded centroid, the interior replaced by its fitted level
     dx, dy = gx - c[:, :1], gy - c[:, 1:]
     rho = np.sqrt(dx * dx + dy * dy)
-    wi = np.clip(r - 0.5 - 0.5 * blur - rho, 0.0, 1.0)
+    if blur_dir is None:
+        wi = np.clip(r - 0.5 - 0.5 * blur - rho, 0.0, 1.0)
+        ap = np.clip(ra + 0.5 - rho, 0.0, 1.0)
+    else:
+        # a disc swept along a segment: covered by all its positions inside both end discs
+        # (the lens), by none beyond the disc's reach from the segment (the stadium)
+        u = np.asarray(blur_dir, dtype=np.float64).reshape(-1, 2)
+        along = dx * u[:, :1] + dy * u[:, 1:]
+        across2 = np.maximum(rho * rho - along * along, 0.0)
+        half = 0.5 * blur
+        far = np.sqrt(across2 + (np.abs(along) + half) ** 2)
+        seg = np.sqrt(across2 + np.maximum(np.abs(along) - half, 0.0) ** 2)
+        wi = np.clip(r - 0.5 - far, 0.0, 1.0)
+        ap = np.clip(r + 1.5 - seg, 0.0, 1.0)
     coef = _weighted_plane(wi, win, basis)
     level = coef[:, 0] + coef[:, 1] * c[:, 0] + coef[:, 2] * c[:, 1]
     safe = np.where(np.abs(level) > 0, level, 1.0)
@@ -152,7 +167,7 @@ def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, n_ite
     if gain_slope is not None:
         rel = np.asarray(gain_slope, dtype=np.float64).reshape(-1, 2)
     flat = win / (1.0 + rel[:, :1] * dx + rel[:, 1:] * dy)
-    wgt = (flat + wi * (level[:, None] - flat)) * np.clip(ra + 0.5 - rho, 0.0, 1.0)
+    wgt = (flat + wi * (level[:, None] - flat)) * ap
     mom = wgt @ basis  # raw moments about the window centre
     flux = mom[:, 0]
     f = np.where(flux > 0, flux, 1.0)

@@ -189,17 +189,25 @@ class Tracker:
                    _score(ds, 0.12 + 0.2 * np.hypot(*t.shear)))
 
     def _blur(self, t):
-        """Motion-blur streak to allow for, px: from the averaged shape, plus a margin."""
+        """Motion-blur streak to allow for, px, and its direction (None: unknown), from the
+        averaged shape: a streak L along angle φ makes the traceless second moments
+        (L²/24)(cos 2φ, sin 2φ)."""
         if t.shear is None:
-            return 1.0
+            return 1.0, None
+        a, b = t.shear
         # (less the shear noise leaves on a round disc, ~0.01 px², before the square root)
-        return float(np.sqrt(24.0 * max(np.hypot(*t.shear) - 0.01, 0.0))) + 0.25
+        length = float(np.sqrt(24.0 * max(np.hypot(a, b) - 0.01, 0.0))) + 0.25
+        phi = 0.5 * np.arctan2(b, a)
+        return length, (np.cos(phi), np.sin(phi))
 
     def _refine_cog(self, frame, frame_no, items, found):
         tracks = [it[0] for it in items]
         pred = np.array([it[1] for it in items])
         radius = np.array([t.size for t in tracks])
-        fit = refine_cog(frame, pred, radius, blur_px=np.array([self._blur(t) for t in tracks]))
+        blur = [self._blur(t) for t in tracks]
+        known = all(d is not None for _, d in blur)
+        fit = refine_cog(frame, pred, radius, blur_px=np.array([b for b, _ in blur]),
+                         blur_dir=np.array([d for _, d in blur]) if known else None)
         area = fit.flux / np.where(fit.level > 0, fit.level, np.inf)
         for i, t in enumerate(tracks):
             if not np.isfinite(fit.xy[i, 0]):
@@ -251,7 +259,7 @@ class Tracker:
         if d[j] > reach or (d.size > 1 and d[order[1]] < 1.5 * d[j] + 2.0):
             return  # nothing there, or not clearly one marker
         if t.kind == COG:
-            fit = refine_cog(frame, det.xy[j:j + 1], t.size, blur_px=self._blur(t), n_iter=3)
+            fit = refine_cog(frame, det.xy[j:j + 1], t.size, blur_px=self._blur(t)[0], n_iter=3)
             area = fit.flux[0] / fit.level[0] if fit.level[0] > 0 else 0.0
             extra = (area, fit.radius[0], fit.shear[0])
             q = self._cog_quality(t, area, fit.radius[0], fit.shear[0])
