@@ -35,7 +35,7 @@ def run(args) -> int:
     from ..vision import format_noise, noise_from_tracks, open_source, track
     from ._track import _config, calibration_from_args
 
-    args.max_gap, args.redetect_every = 8, 50
+    args.max_gap, args.redetect_every = 8, 200
     config = _config(args)
     frames = None if args.frames <= 0 else slice(0, args.frames)
     fps = args.fps

@@ -36,7 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", metavar="START:STOP", help="track only these frames")
     parser.add_argument("--max-gap", type=int, default=8,
                         help="frames a lost marker is searched for before its track ends")
-    parser.add_argument("--redetect-every", type=int, default=50,
+    parser.add_argument("--redetect-every", type=int, default=200,
                         help="frames between searches of the whole frame for new markers")
     parser.add_argument("-o", "--output", default="trajectories.csv",
                         help="output (trajectories.csv)")

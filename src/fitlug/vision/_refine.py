@@ -51,13 +51,16 @@ def _disc_offsets(radius: float):
     off = np.arange(-half, half + 1)
     yy, xx = np.meshgrid(off, off, indexing="ij")
     keep = (xx * xx + yy * yy) <= radius * radius
-    return half, xx[keep], yy[keep], xx[keep].astype(np.float64), yy[keep].astype(np.float64)
+    xs, ys = xx[keep], yy[keep]
+    fx, fy = xs.astype(np.float64), ys.astype(np.float64)
+    basis = np.stack([np.ones_like(fx), fx, fy, fx * fx, fx * fy, fy * fy], axis=1)
+    return half, xs, ys, fx, fy, basis
 
 
-def cut_disc(frame: np.ndarray, centres: np.ndarray, radius: float):
-    """The pixels within `radius` of integer centres (M, 2): values (M, N) float64, their
+def cut_disc(frame: np.ndarray, centres: np.ndarray, radius: float, dtype=np.float64):
+    """The pixels within `radius` of integer centres (M, 2): values (M, N) of `dtype`, their
     offsets X, Y (N,) from the centre, and `inside` (M,) as in `cut_windows`."""
-    half, xs, ys, fx, fy = _disc_offsets(np.ceil(float(radius) * 4.0) / 4.0)  # few sizes
+    half, xs, ys, fx, fy, _ = _disc_offsets(np.ceil(float(radius) * 4.0) / 4.0)  # few sizes
     h, w = frame.shape
     cx, cy = centres[:, 0], centres[:, 1]
     inside = (cx - half >= 0) & (cx + half < w) & (cy - half >= 0) & (cy + half < h)
@@ -65,7 +68,7 @@ def cut_disc(frame: np.ndarray, centres: np.ndarray, radius: float):
         vals = frame[cy[:, None] + ys, cx[:, None] + xs]
     else:
         vals = frame[np.clip(cy[:, None] + ys, 0, h - 1), np.clip(cx[:, None] + xs, 0, w - 1)]
-    return vals.astype(np.float64), fx, fy, inside
+    return vals.astype(dtype), fx.astype(dtype), fy.astype(dtype), inside
 
 
 @dataclass
@@ -97,8 +100,8 @@ def _weighted_plane(weights, values, basis):
     """Least-squares plane a + b x + c y through `values` (M, N) with `weights` (M, N).
 
     basis: (N, 6) columns 1, x, y, x², xy, y². Returns coefficients (M, 3)."""
-    s0, sx, sy, sxx, sxy, syy = (weights @ basis).T  # the normal matrix, by Cramer's rule
-    b0, b1, b2 = ((weights * values) @ basis[:, :3]).T
+    s0, sx, sy, sxx, sxy, syy = (weights @ basis).astype(np.float64).T  # normal matrix
+    b0, b1, b2 = ((weights * values) @ basis[:, :3]).astype(np.float64).T  # (Cramer's rule)
     c00, c01, c02 = syy * sxx - sxy * sxy, sxy * sy - syy * sx, sx * sxy - sxx * sy
     c11, c12, c22 = s0 * syy - sy * sy, sx * sy - s0 * sxy, s0 * sxx - sx * sx
     det = s0 * c00 + sx * c01 + sy * c02
@@ -122,53 +125,58 @@ def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, blur_
     """
     xy0 = np.asarray(xy0, dtype=np.float64).reshape(-1, 2)
     m = xy0.shape[0]
-    r = np.broadcast_to(np.asarray(radius, dtype=np.float64), (m,))[:, None]
-    blur = np.broadcast_to(np.asarray(blur_px, dtype=np.float64), (m,))[:, None]
-    ra = r + 1.0 + 0.5 * blur  # aperture: disc, anti-aliased edge, blur
+    f32 = np.float32  # the sums below need no more: float32 halves the memory traffic
+    r = np.broadcast_to(np.asarray(radius, dtype=f32), (m,))[:, None]
+    blur = np.broadcast_to(np.asarray(blur_px, dtype=f32), (m,))[:, None]
+    ra = r + f32(1.0) + f32(0.5) * blur  # aperture: disc, anti-aliased edge, blur
     ok = np.isfinite(xy0).all(axis=1)
     base = np.where(ok[:, None], np.rint(xy0), 0).astype(np.int64)
-    win, gx, gy, inside = cut_disc(frame, base, float(ra.max()) + 4.0 if m else 1.0)
-    basis = np.stack([np.ones_like(gx), gx, gy, gx * gx, gx * gy, gy * gy], axis=1)
-    rho0 = np.sqrt(gx * gx + gy * gy)[None, :]
+    reach = np.ceil((float(ra.max()) + 4.0 if m else 1.0) * 4.0) / 4.0
+    win, gx, gy, inside = cut_disc(frame, base, reach, dtype=f32)
+    basis = _disc_offsets(reach)[5].astype(f32)
+    rho0 = np.sqrt(gx * gx + gy * gy)
     # 1. local background: a plane through an annulus outside the disc (about the window
     #    centre, within half a pixel of the guess)
-    ring = ((rho0 >= ra + 1.0) & (rho0 <= ra + 3.5)).astype(np.float64)
-    coef = _weighted_plane(ring, win, basis)
-    win = win - coef @ basis[:, :3].T
-    noise = np.sqrt((ring * win * win).sum(axis=1) / np.maximum(ring.sum(axis=1) - 3, 1))
+    ring = ((rho0 >= ra + f32(1.0)) & (rho0 <= ra + f32(3.5))).astype(f32)
+    coef = _weighted_plane(ring, win, basis).astype(f32)
+    win -= coef @ basis[:, :3].T
+    noise = np.sqrt((ring * win * win).sum(axis=1, dtype=np.float64)
+                    / np.maximum(ring.sum(axis=1, dtype=np.float64) - 3, 1))
     # 2. plain centroid steps in the aperture
-    c = np.where(ok[:, None], xy0 - base, 0.0)
+    c = np.where(ok[:, None], xy0 - base, 0.0).astype(f32)
     for _ in range(n_iter):
         dx, dy = gx - c[:, :1], gy - c[:, 1:]
-        wgt = win * np.clip(ra + 0.5 - np.sqrt(dx * dx + dy * dy), 0.0, 1.0)
-        mom = wgt @ basis[:, :3]
-        c = mom[:, 1:3] / np.where(mom[:, :1] > 0, mom[:, :1], 1.0)
+        wgt = win * np.minimum(np.maximum(ra + f32(0.5) - np.sqrt(dx * dx + dy * dy), 0), 1)
+        mom = (wgt @ basis[:, :3]).astype(np.float64)
+        c = (mom[:, 1:3] / np.where(mom[:, :1] > 0, mom[:, :1], 1.0)).astype(f32)
     # 3. flat-fielded centroid, the interior replaced by its fitted level
     dx, dy = gx - c[:, :1], gy - c[:, 1:]
     rho = np.sqrt(dx * dx + dy * dy)
     if blur_dir is None:
-        wi = np.clip(r - 0.5 - 0.5 * blur - rho, 0.0, 1.0)
-        ap = np.clip(ra + 0.5 - rho, 0.0, 1.0)
+        wi = np.minimum(np.maximum(r - f32(0.5) - f32(0.5) * blur - rho, 0), 1)
+        ap = np.minimum(np.maximum(ra + f32(0.5) - rho, 0), 1)
     else:
         # a disc swept along a segment: covered by all its positions inside both end discs
         # (the lens), by none beyond the disc's reach from the segment (the stadium)
-        u = np.asarray(blur_dir, dtype=np.float64).reshape(-1, 2)
-        along = dx * u[:, :1] + dy * u[:, 1:]
-        across2 = np.maximum(rho * rho - along * along, 0.0)
-        half = 0.5 * blur
-        far = np.sqrt(across2 + (np.abs(along) + half) ** 2)
-        seg = np.sqrt(across2 + np.maximum(np.abs(along) - half, 0.0) ** 2)
-        wi = np.clip(r - 0.5 - far, 0.0, 1.0)
-        ap = np.clip(r + 1.5 - seg, 0.0, 1.0)
-    coef = _weighted_plane(wi, win, basis)
-    level = coef[:, 0] + coef[:, 1] * c[:, 0] + coef[:, 2] * c[:, 1]
+        u = np.asarray(blur_dir, dtype=f32).reshape(-1, 2)
+        along = np.abs(dx * u[:, :1] + dy * u[:, 1:])
+        across2 = np.maximum(rho * rho - along * along, 0)
+        half = f32(0.5) * blur
+        far = np.sqrt(across2 + (along + half) ** 2)
+        seg = np.sqrt(across2 + np.maximum(along - half, 0) ** 2)
+        wi = np.minimum(np.maximum(r - f32(0.5) - far, 0), 1)
+        ap = np.minimum(np.maximum(r + f32(1.5) - seg, 0), 1)
+    coef = _weighted_plane(wi, win, basis).astype(np.float64)
+    cc = c.astype(np.float64)
+    level = coef[:, 0] + coef[:, 1] * cc[:, 0] + coef[:, 2] * cc[:, 1]
     safe = np.where(np.abs(level) > 0, level, 1.0)
     rel = coef[:, 1:3] / safe[:, None]
     if gain_slope is not None:
         rel = np.asarray(gain_slope, dtype=np.float64).reshape(-1, 2)
-    flat = win / (1.0 + rel[:, :1] * dx + rel[:, 1:] * dy)
-    wgt = (flat + wi * (level[:, None] - flat)) * ap
-    mom = wgt @ basis  # raw moments about the window centre
+    rel32 = rel.astype(f32)
+    flat = win / (f32(1.0) + rel32[:, :1] * dx + rel32[:, 1:] * dy)
+    wgt = (flat + wi * (level.astype(f32)[:, None] - flat)) * ap
+    mom = (wgt @ basis).astype(np.float64)  # raw moments about the window centre
     flux = mom[:, 0]
     f = np.where(flux > 0, flux, 1.0)
     mx, my = mom[:, 1] / f, mom[:, 2] / f
