@@ -78,6 +78,7 @@ class Posterior:
     seconds: float
     n_marginalised: int
     settings: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)  # stage -> seconds
 
     @property
     def parameters(self) -> tuple:
@@ -118,6 +119,7 @@ class Posterior:
             "settings": self.settings,
             "seed": int(self.seed),
             "seconds": _num(self.seconds),
+            "seconds_by_stage": {k: _num(v) for k, v in self.timings.items()},
         }
 
     def save(self, path) -> None:
@@ -306,6 +308,7 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     if method == "auto":
         use = "gaussian" if check["max_delta_chi2"] <= LINEARITY_TOL else "exact"
     log_prob = _gaussian_log_prob(marg) if use == "gaussian" else _exact_log_prob(marg)
+    t1 = time.perf_counter()
 
     rng = np.random.default_rng(seed)
     p0 = _start(marg, walkers, rng)
@@ -313,8 +316,10 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     chain = run_ensemble(log_prob, p0, names=names, seed=int(rng.integers(2 ** 31)),
                          time_budget_s=budget, min_tau_multiple=min_tau_multiple,
                          target_ess=target_ess, progress=progress)
+    t2 = time.perf_counter()
     samples = _derived_samples(res, names, chain.flat())
     estimates = {k: _estimate(samples[k]) for k in REPORTED if k in samples}
+    t3 = time.perf_counter()
     desc = {"gaussian": "emcee on the Gaussian limit of the linearly marginalised likelihood",
             "exact": "emcee on the exact-model, linearly marginalised likelihood"}[use]
     return Posterior(estimates=estimates, samples=samples, chain=chain,
@@ -322,7 +327,9 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
                      seconds=time.perf_counter() - t0, n_marginalised=marg.n_marginalised,
                      settings={"time_budget_s": time_budget_s, "min_tau_multiple":
                                min_tau_multiple, "target_ess": target_ess,
-                               "requested_method": method})
+                               "requested_method": method},
+                     timings={"marginal_and_check": t1 - t0, "chain": t2 - t1,
+                              "derived": t3 - t2})
 
 
 def _start(marg: _Marginal, walkers: int, rng) -> np.ndarray:
