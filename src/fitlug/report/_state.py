@@ -1,0 +1,150 @@
+"""DIR/state.npz: every array the report draws, so `fit-lug report DIR` needs no refit.
+
+The file holds plain numpy arrays (no pickles) plus one JSON string `meta`. Keys:
+
+- lug_t, lug_i, lug_x, lug_y, lug_valid, lug_model_x, lug_model_y, lug_seg, lug_u
+  (per lug sample: time s, marker index, data and model mm, path segment 0-3, belt
+  coordinate mod P, mm); body_t, body_j, body_x, body_y, body_valid, body_model_x,
+  body_model_y; residuals are data - model (mm) where valid, NaN elsewhere:
+  lug_res_x, lug_res_y, body_res_x, body_res_y;
+- curve_t, curve_i, curve_x, curve_y: the model's lug paths on a 4x finer time grid;
+- fine_t, fine_X, fine_v, fine_psi, fine_vt, fine_s: kinematics on a fine grid (mm, mm/s);
+- body_X_data: body reference position from each body sample (x - c_x), mm;
+- post_samples (n, k) and post_names in meta, when a posterior is given; post_chain
+  (draws, walkers) of the first sampled parameter, for a trace plot;
+- base_lug_res_x/y, base_body_res_x/y: residuals before the explanation's effects.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+
+import numpy as np
+
+from .. import _jaxconfig  # noqa: F401
+
+STATE_FILE = "state.npz"
+FINE_POINTS = 2000
+CURVE_OVERSAMPLE = 4
+MAX_SAMPLES = 40000
+
+
+def _raw_residuals(prob, p):
+    """Data minus model (mm) per role and axis, NaN where the sample is missing."""
+    from ..model import predict
+
+    lx, ly, bx, by = (np.asarray(a) for a in predict(p, prob.lay))
+    o = {k: np.asarray(v) for k, v in prob.obs.items()}
+    vl, vb = o["lug_w"] > 0, o["body_w"] > 0
+    nan = np.nan
+    return {"lug_model_x": lx, "lug_model_y": ly, "body_model_x": bx, "body_model_y": by,
+            "lug_res_x": np.where(vl, o["lug_x"] - lx, nan),
+            "lug_res_y": np.where(vl, o["lug_y"] - ly, nan),
+            "body_res_x": np.where(vb, o["body_x"] - bx, nan),
+            "body_res_y": np.where(vb, o["body_y"] - by, nan)}
+
+
+def state_arrays(res, posterior=None, explanation=None) -> tuple[dict, dict]:
+    """(arrays, meta) of a fit, its posterior and explanation (see the module docstring)."""
+    import jax.numpy as jnp
+
+    from ..model import belt_length, kinematics, predict, segments
+
+    prob, lay = res.problem, res.problem.lay
+    p = {k: jnp.asarray(v) for k, v in res.params.items()}
+    o = {k: np.asarray(v) for k, v in prob.obs.items()}
+    a = {"lug_t": np.asarray(lay.lug_t), "lug_i": np.asarray(lay.lug_i),
+         "lug_x": o["lug_x"], "lug_y": o["lug_y"], "lug_valid": o["lug_w"] > 0,
+         "body_t": np.asarray(lay.body_t), "body_j": np.asarray(lay.body_j),
+         "body_x": o["body_x"], "body_y": o["body_y"], "body_valid": o["body_w"] > 0}
+    a.update(_raw_residuals(prob, p))
+    a["lug_seg"] = np.asarray(segments(p, lay)).astype(np.int8)
+    P = float(belt_length(p["R"], p["D"]))
+    from ..model._model import _true_times  # frame_drop: psi at the true times
+
+    kin_l = kinematics(p, lay, _true_times(p, lay, lay.lug_t))
+    a["lug_u"] = np.mod(np.asarray(p["sigma0"])[a["lug_i"]] + np.asarray(kin_l["psi"]), P)
+
+    t_lo = float(min(a["lug_t"].min(), a["body_t"].min()))
+    t_hi = float(max(a["lug_t"].max(), a["body_t"].max()))
+    fine = np.linspace(t_lo, t_hi, FINE_POINTS)
+    kin = kinematics(p, lay, fine)
+    a.update({"fine_t": fine, "fine_X": np.asarray(kin["X"]), "fine_v": np.asarray(kin["v"]),
+              "fine_psi": np.asarray(kin["psi"]), "fine_vt": np.asarray(kin["v_t"]),
+              "fine_s": np.asarray(kin["s"])})
+    a["body_X_data"] = a["body_x"] - np.asarray(p["cx"])[a["body_j"]]
+
+    # the model's lug paths between frames, for smooth curves
+    dt = np.median(np.diff(np.unique(a["lug_t"]))) / CURVE_OVERSAMPLE
+    ct = np.arange(t_lo, t_hi + dt / 2, dt)
+    ci = np.repeat(np.arange(lay.n_lug), len(ct))
+    ct = np.tile(ct, lay.n_lug)
+    lay_c = lay.with_times(ct, ci, lay.body_t[:1], lay.body_j[:1])
+    cx, cy, _, _ = predict(p, lay_c)
+    a.update({"curve_t": ct, "curve_i": ci, "curve_x": np.asarray(cx), "curve_y": np.asarray(cy)})
+
+    meta = {"markers": list(prob.rec.markers), "lug_ids": [int(m) for m in prob.lug_ids],
+            "body_ids": [int(m) for m in prob.body_ids], "effects": list(res.effects),
+            "belt_length_mm": P, "n_belt": int(lay.n_belt), "n_contact": int(lay.n_contact),
+            "L_mm": float(lay.L), "noise_mm": {k: float(v) for k, v in prob.noise.items()},
+            "mass_kg": prob.rig.mass_kg, "chi2_per_dof": float(res.chi2_per_dof),
+            "least_squares": {k: e.as_dict() for k, e in res.quantities.items()}}
+
+    if posterior is not None:
+        names = [k for k in posterior.samples]
+        S = np.column_stack([np.asarray(posterior.samples[k], float) for k in names])
+        if len(S) > MAX_SAMPLES:  # thin evenly: the report needs shapes, not every draw
+            S = S[np.linspace(0, len(S) - 1, MAX_SAMPLES).astype(int)]
+        a["post_samples"] = S
+        a["post_chain"] = np.asarray(posterior.chain.samples[..., 0])
+        meta["post_names"] = names
+        meta["post_parameters"] = list(posterior.parameters)
+
+    if explanation is not None and getattr(explanation, "base", None) is not None:
+        base = explanation.base
+        if len(np.asarray(base.problem.lay.lug_t)) == len(a["lug_t"]):
+            rb = _raw_residuals(base.problem, {k: jnp.asarray(v)
+                                                for k, v in base.params.items()})
+            a.update({f"base_{k}": rb[k] for k in ("lug_res_x", "lug_res_y", "body_res_x",
+                                                   "body_res_y")})
+            meta["base_effects"] = list(base.effects)
+            meta["base_chi2_per_dof"] = float(base.chi2_per_dof)
+    return a, meta
+
+
+def save_state(out_dir, res, posterior=None, explanation=None) -> str:
+    """Write DIR/state.npz for the report (atomically); returns its path.
+
+    res: the final FitResult; posterior: a fitlug.fit.Posterior or None; explanation: an
+    object with `.base` (the FitResult before any effects) or None.
+    """
+    from ..io import write_bytes_atomic
+
+    arrays, meta = state_arrays(res, posterior, explanation)
+    buf = io.BytesIO()
+    np.savez_compressed(buf, meta=np.array(json.dumps(meta)), **arrays)
+    path = os.path.join(os.fspath(out_dir), STATE_FILE)
+    write_bytes_atomic(path, buf.getvalue())
+    return path
+
+
+def load_state(out_dir) -> dict:
+    """Read DIR/state.npz into a dict of arrays, with 'meta' decoded.
+
+    Raises InputError when the file is missing or unreadable.
+    """
+    from .._errors import InputError
+
+    path = os.path.join(os.fspath(out_dir), STATE_FILE)
+    if not os.path.isfile(path):
+        raise InputError(path, "no state.npz in the fit folder (was it written by `fit-lug` "
+                               "with the report enabled?)")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            out = {k: z[k] for k in z.files}
+        out["meta"] = json.loads(str(out["meta"]))
+    except (OSError, ValueError, KeyError) as exc:
+        raise InputError(path, f"unreadable state file: {exc}") from None
+    return out
