@@ -129,8 +129,16 @@ def _find_qs(img, noise, qs_half, min_contrast, max_candidates=200):
     top = np.argsort(vals)[::-1][:max_candidates]
     top = top[vals[top] > 0.02 * vals[top[0]]]
     cand = np.stack([xs[top], ys[top]], axis=1).astype(np.float64)
+    # to a fraction of a pixel by a parabola through the peak: the circles below are small
+    h, w = resp.shape
+    x0, y0 = np.clip(xs[top], 1, w - 2), np.clip(ys[top], 1, h - 2)
+    for axis, (lo, hi) in enumerate((((y0, x0 - 1), (y0, x0 + 1)), ((y0 - 1, x0), (y0 + 1, x0)))):
+        rm, r0, rp = resp[lo], resp[y0, x0], resp[hi]
+        den = rm - 2 * r0 + rp
+        cand[:, axis] += np.where(den < 0, np.clip(0.5 * (rm - rp) / np.where(den < 0, den, -1),
+                                                   -0.5, 0.5), 0.0)
     radii = np.arange(2.0, 41.0) if qs_half is None else \
-        np.array([0.35, 0.55, 0.75]) * float(qs_half)
+        np.array([0.4, 0.57, 0.75]) * float(qs_half)
     amp, phase, corr, frac = checker_pattern(ring_profiles(g, cand, radii))
     amp, corr, frac = (np.nan_to_num(v) for v in (amp, corr, frac))
     thresh = max(6.0 * noise, 0.5 * float(min_contrast))
