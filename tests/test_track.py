@@ -100,19 +100,21 @@ def test_occlusion_leaves_a_gap_and_keeps_the_id():
 def test_markers_leaving_and_entering_get_their_own_ids():
     f = 50
     t = np.arange(f)
-    px = np.full((f, 3, 2), np.nan)
+    px = np.full((f, 4, 2), np.nan)
     px[:, 0] = np.stack([250 + 10.0 * t, np.full(f, 150.0)], axis=1)  # leaves on the right
     px[20:, 1] = np.stack([-20 + 10.0 * t[:30], np.full(30, 150.0)], axis=1)  # enters on the left
     px[:, 2] = [100.0, 60.0]
-    images, truth, visible = _clip(px, ["lug", "lug", "body"], seed=2)
-    res = track(images, fps=100, config=TrackerConfig(redetect_every=5))
+    px[:, 3] = np.stack([np.full(f, 330.0), 330 - 6.0 * t], axis=1)  # a checker from below
+    images, truth, visible = _clip(px, ["lug", "lug", "body", "body"], seed=2)
+    res = track(images, fps=100)  # markers coming into view are found at the frame's edges
     owner = _match(res, truth)
-    assert sorted(owner) == [0, 1, 2]  # the newcomer is not given the old marker's id
-    k0, k1 = owner.index(0), owner.index(1)
+    assert sorted(owner) == [0, 1, 2, 3]  # the newcomer is not given the old marker's id
+    k0 = owner.index(0)
     assert np.isfinite(res.xy_px[:9, k0, 0]).all()
     assert np.isnan(res.xy_px[16:, k0, 0]).all()  # out of view: gaps, never a position
-    first = np.flatnonzero(np.isfinite(res.xy_px[:, k1, 0]))[0]
-    assert first <= np.flatnonzero(visible[:, 1])[0] + 5  # picked up soon after it enters
+    for j in (1, 3):
+        first = np.flatnonzero(np.isfinite(res.xy_px[:, owner.index(j), 0]))[0]
+        assert first <= np.flatnonzero(visible[:, j])[0] + 3  # picked up soon after it enters
 
 
 def test_tracks_reach_the_accuracy_of_single_frames():
@@ -188,6 +190,22 @@ def test_track_command_writes_the_input_mm_frame(tmp_path):
         assert roles[j] == rec.roles[k]
         assert np.isfinite(pts[:, 0]).mean() > 0.95
         assert np.sqrt(np.nanmean(d[:, j] ** 2)) < 0.005  # mm: undistorted, scaled, y up
+
+
+def test_noise_command_prints_both_types(tmp_path, capsys):
+    rng = np.random.default_rng(9)
+    px = np.array([[100.0, 100.0], [250.0, 180.0]])[None] + rng.normal(0, 0.03, (12, 2, 2))
+    t = np.arange(12) / 100.0
+    render_video(tmp_path, t, ["B01", "C1"], ["lug", "body"], _mm(px), camera=CAM,
+                 origin_mm=(0, 0), options=OPT.replace(exposure_s=0.0), progress=False)
+    out = tmp_path / "noise.json"
+    assert main(["noise", str(tmp_path), "--mm-per-px", str(S), "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "body" in text and "lug" in text and "σ mm" in text
+    import json
+    got = json.loads(out.read_text())
+    assert got["frames"] == 12 and set(got["per_role"]) == {"body", "lug"}
+    assert 0.01 < got["per_role"]["lug"]["std_px"] < 0.06
 
 
 def test_track_command_needs_a_scale(tmp_path, capsys):
