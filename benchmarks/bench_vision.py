@@ -168,9 +168,11 @@ def main(argv=None):
     t0 = time.perf_counter()
     t, frames, truth, visible, sub_px, kinds = scene(args.frames, args.seed)
     print(f"rendered {len(t)} frames {SIZE[0]}x{SIZE[1]} with {len(kinds)} markers "
-          f"({kinds.count('cog')} COG, {kinds.count('qs')} QS) in {time.perf_counter() - t0:.1f} s; "
+          f"({kinds.count('cog')} COG, {kinds.count('qs')} QS) in "
+          f"{time.perf_counter() - t0:.1f} s; "
           f"noise {OPT.noise_sigma} grey levels, exposure {OPT.exposure_s * 1e3:g} ms")
-    streak = np.hypot(*(sub_px[:, -1] - sub_px[:, 0]).transpose(2, 0, 1)) * OPT.n_sub / (OPT.n_sub - 1)
+    streak = np.hypot(*(sub_px[:, -1] - sub_px[:, 0]).transpose(2, 0, 1))
+    streak *= OPT.n_sub / (OPT.n_sub - 1)  # n positions: a streak n/(n-1) as long as their span
     for kind in ("cog", "qs"):
         cols = [j for j, k in enumerate(kinds) if k == kind]
         print(f"  motion blur streak {kind}: median {np.median(streak[:, cols]):.2f} px, "
@@ -256,7 +258,8 @@ def main(argv=None):
     for name, kind, e in rows:
         axis, two, n = rms(e)
         ratio = np.max(axis / bound[kind])
-        print(f"{name:<34}{kind:>5}{axis[0]:>10.4f}{axis[1]:>10.4f}{two:>11.4f}{n:>9}{ratio:>7.2f}x")
+        print(f"{name:<34}{kind:>5}{axis[0]:>10.4f}{axis[1]:>10.4f}{two:>11.4f}{n:>9}"
+              f"{ratio:>7.2f}x")
     for kind in ("cog", "qs"):
         b = bound[kind]
         print(f"{'Cramer-Rao bound':<34}{kind:>5}{b[0]:>10.4f}{b[1]:>10.4f}"

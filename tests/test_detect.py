@@ -17,7 +17,8 @@ def _frames(kinds, n, rng, opt=REALISTIC, size=(400, 300), blur=(0.0, 0.0)):
     cam = default_camera(S, size, dist_coeffs=None)
     w, h = size
     cols = 3
-    grid = np.array([[60 + 140 * (i % cols), 70 + 150 * (i // cols)] for i in range(len(kinds))], float)
+    grid = np.array([[60 + 140 * (i % cols), 70 + 150 * (i // cols)] for i in range(len(kinds))],
+                    dtype=float)
     tau = np.linspace(-0.5, 0.5, 7)[:, None, None]
     out = []
     for _ in range(n):

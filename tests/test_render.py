@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from fitlug.vision import RenderOptions, default_camera, load_calibration, render_frames, render_video
+from fitlug.vision import (RenderOptions, default_camera, load_calibration, render_frames,
+                           render_video)
 from fitlug.vision._coverage import disc_coverage, interval_overlap
 from fitlug.vision._render import render_frame
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import argparse
-import json
+import os
 
 from ._common import progress_enabled
 
@@ -40,8 +40,6 @@ def run(args) -> int:
     frames = None if args.frames <= 0 else slice(0, args.frames)
     fps = args.fps
     if fps is None:
-        import os
-
         fps = 1.0 if os.path.isdir(args.source) else None  # time plays no part in the noise
     with open_source(args.source, fps=fps, frames=frames) as src:
         h, w = src.shape

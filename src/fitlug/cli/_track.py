@@ -148,7 +148,8 @@ def run(args) -> int:
             if args.overlay_frame is not None:
                 hits = [i for i, f in enumerate(result.frames) if f == args.overlay_frame]
                 if not hits:
-                    raise InputError("--overlay-frame", f"frame {args.overlay_frame} was not tracked")
+                    raise InputError("--overlay-frame",
+                                     f"frame {args.overlay_frame} was not tracked")
                 row = hits[0]
             found_rows = result.xy_px[..., 0] == result.xy_px[..., 0]
             row = int(found_rows.sum(axis=1).argmax()) if row is None else row

@@ -36,7 +36,8 @@ def disc_coverage(cx, cy, r, x0, y0, width: int, height: int) -> np.ndarray:
     fractions in [0, 1].
     """
     scalar = np.ndim(cx) == 0
-    cx, cy, r, x0, y0 = (np.atleast_1d(np.asarray(v, dtype=np.float64)) for v in (cx, cy, r, x0, y0))
+    cx, cy, r, x0, y0 = (np.atleast_1d(np.asarray(v, dtype=np.float64))
+                         for v in (cx, cy, r, x0, y0))
     xs = (x0 - cx)[:, None] - 0.5 + np.arange(width + 1)  # pixel edges relative to the centre
     ys = (y0 - cy)[:, None] - 0.5 + np.arange(height + 1)
     g = _corner_area(xs[:, None, :], ys[:, :, None], r[:, None, None])

@@ -67,7 +67,8 @@ def noise_from_tracks(result: TrackResult, calibration: Calibration | None = Non
                          "cannot measure the noise")
     per_role = {}
     for role, items in by_role.items():
-        entry = {"markers": [m for m, _ in items], "n": int(sum(d["px"].shape[0] for _, d in items))}
+        entry = {"markers": [m for m, _ in items],
+                 "n": int(sum(d["px"].shape[0] for _, d in items))}
         for unit in items[0][1]:
             entry[f"std_x_{unit}"] = _pooled([d[unit][:, 0] for _, d in items])
             entry[f"std_y_{unit}"] = _pooled([d[unit][:, 1] for _, d in items])

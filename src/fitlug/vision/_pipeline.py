@@ -44,7 +44,8 @@ def track(source, *, fps: float | None = None, config: TrackerConfig | None = No
             result = track_frames(iter(src), config=config, total=len(src), progress=progress)
     elif isinstance(source, np.ndarray):
         if source.ndim != 3:
-            raise InputError(None, f"an array of frames must have shape (F, H, W), got {source.shape}")
+            raise InputError(None, f"an array of frames must have shape (F, H, W), got "
+                                   f"{source.shape}")
         if fps is None or not np.isfinite(fps) or fps <= 0:
             raise InputError(None, "fps (frames per second) is needed for an array of frames")
         result = track_frames(_array_frames(source, float(fps)), config=config,

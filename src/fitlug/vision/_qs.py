@@ -26,10 +26,11 @@ _A, _B = 5, 8  # offset plane and contrast plane start here
 @dataclass
 class QsFit:
     """Result of `refine_qs`, arrays over markers (M,): `xy` (M, 2) px (NaN when the
-    window left the frame or the fit failed), `angle` (rad), `widths` (M, 2) blur
-    across the two edges, px, `contrast` (half the light-dark difference, signed: > 0 when the top-left quadrant
-    is light), `rms` (fit residual, grey levels), `inside` (bool), `params` (M, N_PARAMS) for
-    warm starts (position in the frame, levels at the marker's centre)."""
+    window left the frame or the fit failed), `angle` (rad), `widths` (M, 2) blur across
+    the two edges, px, `contrast` (half the light-dark difference, signed: > 0 when the
+    top-left quadrant is light), `rms` (fit residual, grey levels), `inside` (bool),
+    `params` (M, N_PARAMS) for warm starts (position in the frame, levels at the marker's
+    centre)."""
 
     xy: np.ndarray
     angle: np.ndarray
@@ -92,7 +93,8 @@ def qs_coarse(win: np.ndarray, half_q: int, search: int):
 
     def vertex(sm, s0, sp):
         den = sm - 2 * s0 + sp
-        return np.where(den < 0, np.clip(0.5 * (sm - sp) / np.where(den < 0, den, -1), -0.5, 0.5), 0.0)
+        safe = np.where(den < 0, den, -1.0)
+        return np.where(den < 0, np.clip(0.5 * (sm - sp) / safe, -0.5, 0.5), 0.0)
 
     fx = vertex(score[rows, iy_c, ix_c - 1], score[rows, iy_c, ix_c], score[rows, iy_c, ix_c + 1])
     fy = vertex(score[rows, iy_c - 1, ix_c], score[rows, iy_c, ix_c], score[rows, iy_c + 1, ix_c])

@@ -179,11 +179,13 @@ def render_frame(sub_px: np.ndarray, kinds, camera: Calibration, opt: RenderOpti
         if pts.size == 0:
             continue
         if kind == "cog":
-            _draw_cog(canvas, pts, 0.5 * opt.cog_diameter_mm / s, 0.5 * opt.lug_diameter_mm / s, opt)
+            _draw_cog(canvas, pts, 0.5 * opt.cog_diameter_mm / s, 0.5 * opt.lug_diameter_mm / s,
+                      opt)
         else:
             _draw_qs(canvas, pts, 0.5 * opt.qs_size_mm / s, opt)
     for x0, y0, x1, y1 in opt.occluders:
-        canvas[max(int(y0), 0):max(int(y1), 0), max(int(x0), 0):max(int(x1), 0)] = opt.occluder_level
+        rows = slice(max(int(y0), 0), max(int(y1), 0))
+        canvas[rows, max(int(x0), 0):max(int(x1), 0)] = opt.occluder_level
     img = canvas.astype(np.float32)
     img *= gain_field((w, h), opt) if gain is None else gain
     if opt.noise_sigma > 0:

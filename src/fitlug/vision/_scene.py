@@ -43,7 +43,8 @@ def stadium_scene(n_frames: int = 100, fps: float = 100.0, *, speed_mm_s: float 
     t = np.arange(n_frames) / fps
     if ramp_s > 0:  # smooth start: v ramps as (1 - cos) over ramp_s
         ramp = np.clip(t / ramp_s, 0, 1)
-        x_body = speed_mm_s * np.where(t < ramp_s, 0.5 * (t - ramp_s / np.pi * np.sin(np.pi * ramp)),
+        x_body = speed_mm_s * np.where(t < ramp_s,
+                                       0.5 * (t - ramp_s / np.pi * np.sin(np.pi * ramp)),
                                        t - 0.5 * ramp_s)
     else:
         x_body = speed_mm_s * t

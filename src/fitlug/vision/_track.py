@@ -21,6 +21,7 @@ import numpy as np
 from ._detect import COG, QS, Detections, detect_markers, estimate_noise
 from ._qs import _B, N_PARAMS, refine_qs
 from ._refine import refine_cog
+from ._trackstate import ema, score, Track
 
 
 @dataclass(frozen=True)
@@ -52,71 +53,12 @@ class TrackerConfig:
     qs_iter: int = 1
 
 
-# least-squares parabola through samples at t = -4..0: value at t = [1, t, t²] @ _P5
-_T5 = np.arange(-4.0, 1.0)
-_P5 = np.linalg.pinv(np.stack([np.ones(5), _T5, _T5 * _T5], axis=1))
-_W5_NEXT = tuple(float(v) for v in np.array([1.0, 1.0, 1.0]) @ _P5)
-
-
-class _Track:
-    __slots__ = ("uid", "kind", "size", "frames", "xs", "ys", "qs", "misses", "alive",
-                 "flux", "radius", "shear", "rms", "contrast", "params", "confirmed")
-
-    def __init__(self, uid, kind, size, frame, xy, contrast, params=None):
-        self.uid, self.kind, self.size = uid, kind, float(size)
-        self.frames, self.xs, self.ys, self.qs = [frame], [float(xy[0])], [float(xy[1])], [1.0]
-        self.misses, self.alive, self.confirmed = 0, True, False
-        self.flux = self.radius = self.shear = self.rms = None
-        self.contrast = float(contrast)
-        self.params = params
-
-    def predict(self, frame: int):
-        """Predicted (x, y) at `frame` and how far off it may be, px (None: speed unknown).
-
-        A parabola through the last five samples when they are consecutive (least squares:
-        less noise than through three), else constant acceleration or velocity."""
-        f, xs, ys = self.frames, self.xs, self.ys
-        k = frame - f[-1]
-        if len(f) >= 5 and f[-1] - f[-5] == 4:
-            w = _W5_NEXT if k == 1 else tuple(np.array([1.0, k, k * k]) @ _P5)
-            x = w[0] * xs[-5] + w[1] * xs[-4] + w[2] * xs[-3] + w[3] * xs[-2] + w[4] * xs[-1]
-            y = w[0] * ys[-5] + w[1] * ys[-4] + w[2] * ys[-3] + w[3] * ys[-2] + w[4] * ys[-1]
-            ax, ay = xs[-1] - 2 * xs[-2] + xs[-3], ys[-1] - 2 * ys[-2] + ys[-3]
-            return (x, y), 0.3 + 0.5 * (abs(ax) + abs(ay)) * k * k + 1.5 * (k - 1)
-        if len(f) >= 3 and f[-1] - f[-3] == 2:
-            vx, vy = 1.5 * xs[-1] - 2 * xs[-2] + 0.5 * xs[-3], 1.5 * ys[-1] - 2 * ys[-2] + 0.5 * ys[-3]
-            ax, ay = xs[-1] - 2 * xs[-2] + xs[-3], ys[-1] - 2 * ys[-2] + ys[-3]
-            unc = 0.3 + 0.5 * (abs(ax) + abs(ay)) * k * k + 1.5 * (k - 1)
-            return (xs[-1] + k * vx + 0.5 * k * k * ax, ys[-1] + k * vy + 0.5 * k * k * ay), unc
-        if len(f) >= 2:
-            d = f[-1] - f[-2]
-            vx, vy = (xs[-1] - xs[-2]) / d, (ys[-1] - ys[-2]) / d
-            return (xs[-1] + k * vx, ys[-1] + k * vy), 1.5 + 2.0 * (k - 1) + 0.3 * k * math.hypot(vx, vy)
-        return (xs[-1], ys[-1]), None
-
-    def add(self, frame, xy, q):
-        self.frames.append(frame)
-        self.xs.append(float(xy[0]))
-        self.ys.append(float(xy[1]))
-        self.qs.append(float(q))
-        self.misses = 0
-
-
-def _ema(old, new, a=0.2):
-    return new if old is None else (1 - a) * old + a * new
-
-
-def _score(dev, tol):
-    """1 at no deviation, 0.5 at the tolerance, 0 at twice it."""
-    return min(max(1.0 - 0.5 * abs(float(dev)) / tol, 0.0), 1.0)
-
-
 class Tracker:
     """Stateful frame-by-frame tracker; feed frames in order with `step`, then `result`."""
 
     def __init__(self, config: TrackerConfig | None = None):
         self.config = config or TrackerConfig()
-        self.tracks: list[_Track] = []
+        self.tracks: list[Track] = []
         self.frames: list[int] = []
         self.times: list[float] = []
         self.noise = None
@@ -141,7 +83,7 @@ class Tracker:
         params = None
         if det.kind[j] == QS and qs_row is not None:
             params = det.extra["qs_params"][qs_row].copy()
-        t = _Track(len(self.tracks), str(det.kind[j]), det.size[j], frame_no, det.xy[j],
+        t = Track(len(self.tracks), str(det.kind[j]), det.size[j], frame_no, det.xy[j],
                    det.contrast[j], params)
         self.tracks.append(t)
         return t
@@ -181,13 +123,13 @@ class Tracker:
         """How much a COG sample looks like the track's marker: a partly hidden or merged
         disc changes its area (flux over interior level, whatever the lighting), its width
         across the blur or its shape (traceless second moments, px²)."""
-        if t.flux is None:
+        if t.area is None:
             return 1.0
         # tolerances ~8x the scatter on clean frames (0.08 %, 0.07 %, 0.015 px²): a disc that
         # lost 0.6 % of its area at the rim has moved ~0.04 px and scores 0.5
         ds = math.hypot(shear[0] - t.shear[0], shear[1] - t.shear[1])
-        return min(_score(area / t.flux - 1, 0.006), _score(radius / t.radius - 1, 0.005),
-                   _score(ds, 0.12 + 0.2 * math.hypot(*t.shear)))
+        return min(score(area / t.area - 1, 0.006), score(radius / t.radius - 1, 0.005),
+                   score(ds, 0.12 + 0.2 * math.hypot(*t.shear)))
 
     def _blur(self, t):
         """Motion-blur streak to allow for, px, and its direction (None: unknown), from the
@@ -224,7 +166,7 @@ class Tracker:
         tracks = [it[0] for it in items]
         pred = np.array([it[1] for it in items])
         unc = max(it[2] for it in items)
-        params = np.array([t.params if t.params is not None else np.zeros(N_PARAMS) for t in tracks])
+        params = np.array([np.zeros(N_PARAMS) if t.params is None else t.params for t in tracks])
         warm = all(t.params is not None for t in tracks)
         half = np.array([t.size for t in tracks])
         fit = refine_qs(frame, pred, half, params=params if warm else None,
@@ -240,9 +182,9 @@ class Tracker:
         for i, t in enumerate(tracks):
             if not np.isfinite(fit.xy[i, 0]):
                 continue
-            q = _score(fit.contrast[i] / t.contrast - 1, 0.1)
+            q = score(fit.contrast[i] / t.contrast - 1, 0.1)
             if t.rms is not None:  # occlusion or a wrong fit: the residual jumps
-                q = min(q, _score(max(fit.rms[i] / max(t.rms, self.noise) - 1, 0.0), 0.25))
+                q = min(q, score(max(fit.rms[i] / max(t.rms, self.noise) - 1, 0.0), 0.25))
             d = np.hypot(*(fit.xy[i] - pred[i]))
             if d <= 1.0 + 3.0 * items[i][2]:
                 found[t.uid] = (fit.xy[i], q, (fit.rms[i], fit.contrast[i], fit.params[i]))
@@ -268,7 +210,7 @@ class Tracker:
         else:
             row = int(np.flatnonzero(det.kind[:j + 1] == QS).size - 1)
             p = det.extra["qs_params"][row]
-            q = _score(p[_B] / t.contrast - 1, 0.1)
+            q = score(p[_B] / t.contrast - 1, 0.1)
             extra = (None, p[_B], p)
         found[t.uid] = (det.xy[j], q, extra)
 
@@ -299,13 +241,13 @@ class Tracker:
             if len(t.frames) >= cfg.min_length:
                 t.confirmed = True
             if t.kind == COG:
-                t.flux, t.radius = _ema(t.flux, extra[0]), _ema(t.radius, extra[1])
+                t.area, t.radius = ema(t.area, extra[0]), ema(t.radius, extra[1])
                 t.shear = extra[2] if t.shear is None else \
                     [0.8 * t.shear[0] + 0.2 * extra[2][0], 0.8 * t.shear[1] + 0.2 * extra[2][1]]
                 t.size = t.radius
             else:
                 if extra[0] is not None:
-                    t.rms = _ema(t.rms, extra[0])
+                    t.rms = ema(t.rms, extra[0])
                 t.contrast = float(extra[1])  # the last one: lighting drifts along the track
                 t.params = extra[2]
 
@@ -354,7 +296,8 @@ class Tracker:
                     near = np.hypot(t.xs[-1] - det.xy[j, 0], t.ys[-1] - det.xy[j, 1]) < 2 * t.size
                 else:
                     (px, py), unc = t.predict(frame_no)
-                    near = np.hypot(px - det.xy[j, 0], py - det.xy[j, 1]) < 2 * t.size + 3 * (unc or 0)
+                    gate = 2 * t.size + 3 * (unc or 0)
+                    near = math.hypot(px - det.xy[j, 0], py - det.xy[j, 1]) < gate
                 if near:
                     break
             if not near:
