@@ -202,7 +202,7 @@ def main(argv=None):
         tracker._pick_up(frames[len(frames) // 2], len(frames) // 2)
         search.append(time.process_time() - c0)
     search = min(search)
-    every = TrackerConfig().redetect_every
+    redetect = TrackerConfig().redetect_every
 
     # decoding, apart: the same frames as PNG files through fit-lug's FrameSource
     with tempfile.TemporaryDirectory() as tmp:
@@ -280,8 +280,8 @@ def main(argv=None):
           f"({1 / wall_b.min():.0f} wall), median {1 / np.median(cpu_b):.0f} frames/s CPU "
           f"({1 / np.median(wall_b):.0f} wall)")
     print(f"  the whole-frame search for new markers takes {search * 1e3:.1f} ms of CPU, one every "
-          f"{every} frames: with it, best {1 / (cpu_b.min() + search / every):.0f} and median "
-          f"{1 / (np.median(cpu_b) + search / every):.0f} frames/s CPU")
+          f"{redetect} frames: with it, best {1 / (cpu_b.min() + search / redetect):.0f} and "
+          f"median {1 / (np.median(cpu_b) + search / redetect):.0f} frames/s CPU")
     print(f"decoding apart (8-bit PNG via open_source): {1 / dec:.0f} frames/s")
     return 0
 
