@@ -13,7 +13,8 @@ background removed:
    and motion blur included) moves the guess onto the disc;
 3. the final centroid, in the aperture re-centred there, of the window divided by the
    disc's own brightness plane (fitted on its interior) and with the interior replaced
-   by that plane's level.
+   by that plane's level. With a motion-blur direction the aperture is the stadium the
+   disc sweeps and the interior the lens all its positions share.
 
 Step 3 matters: a lighting gradient across the disc pulls an intensity-weighted centroid
 by (relative slope) x (second moment), which flat-fielding removes; the interior pixels

@@ -1,14 +1,17 @@
 """Follow markers from frame to frame, keeping their identities (`Tracker`, `track_frames`).
 
-Each frame, every live track predicts where its marker is (constant acceleration from its
-last three samples, constant velocity from two) and its marker is refined in a small
-window there, all markers of a kind in one batch. A sample is kept only when it looks like
-the marker it follows: flux, size and shape (COG) or fit residual and contrast (QS) close
-to the track's running references, and close to the prediction; else the frame is a gap.
-A track that misses is searched for around its prediction for `max_gap` frames (a region
-detection), then closed: a marker seen again later gets a new id, never an old one.
-Full-frame detection runs on the first frame and every `redetect_every` frames to pick up
-markers that enter; a detection on a live track's marker is not a new marker.
+Each frame, every live track predicts where its marker is (a parabola through its last
+five samples, else constant acceleration or velocity) and its marker is refined in a
+small window there, all markers of a kind in one batch. A sample is kept only when it
+looks like the marker it follows - COG: area (flux over interior level, which lighting
+does not change), width and shape; QS: fit residual and contrast - and lies near the
+prediction; else the frame is a gap (a partly hidden, merged or cut-off marker gives no
+position rather than a wrong one). A track that misses is searched for around its
+prediction for `max_gap` frames (a region detection), then closed: a marker seen again
+later gets a new id, never an old one. New markers: a whole-frame search on the first
+frame and every `redetect_every` frames, and a cheap search along the frame's edges
+every `edge_every` frames for markers coming into view; a detection on a live track's
+marker is not a new marker.
 """
 
 from __future__ import annotations
