@@ -95,7 +95,14 @@ def _summary(args, doc, out, report, seconds):
     m = doc.get("mcmc")
     if m:
         lines.append(f"  posterior          {m.get('walkers')} walkers × {m.get('steps')} steps, "
-                     f"ESS {m.get('ess')}, " + ("converged" if m.get("converged") else "NOT converged"))
+                     f"ESS {_int(m.get('ess'))}, " + ("converged" if m.get("converged") else "NOT converged"))
     lines.append(f"  wrote {os.path.join(out, 'fit.json')}" + (f" and {report}" if report else "")
                  + f"  ({seconds:.1f} s)")
     say(args, *lines)
+
+
+def _int(x):
+    try:
+        return f"{float(x):.0f}"
+    except (TypeError, ValueError):
+        return str(x)
