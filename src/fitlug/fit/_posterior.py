@@ -194,15 +194,18 @@ class _Marginal:
         w, V = np.linalg.eigh(M)
         inv = np.where(w > 1e-12 * w.max(), 1.0 / np.where(w > 0, w, 1.0), 0.0)
         self.Minv = (V * inv) @ V.T * np.outer(s, s)  # (J_eta^T J_eta)^+
-        self.Je = Je
         A = Jt - Je @ (self.Minv @ (Je.T @ Jt))
-        self.F = Jt.T @ A
-        self.F = 0.5 * (self.F + self.F.T)
-        w = np.linalg.eigvalsh(self.F)
-        if not np.all(w > 1e-12 * max(w.max(), 1e-300)):
+        F = Jt.T @ A
+        self.F = 0.5 * (F + F.T)
+        # s0 ~ 1e-6 and beta ~ 1e-8 in std: invert the correlation form
+        d = 1.0 / np.sqrt(np.maximum(np.diag(self.F), 1e-300))
+        Fs = self.F * np.outer(d, d)
+        w = np.linalg.eigvalsh(Fs)
+        if not np.all(np.isfinite(w)) or not np.all(w > 1e-10 * max(w.max(), 1e-300)):
             raise FitError(f"the data do not constrain the slip law ({', '.join(names)}): "
                            "its marginal information matrix is singular")
-        self.cov = np.linalg.inv(self.F)
+        self.cov = np.linalg.inv(Fs) * np.outer(d, d)
+        self.cov = 0.5 * (self.cov + self.cov.T)
         self.chol = np.linalg.cholesky(self.cov)
         self._Je, self._Minv = jnp.asarray(Je), jnp.asarray(self.Minv)
         self.chi2_hat = None

@@ -1,0 +1,233 @@
+"""The posterior of the slip law: calibrated against known truth, and the sampler itself.
+
+Statistical tests with fixed seeds (emcee's own integration tests are the model): 20
+simulated recordings with known slip and rolling resistance, each fitted and sampled; the
+intervals must cover the truth as often as they claim, within bounds that a sampler with
+intervals twice too wide or too narrow fails. The ensemble driver is checked on
+distributions known in closed form.
+"""
+
+import json
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy import stats
+
+from fitlug import FitError
+from fitlug.fit import Posterior, fit, sample_posterior
+from fitlug.fit._mcmc import run_ensemble
+from fitlug.fit._posterior import slip_law_parameters
+from fitlug.sim import Scenario, rig_of, simulate
+
+# short recordings (300 frames, 6 lug + 2 body markers): ~4 s per fit on 2 cores
+SHORT = Scenario(duration_s=3.0, travel_mm=300, rest_s=0.3, ramp_s=0.8, lug_markers=6)
+SEEDS = tuple(range(7100, 7120))
+QUANTITIES = ("slip", "rolling_resistance", "stiffness_N_per_mm")
+
+
+def _scenario(seed):
+    rng = np.random.default_rng(seed)
+    return SHORT.replace(slip=float(rng.uniform(0.04, 0.12)),
+                         rolling_resistance=float(rng.uniform(0.06, 0.15)))
+
+
+@pytest.fixture(scope="module")
+def runs():
+    out = []
+    for seed in SEEDS:
+        sc = _scenario(seed)
+        rec, truth = simulate(sc, seed)
+        res = fit(rec, rig_of(sc), noise={"lug": sc.noise_lug_mm, "body": sc.noise_body_mm})
+        post = sample_posterior(res, seed=seed, time_budget_s=60.0)
+        out.append((truth, res, post))
+    return out
+
+
+def _interval(x, level):
+    a = 50 * (1 - level)
+    return np.percentile(x, [a, 100 - a])
+
+
+def test_intervals_cover_the_truth(runs):
+    for q in QUANTITIES:
+        hits = {0.9: 0, 0.95: 0}
+        for truth, _, post in runs:
+            for level in hits:
+                lo, hi = _interval(post.samples[q], level)
+                hits[level] += lo <= truth[q] <= hi
+        # binomial(20, 0.9): P(<= 13) = 0.002; binomial(20, 0.95): P(<= 15) = 0.016
+        assert hits[0.9] >= 14, (q, hits)
+        assert hits[0.95] >= 16, (q, hits)
+
+
+def test_errors_scaled_by_the_posterior_std_are_standard_normal(runs):
+    # mean z^2 over 20 is chi2_20 / 20: [0.37, 2.0] holds 99 %; intervals 2x too wide
+    # give ~0.25, 2x too narrow ~4
+    for q in QUANTITIES:
+        z = np.array([(np.median(p.samples[q]) - t[q]) / np.std(p.samples[q])
+                      for t, _, p in runs])
+        assert 0.37 <= np.mean(z ** 2) <= 2.0, (q, z)
+        # probability integral transform: the truth's quantile in the posterior is uniform
+        pit = [np.mean(p.samples[q] < t[q]) for t, _, p in runs]
+        assert stats.kstest(pit, "uniform").pvalue > 0.01, (q, pit)
+
+
+def test_posterior_std_agrees_with_least_squares(runs):
+    # nearly linear problem: the marginal posterior std equals the Jacobian error to within
+    # the Monte-Carlo error of a std from ESS >= 1000 samples (~2 %)
+    for _, res, post in runs:
+        for q in QUANTITIES:
+            ratio = post.estimates[q].std / res.quantities[q].std
+            assert 0.88 < ratio < 1.12, (q, ratio)
+        e = post.estimates["slip"]
+        assert e.ci95[0] < e.value < e.ci95[1]
+
+
+def test_chain_diagnostics(runs):
+    for _, _, post in runs:
+        m = post.mcmc_json()
+        json.dumps(m, allow_nan=False)
+        for key in ("walkers", "steps", "autocorr_time", "ess", "converged", "acceptance",
+                    "method", "seconds"):
+            assert key in m, key
+        assert m["converged"] is True and m["status"] == "converged"
+        assert m["walkers"] == 32
+        assert 0.15 < m["acceptance"] < 0.7
+        kept = m["steps"] - m["burn_in"]
+        assert kept >= 50 * m["autocorr_time"]
+        assert m["ess"] >= 1000 and m["ess_slip"] >= 1000
+        assert m["method"].startswith("gaussian")
+        assert m["linearity_check"]["max_delta_chi2"] < 0.25
+        assert m["parameters"] == ["s0", "beta"]
+        assert set(post.estimates) == {"slip", "delta_l_mm", "stiffness_N_per_mm",
+                                       "rolling_resistance", "k_over_m"}
+
+
+def test_exact_marginal_agrees_with_its_gaussian_limit(runs):
+    _, res, gauss = runs[0]
+    exact = sample_posterior(res, seed=3, method="exact", target_ess=300,
+                             min_tau_multiple=30, time_budget_s=120)
+    assert exact.method.startswith("exact")
+    assert exact.converged
+    for q in ("slip", "stiffness_N_per_mm"):
+        g, e = gauss.estimates[q], exact.estimates[q]
+        assert abs(e.value - g.value) < 0.3 * g.std, q
+        assert 0.8 < e.std / g.std < 1.25, q
+
+
+def test_time_budget_stops_and_says_not_converged(runs):
+    _, res, _ = runs[1]
+    post = sample_posterior(res, seed=0, time_budget_s=1e-6)
+    m = post.mcmc_json()
+    assert m["converged"] is False and m["status"] == "not converged"
+    assert m["message"].startswith("not converged")
+    assert np.isfinite(post.estimates["slip"].value)
+
+
+def test_seeded_and_reproducible(runs):
+    _, res, post = runs[2]
+    again = sample_posterior(res, seed=SEEDS[2], time_budget_s=60.0)
+    np.testing.assert_array_equal(again.samples["slip"], post.samples["slip"])
+    other = sample_posterior(res, seed=SEEDS[2] + 1, time_budget_s=60.0)
+    assert not np.array_equal(other.samples["slip"], post.samples["slip"])
+
+
+def test_samples_saved_for_arviz(runs, tmp_path):
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FutureWarning)
+        import arviz as az
+
+    _, _, post = runs[0]
+    path = tmp_path / "posterior.nc"
+    post.save(path)
+    idata = az.from_netcdf(str(path))
+    for name in ("slip", "s0", "beta", "stiffness_N_per_mm", "rolling_resistance"):
+        v = idata.posterior[name].values
+        assert v.shape[0] == 32
+        np.testing.assert_allclose(np.sort(v.ravel()), np.sort(post.samples[name]))
+    assert "lp" in idata.sample_stats
+    assert [p.name for p in tmp_path.iterdir()] == ["posterior.nc"]  # no temporary left
+
+
+def test_bad_arguments(runs):
+    _, res, _ = runs[0]
+    with pytest.raises(ValueError, match="method"):
+        sample_posterior(res, method="nuts")
+    with pytest.raises(ValueError, match="walkers"):
+        sample_posterior(res, walkers=7)
+    assert isinstance(runs[0][2], Posterior)
+
+
+def test_sampled_parameters_follow_the_slip_law():
+    class Res:
+        effects = ("lug_sliding",)
+        packing = type("P", (), {"names": ("v", "s0", "beta", "R", "slide_mu")})
+
+    assert slip_law_parameters(Res) == ["s0", "beta", "slide_mu"]
+    Res.packing.names = ("v", "s0", "R")
+    with pytest.raises(FitError, match="beta"):
+        slip_law_parameters(Res)
+
+
+# ----- the ensemble driver on distributions known in closed form ---------------------------
+
+def _jax_log_prob(f):
+    g = jax.jit(jax.vmap(f))
+    return lambda x: np.asarray(g(jnp.asarray(x)))
+
+
+def test_driver_recovers_a_correlated_gaussian():
+    mu = np.array([0.07716, -3.0, 1e-4])
+    sd = np.array([2e-6, 0.5, 3e-8])
+    corr = np.array([[1.0, 0.8, -0.5], [0.8, 1.0, -0.3], [-0.5, -0.3, 1.0]])
+    cov = corr * np.outer(sd, sd)
+    prec = jnp.asarray(np.linalg.inv(cov))
+
+    def lp(x):
+        z = x - mu
+        return -0.5 * z @ prec @ z
+
+    rng = np.random.default_rng(11)
+    p0 = rng.multivariate_normal(mu, cov, 32)
+    ch = run_ensemble(_jax_log_prob(lp), p0, names=("a", "b", "c"), seed=5, time_budget_s=60)
+    assert ch.converged and ch.reason == ""
+    assert np.all(ch.samples.shape[0] >= 50 * ch.tau) and np.all(ch.ess >= 1000)
+    x = ch.flat()
+    ess = ch.ess
+    assert np.all(np.abs(x.mean(0) - mu) < 5 * sd / np.sqrt(ess))
+    assert np.all(np.abs(x.std(0) / sd - 1) < 0.08)
+    np.testing.assert_allclose(np.corrcoef(x.T), corr, atol=0.06)
+    # nearly independent draws: every 2 tau-th step of every walker
+    thin = ch.samples[::int(math.ceil(2 * ch.tau.max()))].reshape(-1, 3)
+    for k in range(3):
+        assert stats.kstest((thin[:, k] - mu[k]) / sd[k], "norm").pvalue > 1e-3
+    assert 0.15 < ch.acceptance.mean() < 0.7
+
+
+def test_driver_respects_a_truncating_prior():
+    # N(0.5, 1) truncated to x > 0, like the prior beta > 0 on a poorly measured beta
+    def lp(x):
+        return jnp.where(x[0] > 0, -0.5 * (x[0] - 0.5) ** 2, -jnp.inf)
+
+    rng = np.random.default_rng(2)
+    p0 = np.abs(rng.normal(0.5, 1.0, (32, 1))) + 1e-3
+    ch = run_ensemble(_jax_log_prob(lp), p0, names=("x",), seed=1, time_budget_s=60)
+    x = ch.flat()[:, 0]
+    assert x.min() > 0
+    tn = stats.truncnorm(-0.5, np.inf, loc=0.5, scale=1.0)
+    assert abs(x.mean() - tn.mean()) < 5 * tn.std() / np.sqrt(ch.ess[0])
+    thin = ch.samples[::int(math.ceil(2 * ch.tau.max()))].ravel()
+    assert stats.kstest(thin, tn.cdf).pvalue > 1e-3
+
+
+def test_driver_refuses_a_bad_start():
+    lp = _jax_log_prob(lambda x: jnp.where(x[0] > 0, 0.0, -jnp.inf))
+    with pytest.raises(ValueError, match="non-finite"):
+        run_ensemble(lp, -np.ones((8, 1)), names=("x",))
+    with pytest.raises(ValueError, match="walkers"):
+        run_ensemble(lp, np.ones((3, 2)), names=("x", "y"))

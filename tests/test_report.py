@@ -1,0 +1,176 @@
+"""report.html: one self-contained file with every section, rebuilt by `fit-lug report DIR`."""
+
+import base64
+import json
+import os
+import re
+
+import numpy as np
+import pytest
+
+from fitlug import InputError
+from fitlug.cli import main
+from fitlug.fit import fit, sample_posterior
+from fitlug.io import read_json, write_json
+from fitlug.report import fit_json, load_state, save_state, write_report
+from fitlug.report import _plots
+from fitlug.sim import REFERENCE_SLIP, Scenario, rig_of, simulate
+
+# the reference rig (n = 8, L = 127 mm), a short recording
+SC = Scenario(duration_s=3.0, travel_mm=300, rest_s=0.3, ramp_s=0.8, lug_markers=6)
+SECTIONS = ("summary", "estimates", "trajectories", "kinematics", "residuals", "posterior",
+            "convergence")
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    rec, truth = simulate(SC, 42)
+    res = fit(rec, rig_of(SC), noise={"lug": SC.noise_lug_mm, "body": SC.noise_body_mm})
+    post = sample_posterior(res, seed=1)
+    return res, post, truth
+
+
+@pytest.fixture(scope="module")
+def folder(fitted, tmp_path_factory):
+    res, post, _ = fitted
+    d = tmp_path_factory.mktemp("fit")
+    write_json(d / "fit.json", fit_json(res, input_path="trajectories.csv",
+                                        posterior=post.estimates, mcmc=post.mcmc_json()))
+    save_state(d, res, posterior=post)
+    write_report(d)
+    return d
+
+
+def _images(page):
+    return re.findall(r'<img alt="([^"]*)" src="data:image/png;base64,([^"]+)"', page)
+
+
+def test_report_is_self_contained_with_every_section(folder):
+    page = (folder / "report.html").read_text(encoding="utf-8")
+    assert page.startswith("<!DOCTYPE html>") and page.rstrip().endswith("</html>")
+    for sid in SECTIONS:
+        assert f'<section id="{sid}">' in page, sid
+    # nothing loaded from elsewhere: every src is inline data, no stylesheets or scripts
+    srcs = re.findall(r'\bsrc\s*=\s*["\']([^"\']*)', page)
+    assert srcs and all(s.startswith("data:image/png;base64,") for s in srcs)
+    assert not re.search(r"<link\b|<script\b|@import|url\(", page)
+    imgs = _images(page)
+    alts = " ".join(a for a, _ in imgs)
+    for what in ("trajectories", "stall", "displacement and velocity", "residuals",
+                 "corner", "slippage posterior"):
+        assert what in alts, what
+    for _, b64 in imgs:
+        assert base64.b64decode(b64)[:8] == b"\x89PNG\r\n\x1a\n"
+    assert [p.name for p in folder.iterdir() if p.name.startswith(".")] == []
+
+
+def test_report_shows_estimates_and_diagnostics(folder, fitted):
+    res, post, _ = fitted
+    page = (folder / "report.html").read_text(encoding="utf-8")
+    s = post.estimates["slip"]
+    assert f"{s.value:.6g}" in page
+    m = post.mcmc_json()
+    assert "converged" in page and f"{m['acceptance']:.3g}" in page
+    assert "autocorrelation time" in page and "linearisation check" in page
+    for label in ("lug shear stiffness k", "rolling resistance C_rr", "lug deflection",
+                  "wheel pitch radius R", "noise, lug markers"):
+        assert label in page
+    # the reference rig: the paper's value is marked
+    assert f"reference paper {REFERENCE_SLIP:g}" in page or str(REFERENCE_SLIP) in page
+
+
+def test_state_holds_what_the_report_draws(folder, fitted):
+    res, post, _ = fitted
+    st = load_state(folder)
+    n = len(np.asarray(res.problem.lay.lug_t))
+    assert st["lug_res_x"].shape == (n,) and st["lug_seg"].shape == (n,)
+    assert set(np.unique(st["lug_seg"])) == {0, 1, 2, 3}
+    # the residuals are data - model, consistent with the fit's weighted residuals
+    w = np.asarray(res.problem.obs["lug_w"])
+    np.testing.assert_allclose(-st["lug_res_x"][w > 0] * w[w > 0], res.residuals[:n][w > 0],
+                               rtol=1e-6, atol=1e-9)
+    assert st["post_samples"].shape[1] == len(st["meta"]["post_names"])
+    i = st["meta"]["post_names"].index("slip")
+    assert np.median(st["post_samples"][:, i]) == pytest.approx(post.estimates["slip"].value,
+                                                                rel=1e-6)
+
+
+def test_cli_rebuilds_the_report(folder, capsys):
+    os.remove(folder / "report.html")
+    assert main(["report", str(folder)]) == 0
+    assert (folder / "report.html").is_file()
+    assert str(folder / "report.html") in capsys.readouterr().out
+    assert main(["report", str(folder / "nowhere")]) == 2
+
+
+def test_least_squares_only_and_discrepancy_hook(fitted, tmp_path):
+    res, _, _ = fitted
+    doc = fit_json(res, input_path="trajectories.csv")
+    doc["mcmc"] = None
+    doc["mcmc_skipped"] = "--no-mcmc"
+    write_json(tmp_path / "fit.json", doc)
+    save_state(tmp_path, res)
+    page = open(write_report(tmp_path), encoding="utf-8").read()
+    assert "Posterior not sampled" in page and "--no-mcmc" in page
+    assert "No posterior samples" in page and "discrepancy" not in page.lower()
+    doc["discrepancy"] = {"verdict": "explained", "located": [], "effects": [
+        {"id": "lug_ripple", "params": {"ripple_a": 0.001}, "delta_bic": -120.0,
+         "chi2_per_dof_before": 3.2, "chi2_per_dof_after": 1.01}],
+        "slip_before": None, "slip_after": None}
+    write_json(tmp_path / "fit.json", doc)
+    page = open(write_report(tmp_path), encoding="utf-8").read()
+    assert "lug_ripple" in page and "explained" in page
+
+
+def test_missing_files_are_named(tmp_path):
+    with pytest.raises(InputError, match="fit.json"):
+        write_report(tmp_path)
+    (tmp_path / "fit.json").write_text(json.dumps({"slip": None}))
+    with pytest.raises(InputError, match="state.npz"):
+        write_report(tmp_path)
+
+
+def test_plot_functions_take_an_ax(folder):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    st = load_state(folder)
+    names = st["meta"]["post_names"]
+    calls = [
+        lambda ax: _plots.plot_trajectories(st, ax=ax),
+        lambda ax: _plots.plot_stall(st, ax=ax),
+        lambda ax: _plots.plot_displacement(st, ax=ax),
+        lambda ax: _plots.plot_velocity(st, ax=ax),
+        lambda ax: _plots.plot_residuals_time(st, "y", ax=ax),
+        lambda ax: _plots.plot_residuals_path(st, "x", ax=ax),
+        lambda ax: _plots.plot_segment_rms(st, ax=ax),
+        lambda ax: _plots.plot_slip_posterior(st["post_samples"][:, names.index("slip")],
+                                              ax=ax, reference=REFERENCE_SLIP),
+        lambda ax: _plots.plot_trace(st["post_chain"], ax=ax),
+    ]
+    for call in calls:
+        fig, ax = plt.subplots()
+        assert call(ax) is ax
+        assert ax.has_data()
+        plt.close(fig)
+    fig = plt.figure()
+    assert _plots.plot_corner(st["post_samples"][:, :2], ["a", "b"], fig=fig) is fig
+    plt.close(fig)
+    # without an ax, each makes its own figure
+    ax = _plots.plot_displacement(st)
+    assert ax.figure is not None
+    plt.close(ax.figure)
+
+
+def test_stall_window_is_a_bottom_run_contact(folder):
+    st = load_state(folder)
+    m, t0, t1 = _plots.stall_window(st)
+    sel = (st["lug_i"] == m) & (st["lug_t"] >= t0) & (st["lug_t"] <= t1)
+    assert np.all(st["lug_seg"][sel] == 0)
+    # on the ground the marker stalls: it drifts rearward at s v_t, far slower than the body
+    x = st["lug_x"][sel]
+    v_marker = abs(np.polyfit(st["lug_t"][sel], x, 1)[0])
+    v_body = np.interp(0.5 * (t0 + t1), st["fine_t"], st["fine_v"])
+    assert v_marker < 0.2 * v_body
