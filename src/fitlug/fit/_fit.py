@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax.numpy as jnp
 import numpy as np
 
@@ -108,9 +110,7 @@ def _check_lug_count(res: FitResult, **kw) -> FitResult:
     N = max(int(round(P / pitch)), 1)
     if N == prob.lay.n_belt:
         return res
-    import equinox as eqx
-
-    lay = eqx.tree_at(lambda l: l.n_belt, prob.lay, N)
+    lay = dataclasses.replace(prob.lay, n_belt=N)  # a static field: not a pytree leaf
     prob2 = Problem(**{**prob.__dict__, "lay": lay,
                        "init_info": {**prob.init_info, "n_belt": N}})
     kw.pop("p_start", None)
