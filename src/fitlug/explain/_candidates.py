@@ -1,0 +1,194 @@
+"""Starting values of every catalog effect from the residuals it should explain.
+
+Each effect's signature is its derivative columns at the current fit: the residual
+change its parameters cause there. Regressing the residuals on those columns, after
+removing what the current model's own parameters can already do (projection orthogonal
+to their Jacobian), is one Gauss-Newton step from the current fit: its chi^2 drop is the
+score statistic of the effect, and its coefficients are the starting values. Parameters
+whose derivative vanishes at identity are scanned on a small grid instead:
+
+- lug_ripple, wheel_runout: a, b (eps sin, eps cos) are linear at identity;
+- body_bounce: columns for A at phi = 0 and pi/2 (the sin and cos of 2 pi psi / p), and
+  the same for B with two or more body markers; A = hypot, phi = atan2;
+- ground_sinkage: z for u_s on a grid (3 to 120 mm);
+- lens_distortion: k1 for centres on a 5 x 3 grid over the field of view;
+- frame_drop: dt for t* at every frame (the residual jump), by cumulative sums.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from ..model import CATALOG
+
+SINK_US_GRID = (3.0, 8.0, 20.0, 50.0, 120.0)
+
+
+@dataclass
+class Alternative:
+    """One starting configuration of an effect: fixed settings and linear columns."""
+
+    settings: dict  # values set before differentiating (nonlinear parameters)
+    columns: list  # [(extra settings, parameter name)]
+    start: Callable  # linear coefficients -> parameter values
+    label: str = ""
+
+
+@dataclass
+class Screened:
+    """An effect's score at the current fit: chi^2 drop of one Gauss-Newton step."""
+
+    effect: str
+    dchi2: float
+    theta_start: np.ndarray  # one Gauss-Newton step: every parameter moved
+    theta_current: np.ndarray  # the current fit with the effect's nonlinear settings
+    label: str = ""
+    details: dict = field(default_factory=dict)
+
+
+def _linear(names):
+    return lambda b: {k: float(v) for k, v in zip(names, b)}
+
+
+def alternatives(eid: str, engine, theta) -> list[Alternative]:
+    """The starting configurations to try for effect `eid` at `theta`."""
+    free = engine.free_names(eid)
+    if eid in ("lug_ripple", "wheel_runout", "belt_sag", "marker_depth", "camera_tilt",
+               "lug_sliding"):
+        return [Alternative({}, [({}, k) for k in free], _linear(free))]
+    if eid == "body_bounce":
+        cols = [({"bounce_phi": 0.0}, "bounce_A"), ({"bounce_phi": math.pi / 2}, "bounce_A")]
+        if "bounce_B" in free:
+            cols += [({"bounce_phi": 0.0}, "bounce_B"),
+                     ({"bounce_phi": math.pi / 2}, "bounce_B")]
+
+        def start(b):
+            A, phi = math.hypot(b[0], b[1]), math.atan2(b[1], b[0])
+            out = {"bounce_A": A, "bounce_phi": phi}
+            if len(b) > 2:
+                out["bounce_B"] = b[2] * math.cos(phi) + b[3] * math.sin(phi)
+            return out
+
+        return [Alternative({}, cols, start)]
+    if eid == "ground_sinkage":
+        return [Alternative({"sink_us": u}, [({}, "sink_z")], _linear(["sink_z"]),
+                            f"u_s={u:g} mm") for u in SINK_US_GRID]
+    if eid == "lens_distortion":
+        x, y = engine.field()
+        xs = np.linspace(x[0], x[1], 5)
+        ys = np.linspace(y[0], y[1], 3)
+        return [Alternative({"lens_cx": float(cx), "lens_cy": float(cy)},
+                            [({}, "lens_k1")], _linear(["lens_k1"]),
+                            f"c=({cx:.0f}, {cy:.0f}) mm") for cx in xs for cy in ys]
+    # any other effect: its free parameters' columns at identity
+    return [Alternative({}, [({}, k) for k in free], _linear(free))]
+
+
+def _basis(J: np.ndarray) -> tuple:
+    U, s, Vt = np.linalg.svd(J, full_matrices=False)
+    keep = s > 1e-10 * s.max()
+    return U[:, keep], s[keep], Vt[keep]
+
+
+def screen(engine, theta, r, J, effects, extra_names, geo) -> dict:
+    """Score every effect in `effects` at the current fit (theta, residuals r, Jacobian J).
+
+    `extra_names`: the added-effect parameters of J's last columns (after the base block).
+    Returns effect id -> :class:`Screened` with a full starting vector for the fit.
+    """
+    U, s, Vt = _basis(J)
+    r_perp = r - U @ (U.T @ r)
+    idx = np.r_[engine.cur_idx, [engine.index(k) for k in extra_names]].astype(int)
+
+    def gn_start(th, C, beta):
+        # the model's own parameters follow the effect: -J^+ (r + C beta)
+        rr = r + C @ beta
+        delta = -(Vt.T @ ((U.T @ rr) / s))
+        out = th.copy()
+        out[idx] += delta
+        return out
+
+    out = {}
+    for eid in effects:
+        if eid == "frame_drop":
+            out[eid] = _screen_frame_drop(engine, theta, r, U, geo, gn_start)
+            continue
+        best = None
+        for alt in alternatives(eid, engine, theta):
+            th = engine.with_values(theta, alt.settings)
+            C = engine.fd_columns(alt.columns, th)
+            Cp = C - U @ (U.T @ C)
+            norms = np.sqrt(np.sum(Cp * Cp, 0))
+            ok = norms > 1e-9 * max(norms.max(), 1e-300)
+            if not ok.any():
+                continue
+            beta = np.zeros(C.shape[1])
+            beta[ok] = np.linalg.lstsq(Cp[:, ok], -r_perp, rcond=None)[0]
+            d = float(np.sum((Cp @ beta) ** 2))
+            if best is None or d > best[0]:
+                best = (d, alt, th, C, beta)
+        if best is None:
+            out[eid] = Screened(eid, 0.0, theta.copy(), theta.copy(), "no signature")
+            continue
+        d, alt, th, C, beta = best
+        start = gn_start(th, C, beta)
+        start = engine.with_values(start, alt.start(beta))
+        out[eid] = Screened(eid, d, start, th, alt.label)
+    return out
+
+
+def _screen_frame_drop(engine, theta, r, U, geo, gn_start):
+    """t* as the frame where a time shift of all later samples best fits the residual jump."""
+    th = engine.with_values(theta, {"drop_tstar": -1e9})
+    d = engine.fd_columns([({}, "drop_dt")], th)[:, 0]  # every sample shifted
+    t = geo.t
+    order = np.argsort(t, kind="stable")
+    ts = t[order]
+    # suffix sums over samples with t >= t_k, for each unique frame time t_k
+    tu, first = np.unique(ts, return_index=True)
+
+    def suffix(a):
+        c = np.cumsum(a[::-1], axis=0)[::-1]
+        return c[first]
+
+    dd = d[order]
+    cc = suffix(dd * dd)
+    rc = suffix(r[order] * dd)
+    qa = suffix(U[order] * dd[:, None])
+    den = cc - np.sum(qa * qa, 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        score = np.where(den > 1e-12 * max(cc.max(), 1e-300), rc ** 2 / den, 0.0)
+    score[0] = 0.0  # t* at the first frame shifts everything: no jump
+    k = int(np.argmax(score))
+    t_star = float(tu[k])
+    th = engine.with_values(theta, {"drop_tstar": t_star})
+    C = engine.fd_columns([({}, "drop_dt")], th)
+    Cp = C - U @ (U.T @ C)
+    r_perp = r - U @ (U.T @ r)
+    beta = np.linalg.lstsq(Cp, -r_perp, rcond=None)[0]
+    start = gn_start(th, C, beta)
+    start = engine.with_values(start, {"drop_dt": float(beta[0])})
+    return Screened("frame_drop", float(np.sum((Cp @ beta) ** 2)), start, th, f"t*={t_star:.4f} s",
+                    {"t_star_s": t_star, "jump_score": float(score[k])})
+
+
+def physical(eid: str, p: dict) -> str | None:
+    """Why fitted parameters are not the physics the effect names (None when they are)."""
+    g = lambda k: float(np.asarray(p[k]))  # noqa: E731
+    if eid == "lug_sliding" and g("slide_mu") <= 0:
+        return "the fitted slip grows slower than linearly (mu <= 0), not lug sliding"
+    if eid == "belt_sag" and g("sag_d") <= 0:
+        return "the top run bulges upward (d <= 0), not a sag"
+    if eid == "ground_sinkage" and g("sink_z") <= 0:
+        return "the lugs rise (z <= 0), not sinkage"
+    if eid == "frame_drop" and g("drop_dt") <= 0:
+        return "the stamps jump forward (dt <= 0), not a lost frame"
+    return None
+
+
+def n_free(eid: str, n_body: int) -> int:
+    return CATALOG[eid].n_free(n_body)

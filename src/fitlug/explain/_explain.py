@@ -1,0 +1,278 @@
+"""Find the physics the base model left out: detect, locate, explain (MODEL.md §3).
+
+Forward selection over the catalog. Each round scores every effect not yet in the model
+(one Gauss-Newton step: :mod:`._candidates`), fits the most promising ones fully (same
+model, only their parameters freed: :mod:`._engine`) and adds the best one if it earns
+its place:
+
+- Delta BIC = Delta chi^2 + Delta k ln N < -10 with the noise per role held at the base
+  fit's values (they come from 4th differences, independent of slow misfit, so chi^2 is
+  -2 ln L up to a constant for every candidate). -10 is "very strong" evidence on the
+  Kass-Raftery scale (Bayes factor ~150); frame_drop's t* counts as a parameter;
+- its parameters are the physics it names (a sag sags, a lost frame delays the stamps);
+- when the misfit is strong (structured misfit > 10 sd), it removes at least 30 % of it:
+  a disturbance outside the catalog can make a candidate's Delta BIC hugely negative
+  while leaving most of the misfit in place, and that candidate does not explain it.
+
+Rounds stop when the residuals pass detection or nothing more earns its place. With two
+or more effects added, each must still earn its place in the final model (backward
+check). The final model is refitted with the project's fitter (fit_problem); its
+residuals decide the verdict: consistent -> 'explained', else 'unexplained' with the
+located remaining mismatch. An unexplained mismatch also widens the error bars
+(:mod:`._robust`).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..fit import fit_problem, free_parameters
+from ..model import CATALOG
+from ._candidates import physical, screen
+from ._detect import ALPHA, Detection, detect
+from ._engine import Engine
+from ._locate import Location, locate, residual_map, spectrum_summary
+from ._robust import robust_result
+from ._table import geometry, structured_misfit
+
+BIC_THRESHOLD = -10.0
+MIN_SHARE_REMOVED = 0.3
+STRONG_MISFIT_Z = 10.0
+MAX_FITS_PER_ROUND = 4
+MAX_EFFECTS = 4
+
+
+@dataclass
+class Step:
+    """One effect added to the model."""
+
+    effect: str
+    params: dict
+    delta_bic: float
+    chi2_per_dof_before: float
+    chi2_per_dof_after: float
+    misfit_removed_share: float
+
+
+@dataclass
+class Explanation:
+    """What explain() concluded; `final` is the FitResult under base + named effects."""
+
+    verdict: str  # 'none' | 'explained' | 'unexplained'
+    base: object
+    final: object
+    effects: list
+    located: list
+    steps: list = field(default_factory=list)
+    detection_before: Detection | None = None
+    detection_after: Detection | None = None
+    location_before: Location | None = None
+    location_after: Location | None = None
+    rounds: list = field(default_factory=list)
+    slip_uncertainty: str = "least squares"
+    timing_s: dict = field(default_factory=dict)
+    geometry: object = None  # fitlug.explain.Geometry of the residual vectors
+
+    def to_json(self) -> dict:
+        """The `discrepancy` block of fit.json (DATA.md)."""
+        def slip(res):
+            return res.slip.as_dict()
+
+        out = {
+            "verdict": self.verdict,
+            "located": self.located,
+            "effects": [{"id": s.effect, "params": s.params, "delta_bic": s.delta_bic,
+                         "chi2_per_dof_before": s.chi2_per_dof_before,
+                         "chi2_per_dof_after": s.chi2_per_dof_after,
+                         "misfit_removed_share": s.misfit_removed_share,
+                         "meaning": CATALOG[s.effect].meaning} for s in self.steps],
+            "slip_before": slip(self.base),
+            "slip_after": slip(self.final),
+            "slip_after_uncertainty": self.slip_uncertainty,
+            "chi2_per_dof_before": float(self.base.chi2_per_dof),
+            "chi2_per_dof_after": float(self.final.chi2_per_dof),
+            "detection_before": self.detection_before.as_dict() if self.detection_before else None,
+            "detection_after": self.detection_after.as_dict() if self.detection_after else None,
+            "misfit_before": self.location_before.as_dict() if self.location_before else None,
+            "misfit_after": self.location_after.as_dict() if self.location_after else None,
+            "candidates": self.rounds,
+            "criterion": {"delta_bic_threshold": BIC_THRESHOLD, "alpha": ALPHA,
+                          "min_share_of_strong_misfit_removed": MIN_SHARE_REMOVED,
+                          "strong_misfit_z": STRONG_MISFIT_Z,
+                          "bic": "chi2 + k ln N, noise per role fixed at the base fit's"},
+            "timing_s": self.timing_s,
+        }
+        if self.geometry is not None:
+            g = self.geometry
+            out["maps"] = {"before": residual_map(g, self.base.residuals)}
+            out["spectra"] = {"before": spectrum_summary(g, self.base.residuals)}
+            if self.final.residuals is not self.base.residuals:
+                out["maps"]["after"] = residual_map(g, self.final.residuals)
+                out["spectra"]["after"] = spectrum_summary(g, self.final.residuals)
+        return out
+
+
+def _bar(progress, total, desc):
+    if not progress or not sys.stderr.isatty():
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, file=sys.stderr, leave=False)
+
+
+def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA) -> Explanation:
+    """Detect, locate and explain the mismatch of a least-squares fit `res`.
+
+    `seed` is accepted for a uniform CLI (the procedure is deterministic). Returns an
+    :class:`Explanation`; never raises on a recording that `res` fitted.
+    """
+    t_start = time.perf_counter()
+    timing = {}
+    geo = geometry(res)
+    sig_est = res.problem.noise_source in ("differences", "residual differences")
+    det0 = detect(geo, res.residuals, res.dof, sigma_estimated=sig_est, alpha=alpha)
+    loc0 = locate(geo, res.residuals)
+    timing["detect_locate"] = time.perf_counter() - t_start
+    if det0.consistent:
+        timing["total"] = time.perf_counter() - t_start
+        return Explanation("none", res, res, [], [], detection_before=det0,
+                           detection_after=det0, location_before=loc0, timing_s=timing,
+                           geometry=geo)
+
+    eng = Engine(res)
+    N = res.n_data
+    lnN = math.log(N)
+    theta = eng.theta0
+    r = eng.residuals(theta)[0]
+    chi2 = float(r @ r)
+    k_cur = res.n_params
+    accepted, extra, steps, rounds = [], [], [], []
+    bar = _bar(progress, MAX_EFFECTS, "explain")
+    for rnd in range(MAX_EFFECTS):
+        cands = [e for e in CATALOG if e not in res.effects and e not in accepted]
+        if not cands:
+            break
+        t0 = time.perf_counter()
+        J = eng.jacobian(theta, extra)
+        scr = screen(eng, theta, r, J, cands, extra, geo)
+        lin = {e: -s.dchi2 + eng.n_free(e) * lnN for e, s in scr.items()}
+        order = sorted(cands, key=lambda e: lin[e])
+        to_fit = [e for e in order if lin[e] < BIC_THRESHOLD][:MAX_FITS_PER_ROUND]
+        M_cur, sdM = structured_misfit(geo, r)
+        tried = {e: {"id": e, "delta_bic_linear": lin[e], "start": scr[e].label}
+                 for e in order}
+        fits = {}
+        for e in to_fit:
+            t1 = time.perf_counter()
+            out = eng.fit(_start(eng, scr[e], chi2, extra + eng.free_names(e)),
+                          extra + eng.free_names(e))
+            dbic = out.chi2 - chi2 + eng.n_free(e) * lnN
+            M_new, _ = structured_misfit(geo, out.r)
+            removed = (M_cur - M_new) / M_cur if M_cur > 0 else 0.0
+            why = physical(e, eng.params(out.theta))
+            if why is None and dbic >= BIC_THRESHOLD:
+                why = f"delta BIC {dbic:.1f} is not below {BIC_THRESHOLD:g}"
+            if why is None and M_cur > STRONG_MISFIT_Z * sdM and removed < MIN_SHARE_REMOVED:
+                why = (f"removes {100 * removed:.0f} % of the misfit (needs "
+                       f"{100 * MIN_SHARE_REMOVED:.0f} %)")
+            fits[e] = (out, dbic, removed, why)
+            tried[e].update({"delta_bic": dbic, "chi2_per_dof": out.chi2 / (N - k_cur - eng.n_free(e)),
+                             "misfit_removed_share": removed, "rejected_because": why,
+                             "iterations": out.iterations, "time_s": time.perf_counter() - t1,
+                             "params": CATALOG[e].report(eng.params(out.theta))})
+        rounds.append({"round": rnd + 1, "tried": list(tried.values()),
+                       "time_s": time.perf_counter() - t0})
+        ok = [e for e in fits if fits[e][3] is None]
+        if not ok:
+            break
+        best = min(ok, key=lambda e: fits[e][1])
+        out, dbic, removed, _ = fits[best]
+        dof_before = N - k_cur
+        k_cur += eng.n_free(best)
+        steps.append(Step(best, CATALOG[best].report(eng.params(out.theta)), float(dbic),
+                          chi2 / dof_before, out.chi2 / (N - k_cur), float(removed)))
+        rounds[-1]["accepted"] = best
+        accepted.append(best)
+        extra = extra + eng.free_names(best)
+        theta, r, chi2 = out.theta, out.r, out.chi2
+        if bar:
+            bar.update(1)
+        if detect(geo, r, N - k_cur, sigma_estimated=sig_est, alpha=alpha).consistent:
+            break
+    if bar:
+        bar.close()
+    timing["search"] = time.perf_counter() - t_start - timing["detect_locate"]
+
+    if len(accepted) >= 2:
+        accepted, steps, theta = _backward(eng, accepted, steps, theta, chi2, lnN)
+
+    if not accepted:
+        det1 = det0
+        loc1 = loc0
+        final, method = robust_result(res, geo)
+        timing["total"] = time.perf_counter() - t_start
+        return Explanation("unexplained", res, final, [], loc0.parts, [], det0, det1, loc0,
+                           loc1, rounds, method, timing, geo)
+
+    t0 = time.perf_counter()
+    final = _refit(res, eng, accepted, theta)
+    timing["final_fit"] = time.perf_counter() - t0
+    det1 = detect(geo, final.residuals, final.dof, sigma_estimated=sig_est, alpha=alpha)
+    loc1 = locate(geo, final.residuals)
+    if steps:  # the last step's chi2 from the exact final fit
+        steps[-1].chi2_per_dof_after = float(final.chi2_per_dof)
+        steps[-1].params = final.effect_params(steps[-1].effect)
+    if det1.consistent:
+        verdict, located, method = "explained", loc0.parts, "least squares"
+    else:
+        verdict, located = "unexplained", loc1.parts
+        final, method = robust_result(final, geo)
+    timing["total"] = time.perf_counter() - t_start
+    return Explanation(verdict, res, final, list(accepted), located, steps, det0, det1, loc0,
+                       loc1, rounds, method, timing, geo)
+
+
+def _start(eng, scr, chi2_cur, names):
+    """The screening's Gauss-Newton start, unless it is worse than its effect part alone."""
+    th_gn = scr.theta_start
+    th_eff = eng.with_values(scr.theta_current, {k: eng.get(th_gn, k) for k in names})
+    c2 = np.einsum("ij,ij->i", *(2 * [eng.residuals(np.array([th_gn, th_eff]))]))
+    return th_gn if c2[0] <= c2[1] else th_eff
+
+
+def _backward(eng, accepted, steps, theta, chi2, lnN):
+    """Drop added effects that no longer earn their place next to the others."""
+    changed = True
+    while changed and len(accepted) >= 2:
+        changed = False
+        for e in list(accepted):
+            others = [a for a in accepted if a != e]
+            extra = [k for a in others for k in eng.free_names(a)]
+            th0 = eng.with_values(theta, {k: v for k, v in CATALOG[e].defaults.items()})
+            out = eng.fit(th0, extra)
+            dbic = chi2 - out.chi2 + eng.n_free(e) * lnN
+            if dbic >= BIC_THRESHOLD:
+                accepted = others
+                steps = [s for s in steps if s.effect != e]
+                theta, chi2 = out.theta, out.chi2
+                changed = True
+                break
+    return accepted, steps, theta
+
+
+def _refit(res, eng, accepted, theta):
+    """The final model (base + accepted effects) fitted by the project's fitter."""
+    prob = res.problem
+    effects = tuple(res.effects) + tuple(accepted)
+    p_all = eng.params(theta)
+    prob_f, p = prob.with_effects(effects, p_all)
+    p.update({k: p_all[k] for k in p if k in p_all})
+    free = free_parameters(prob_f.lay)
+    if "body_bounce" in accepted and prob.lay.n_body < 2:
+        free = [k for k in free if k != "bounce_B"]
+    return fit_problem(prob_f, p, free=free, require_convergence=False)
