@@ -163,6 +163,25 @@ def test_bad_arguments(runs):
     assert isinstance(runs[0][2], Posterior)
 
 
+def test_a_replacing_slip_law_is_sampled_with_its_parameter():
+    # lug_sliding: s = -s_K ln(1 - F/F_max); the steady slip is a nonlinear function of
+    # (s0, beta, slide_mu), all three sampled, slide_mu >= 0 by the prior
+    sc = SHORT.replace(effects={"lug_sliding": {"slide_mu": 6.0}})
+    rec, truth = simulate(sc, 5)
+    res = fit(rec, rig_of(sc), effects=("lug_sliding",),
+              noise={"lug": sc.noise_lug_mm, "body": sc.noise_body_mm})
+    post = sample_posterior(res, seed=0)
+    m = post.mcmc_json()
+    assert m["parameters"] == ["s0", "beta", "slide_mu"] and m["converged"]
+    assert m["linearity_check"]["points"] == 14
+    assert np.all(post.samples["slide_mu"] >= 0)
+    for q in ("slip", "rolling_resistance", "stiffness_N_per_mm"):
+        e = post.estimates[q]
+        assert abs(e.value - truth[q]) < 4 * e.std, q
+        assert 0.88 < e.std / res.quantities[q].std < 1.12, q
+    assert abs(np.median(post.samples["slide_mu"]) - 6.0) < 4 * np.std(post.samples["slide_mu"])
+
+
 def test_sampled_parameters_follow_the_slip_law():
     class Res:
         effects = ("lug_sliding",)

@@ -122,6 +122,19 @@ def test_least_squares_only_and_discrepancy_hook(fitted, tmp_path):
     assert "lug_ripple" in page and "explained" in page
 
 
+def test_residuals_before_an_explanation_are_drawn(fitted, tmp_path):
+    from types import SimpleNamespace
+
+    res, post, _ = fitted
+    write_json(tmp_path / "fit.json", fit_json(res, posterior=post.estimates,
+                                               mcmc=post.mcmc_json()))
+    save_state(tmp_path, res, posterior=post, explanation=SimpleNamespace(base=res))
+    st = load_state(tmp_path)
+    np.testing.assert_array_equal(st["base_lug_res_y"], st["lug_res_y"])
+    page = open(write_report(tmp_path), encoding="utf-8").read()
+    assert "residuals before the effects were added" in page
+
+
 def test_missing_files_are_named(tmp_path):
     with pytest.raises(InputError, match="fit.json"):
         write_report(tmp_path)

@@ -150,7 +150,7 @@ def _estimates(fj, st) -> str:
 
 
 def _trajectories(st) -> str:
-    fig, ax = _fig(14, 4.5, 1, 1)
+    fig, ax = _fig(*_plots.trajectory_figsize(st))
     _plots.plot_trajectories(st, ax=ax[0, 0])
     a = figure_html(fig, "lug-marker trajectories in the ground frame, data and model")
     fig, ax = _fig(6, 4.5)
@@ -173,6 +173,13 @@ def _residuals(st, fj) -> str:
         _plots.plot_residuals_path(st, axis, ax=ax[2 + k, 0])
     ax[0, 0].set_title("Residuals (data - model) over time and along the belt path")
     out = figure_html(fig, "residuals over time and along the path")
+    if "base_lug_res_x" in st:
+        base = ", ".join(st["meta"].get("base_effects") or []) or "base model"
+        fig, ax = _fig(12, 4.2, 2, 1)
+        for k, axis in enumerate(("x", "y")):
+            _plots.plot_residuals_time(st, axis, ax=ax[k, 0], prefix="base_")
+        ax[0, 0].set_title(f"Before the explanation's effects ({base}): residuals over time")
+        out += figure_html(fig, "residuals before the effects were added")
     fig, ax = _fig(6, 3)
     _plots.plot_segment_rms(st, ax=ax[0, 0], noise_mm=fj.get("noise_mm"))
     out += figure_html(fig, "RMS residual per segment")

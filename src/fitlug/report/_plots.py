@@ -60,10 +60,19 @@ def plot_trajectories(st: dict, ax=None, mark_stall: bool = True):
     ax.plot([], [], "k-", lw=0.8, label="model")
     ax.set_xlabel("x (mm, ground frame)")
     ax.set_ylabel("y (mm)")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.legend(loc="upper left", fontsize=8, frameon=False)
-    ax.set_title("Marker trajectories in the ground frame")
+    ax.set_aspect("equal", adjustable="box")
+    ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=3, fontsize=8, frameon=False)
     return ax
+
+
+def trajectory_figsize(st: dict, width: float = 14.0) -> tuple:
+    """(width, height) in inches for :func:`plot_trajectories` at equal aspect."""
+    xs = np.concatenate([st["lug_x"][st["lug_valid"]], st["body_x"][st["body_valid"]]])
+    ys = np.concatenate([st["lug_y"][st["lug_valid"]], st["body_y"][st["body_valid"]]])
+    if not len(xs):
+        return width, 4.0
+    ratio = (np.ptp(ys) + 10.0) / max(np.ptp(xs) + 10.0, 1e-9)
+    return width, float(np.clip(width * ratio + 1.2, 2.6, 8.0))
 
 
 def stall_window(st: dict):
