@@ -129,3 +129,64 @@ def test_locate_reports_the_frequency_of_a_periodic_misfit():
 def test_white_noise_is_located_nowhere():
     r = np.random.default_rng(6).normal(size=N)
     assert locate(GEO, r).parts == []
+
+
+# ---- end to end on a short simulated recording -------------------------------------------
+
+DATA_MD_LOCATED = {"markers", "axis", "segment", "phase", "frequency_hz", "t_range_s",
+                   "share_of_misfit"}
+DATA_MD_EFFECT = {"id", "params", "delta_bic", "chi2_per_dof_before", "chi2_per_dof_after"}
+
+
+@pytest.fixture(scope="module")
+def frame_drop_explained():
+    from fitlug.explain import explain
+    from fitlug.fit import fit
+    from fitlug.sim import Scenario, rig_of, simulate
+
+    sc = Scenario(duration_s=3.5, travel_mm=300.0, rest_s=0.3, ramp_s=0.8,
+                  effects={"frame_drop": {"drop_dt": 0.01, "drop_tstar": 1.83}})
+    rec, truth = simulate(sc, 11)
+    return explain(fit(rec, rig_of(sc))), truth
+
+
+def test_a_lost_frame_is_found_where_it_happened(frame_drop_explained):
+    ex, truth = frame_drop_explained
+    assert ex.verdict == "explained" and ex.effects == ["frame_drop"]
+    p = ex.final.effect_params("frame_drop")
+    assert p["t_star_s"] == pytest.approx(1.83, abs=1e-9)  # the first frame stamped early
+    assert p["dt_s"] == pytest.approx(0.01, rel=0.03)
+    s = ex.final.slip
+    assert abs(s.value - truth["slip"]) < 3 * s.std
+    assert ex.base.chi2_per_dof > 2 and ex.final.chi2_per_dof < 1.1
+    # located: every marker jumps in x at t*, so the parts are in x around 1.83 s
+    top = ex.located[0]
+    assert top["axis"] == "x" and top["t_range_s"][0] <= 1.83 <= top["t_range_s"][1] + 0.05
+
+
+def test_the_discrepancy_block_follows_data_md(frame_drop_explained):
+    import json
+
+    ex, _ = frame_drop_explained
+    doc = json.loads(json.dumps(ex.to_json()))  # plain JSON types only
+    assert doc["verdict"] in ("none", "explained", "unexplained")
+    assert doc["located"] and all(DATA_MD_LOCATED <= set(p) for p in doc["located"])
+    for p in doc["located"]:
+        assert p["axis"] in ("x", "y")
+        assert p["segment"] in ("bottom", "rear_arc", "top", "front_arc", "body")
+        assert p["phase"] in ("accelerate", "cruise", "decelerate", "all")
+        assert 0 < p["share_of_misfit"] <= 1
+    assert all(DATA_MD_EFFECT <= set(e) for e in doc["effects"])
+    assert doc["effects"][0]["delta_bic"] < -10
+    for key in ("slip_before", "slip_after"):
+        assert set(doc[key]) == {"value", "std", "ci95"}
+
+
+def test_the_report_section_shows_before_and_after(frame_drop_explained):
+    from fitlug.report._discrepancy import discrepancy_section
+
+    ex, _ = frame_drop_explained
+    html = discrepancy_section({"discrepancy": ex.to_json()}, None)
+    assert "What the model left out" in html and "frame_drop" in html
+    assert html.count("data:image/png;base64,") == 3  # maps, breakdown, spectra
+    assert discrepancy_section({}, None) == ""

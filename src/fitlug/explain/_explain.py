@@ -10,13 +10,14 @@ its place:
   -2 ln L up to a constant for every candidate). -10 is "very strong" evidence on the
   Kass-Raftery scale (Bayes factor ~150); frame_drop's t* counts as a parameter;
 - its parameters are the physics it names (a sag sags, a lost frame delays the stamps);
-- when the misfit is strong (structured misfit > 10 sd), it removes at least 30 % of it:
-  a disturbance outside the catalog can make a candidate's Delta BIC hugely negative
-  while leaving most of the misfit in place, and that candidate does not explain it.
+- when the misfit is strong (chi^2 - dof above 10 times its spread from noise alone), it
+  removes at least 30 % of that excess: a disturbance outside the catalog can make a
+  candidate's Delta BIC hugely negative while leaving most of the misfit in place, and
+  that candidate does not explain it.
 
 Rounds stop when the residuals pass detection or nothing more earns its place. With two
 or more effects added, each must still earn its place in the final model (backward
-check). The final model is refitted with the project's fitter (fit_problem); its
+check). The final model is polished with its exact Jacobian (:mod:`._final`); its
 residuals decide the verdict: consistent -> 'explained', else 'unexplained' with the
 located remaining mismatch. An unexplained mismatch also widens the error bars
 (:mod:`._robust`).
@@ -31,11 +32,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..fit import fit_problem, free_parameters
 from ..model import CATALOG
 from ._candidates import physical, screen
 from ._detect import ALPHA, Detection, detect
 from ._engine import Engine
+from ._final import final_fit
 from ._locate import Location, locate, residual_map, spectrum_summary
 from ._robust import robust_result
 from ._table import geometry, structured_misfit
@@ -102,8 +103,8 @@ class Explanation:
             "misfit_after": self.location_after.as_dict() if self.location_after else None,
             "candidates": self.rounds,
             "criterion": {"delta_bic_threshold": BIC_THRESHOLD, "alpha": ALPHA,
-                          "min_share_of_strong_misfit_removed": MIN_SHARE_REMOVED,
-                          "strong_misfit_z": STRONG_MISFIT_Z,
+                          "min_share_of_strong_excess_chi2_removed": MIN_SHARE_REMOVED,
+                          "strong_excess_chi2_in_spreads": STRONG_MISFIT_Z,
                           "bic": "chi2 + k ln N, noise per role fixed at the base fit's"},
             "timing_s": self.timing_s,
         }
@@ -153,6 +154,7 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
     k_cur = res.n_params
     accepted, extra, steps, rounds = [], [], [], []
     bar = _bar(progress, MAX_EFFECTS, "explain")
+    det_cur = det0
     for rnd in range(MAX_EFFECTS):
         cands = [e for e in CATALOG if e not in res.effects and e not in accepted]
         if not cands:
@@ -163,26 +165,45 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
         lin = {e: -s.dchi2 + eng.n_free(e) * lnN for e, s in scr.items()}
         order = sorted(cands, key=lambda e: lin[e])
         to_fit = [e for e in order if lin[e] < BIC_THRESHOLD][:MAX_FITS_PER_ROUND]
-        M_cur, sdM = structured_misfit(geo, r)
+        dof_cur = N - k_cur
+        excess = chi2 - dof_cur  # chi^2 the misfit carries (noise scale known to ~2 %)
+        strong = excess > STRONG_MISFIT_Z * det_cur.chi2_spread * dof_cur
+        M_cur, _ = structured_misfit(geo, r)
         tried = {e: {"id": e, "delta_bic_linear": lin[e], "start": scr[e].label}
                  for e in order}
         fits = {}
+        bar_bic = BIC_THRESHOLD  # what a candidate must beat: the threshold, then the best
+
+        def give_up(c2, predicted, k_e):
+            # even 3 times the Gauss-Newton prediction cannot bring it below the bar
+            return c2 - 3.0 * predicted - chi2 + k_e * lnN > bar_bic
+
         for e in to_fit:
             t1 = time.perf_counter()
+            k_e = eng.n_free(e)
             out = eng.fit(_start(eng, scr[e], chi2, extra + eng.free_names(e)),
-                          extra + eng.free_names(e))
+                          extra + eng.free_names(e),
+                          give_up=lambda c2, pr, k_e=k_e: give_up(c2, pr, k_e))
             dbic = out.chi2 - chi2 + eng.n_free(e) * lnN
             M_new, _ = structured_misfit(geo, out.r)
-            removed = (M_cur - M_new) / M_cur if M_cur > 0 else 0.0
+            gain = chi2 - out.chi2
+            removed = gain / max(excess, gain) if gain > 0 else 0.0
             why = physical(e, eng.params(out.theta))
             if why is None and dbic >= BIC_THRESHOLD:
                 why = f"delta BIC {dbic:.1f} is not below {BIC_THRESHOLD:g}"
-            if why is None and M_cur > STRONG_MISFIT_Z * sdM and removed < MIN_SHARE_REMOVED:
-                why = (f"removes {100 * removed:.0f} % of the misfit (needs "
+            if why is None and strong and removed < MIN_SHARE_REMOVED:
+                why = (f"removes {100 * removed:.0f} % of the excess chi2 (needs "
                        f"{100 * MIN_SHARE_REMOVED:.0f} %)")
+            if why is None and not out.converged and dbic > bar_bic:
+                why = f"cannot beat delta BIC {bar_bic:.1f} (fit abandoned)"
             fits[e] = (out, dbic, removed, why)
+            if why is None:
+                bar_bic = min(bar_bic, dbic)
             tried[e].update({"delta_bic": dbic, "chi2_per_dof": out.chi2 / (N - k_cur - eng.n_free(e)),
-                             "misfit_removed_share": removed, "rejected_because": why,
+                             "misfit_removed_share": removed,
+                             "structured_misfit_removed_share":
+                                 (M_cur - M_new) / M_cur if M_cur > 0 else None,
+                             "rejected_because": why,
                              "iterations": out.iterations, "time_s": time.perf_counter() - t1,
                              "params": CATALOG[e].report(eng.params(out.theta))})
         rounds.append({"round": rnd + 1, "tried": list(tried.values()),
@@ -202,7 +223,8 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
         theta, r, chi2 = out.theta, out.r, out.chi2
         if bar:
             bar.update(1)
-        if detect(geo, r, N - k_cur, sigma_estimated=sig_est, alpha=alpha).consistent:
+        det_cur = detect(geo, r, N - k_cur, sigma_estimated=sig_est, alpha=alpha)
+        if det_cur.consistent:
             break
     if bar:
         bar.close()
@@ -220,7 +242,7 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
                            loc1, rounds, method, timing, geo)
 
     t0 = time.perf_counter()
-    final = _refit(res, eng, accepted, theta)
+    final = final_fit(res, eng, accepted, theta)
     timing["final_fit"] = time.perf_counter() - t0
     det1 = detect(geo, final.residuals, final.dof, sigma_estimated=sig_est, alpha=alpha)
     loc1 = locate(geo, final.residuals)
@@ -238,11 +260,20 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
 
 
 def _start(eng, scr, chi2_cur, names):
-    """The screening's Gauss-Newton start, unless it is worse than its effect part alone."""
+    """The best of: the screening's Gauss-Newton step, its effect part alone, half of that.
+
+    A large nonlinear effect can make the linear step overshoot; the fit then starts
+    from whichever of these is lowest in chi^2.
+    """
     th_gn = scr.theta_start
-    th_eff = eng.with_values(scr.theta_current, {k: eng.get(th_gn, k) for k in names})
-    c2 = np.einsum("ij,ij->i", *(2 * [eng.residuals(np.array([th_gn, th_eff]))]))
-    return th_gn if c2[0] <= c2[1] else th_eff
+    cur = scr.theta_current
+    th_eff = eng.with_values(cur, {k: eng.get(th_gn, k) for k in names})
+    th_half = eng.with_values(cur, {k: 0.5 * (eng.get(th_gn, k) + eng.get(cur, k))
+                                    for k in names})
+    cands = np.array([th_gn, th_eff, th_half])
+    R = eng.residuals(cands)
+    c2 = np.einsum("ij,ij->i", R, R)
+    return cands[int(np.nanargmin(np.where(np.isfinite(c2), c2, np.inf)))]
 
 
 def _backward(eng, accepted, steps, theta, chi2, lnN):
@@ -263,16 +294,3 @@ def _backward(eng, accepted, steps, theta, chi2, lnN):
                 changed = True
                 break
     return accepted, steps, theta
-
-
-def _refit(res, eng, accepted, theta):
-    """The final model (base + accepted effects) fitted by the project's fitter."""
-    prob = res.problem
-    effects = tuple(res.effects) + tuple(accepted)
-    p_all = eng.params(theta)
-    prob_f, p = prob.with_effects(effects, p_all)
-    p.update({k: p_all[k] for k in p if k in p_all})
-    free = free_parameters(prob_f.lay)
-    if "body_bounce" in accepted and prob.lay.n_body < 2:
-        free = [k for k in free if k != "bounce_B"]
-    return fit_problem(prob_f, p, free=free, require_convergence=False)

@@ -113,8 +113,7 @@ def geometry(res) -> Geometry:
 
     v, psi_u = np.asarray(kin["v"]), np.asarray(kin["psi"])
     vt = np.asarray(kin["v_t"])
-    a = np.gradient(v, tu) if len(tu) > 2 else np.zeros_like(v)
-    ph_u = _phases(v, a)
+    ph_u = _phases(tu, v)
     idx = np.searchsorted(tu, t)
     phase, psi, v_s = ph_u[idx], psi_u[idx], v[idx]
     k = int(np.argmax(np.abs(v)))
@@ -136,12 +135,28 @@ def geometry(res) -> Geometry:
                     t_hi=float(tu[-1]))
 
 
-def _phases(v: np.ndarray, a: np.ndarray) -> np.ndarray:
+def _running(x: np.ndarray, k: int, fn) -> np.ndarray:
+    if k < 2 or len(x) < k:
+        return x
+    pad = np.pad(x, (k // 2, k - 1 - k // 2), mode="edge")
+    win = np.lib.stride_tricks.sliding_window_view(pad, k)
+    return fn(win, axis=1)
+
+
+def _phases(t: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Motion phase per time: rest, accelerate, cruise, decelerate (indices into PHASES).
 
     Accelerate / decelerate are where the speed magnitude grows / falls faster than
-    RAMP_FRACTION of the peak |a|; a short smoothing keeps noise from flickering phases.
+    RAMP_FRACTION of the peak |a|. The speed is first median-filtered over 0.3 s: a base
+    fit that absorbs a mismatch (a jump of every marker) into a short speed spike must
+    not turn cruise into a ramp.
     """
+    if len(t) < 3:
+        return np.full(len(t), 2)
+    dt = float(np.median(np.diff(t)))
+    k = max(int(round(0.3 / dt)) | 1, 1)
+    v = _running(np.asarray(v, float), k, np.median)
+    a = _running(np.gradient(v, t), k, np.mean)
     vmax = float(np.max(np.abs(v))) if len(v) else 0.0
     amax = float(np.max(np.abs(a))) if len(a) else 0.0
     sgn = np.sign(v) if vmax > 0 else np.ones_like(v)

@@ -50,8 +50,12 @@ def _png(fig) -> str:
             + base64.b64encode(buf.getvalue()).decode("ascii") + '">')
 
 
-def plot_maps(maps: dict, ax=None):
-    """Residual maps (series x time, mean residual in sigma) before and after, side by side."""
+def plot_maps(maps: dict):
+    """Residual maps (series x time, mean residual in sigma) before and after, side by side.
+
+    Each map has its own colour scale: after a good explanation the remaining residuals
+    are hundreds of times smaller than before and would be invisible on a shared one.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -59,28 +63,23 @@ def plot_maps(maps: dict, ax=None):
     import numpy as np
 
     keys = [k for k in ("before", "after") if maps.get(k)]
-    fig, axes = plt.subplots(1, len(keys), figsize=(6 * len(keys), 4.5), squeeze=False)
-    vmax = 0.0
-    data = {}
-    for k in keys:
+    fig, axes = plt.subplots(1, len(keys), figsize=(6.5 * len(keys), 4.5), squeeze=False)
+    for ax_, k in zip(axes[0], keys):
         m = maps[k]
         a = np.array([[np.nan if v is None else v for v in row]
                       for row in m["mean_residual_sigma"]], float)
-        data[k] = a
-        if np.isfinite(a).any():
-            vmax = max(vmax, float(np.nanpercentile(np.abs(a), 99)))
-    vmax = max(vmax, 0.5)
-    for ax_, k in zip(axes[0], keys):
-        m = maps[k]
+        vmax = float(np.nanpercentile(np.abs(a), 99)) if np.isfinite(a).any() else 1.0
+        vmax = max(vmax, 1.0)  # noise alone gives ~0.3 sigma per 0.1 s bin
         t = m["t_edges_s"]
-        im = ax_.imshow(data[k], aspect="auto", cmap="RdBu_r", vmin=-vmax, vmax=vmax,
+        im = ax_.imshow(a, aspect="auto", cmap="RdBu_r", vmin=-vmax, vmax=vmax,
                         extent=[t[0], t[-1], len(m["series"]) - 0.5, -0.5],
                         interpolation="nearest")
         ax_.set_yticks(range(len(m["series"])))
         ax_.set_yticklabels(m["series"], fontsize=7)
         ax_.set_xlabel("time (s)")
-        ax_.set_title(f"residuals {k} (mean per 0.1 s, in sigma)")
-    fig.colorbar(im, ax=axes[0].tolist(), shrink=0.8)
+        ax_.set_title(f"residuals {k} (mean per 0.1 s, sigma)", fontsize=10)
+        fig.colorbar(im, ax=ax_, shrink=0.8)
+    fig.tight_layout()
     return fig
 
 

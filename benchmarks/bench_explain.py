@@ -1,0 +1,202 @@
+"""How well and how fast fitlug.explain finds left-out physics. Prints figures; asserts nothing.
+
+    python benchmarks/bench_explain.py [--part speed,far,ladder] [--clean 20]
+        [--seeds 4] [--effects lug_ripple,...] [--out results.json]
+
+1. speed: wall and CPU time of explain() on a 650-frame recording with a hidden lug
+   ripple (the base fit is not counted), first call in the process (tracing, disk cache
+   warm after the first run) and a second call.
+2. far: false-alarm rate on clean simulations (verdict other than 'none'), each with its
+   own seed, plus the detector alone on residuals drawn from the fit's linearised null
+   (white noise projected out of the Jacobian, noise re-estimated) for a sharper figure.
+3. ladder: per effect, the smallest amplitude found 90 % of the time. Amplitudes are a
+   coarse ladder of multiples of a per-effect reference size (x1, x2, x4 of a rough
+   threshold), `--seeds` recordings per rung; found means verdict 'explained' with
+   exactly that effect. The amplitude in units of the noise is the RMS over all samples
+   of the effect's noise-free displacement divided by the noise sigma of each role.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "src"))
+
+from fitlug.explain import explain  # noqa: E402
+from fitlug.fit import fit  # noqa: E402
+from fitlug.sim import Scenario, rig_of, simulate  # noqa: E402
+
+
+def _mod(eps, phi, prefix):
+    return {f"{prefix}_a": eps * math.cos(phi), f"{prefix}_b": eps * math.sin(phi)}
+
+
+# effect -> (function size -> effect params, rough detection threshold of the size)
+LADDER = {
+    "lug_ripple": (lambda a: {"lug_ripple": _mod(a, 0.7, "ripple")}, 3e-4),
+    "wheel_runout": (lambda a: {"wheel_runout": _mod(a, -0.4, "runout")}, 5e-5),
+    "body_bounce": (lambda a: {"body_bounce": {"bounce_A": a, "bounce_B": 0.0,
+                                               "bounce_phi": 0.3}}, 1.5e-3),
+    "lug_sliding": (lambda a: {"lug_sliding": {"slide_mu": a}}, 0.3),
+    "belt_sag": (lambda a: {"belt_sag": {"sag_d": a}}, 3e-3),
+    "ground_sinkage": (lambda a: {"ground_sinkage": {"sink_z": a, "sink_us": 30.0}}, 3e-3),
+    "lens_distortion": (lambda a: {"lens_distortion": {"lens_k1": a, "lens_cx": 300.0,
+                                                       "lens_cy": 40.0}}, 5e-11),
+    "marker_depth": (lambda a: {"marker_depth": {"depth_eps": a}}, 5e-6),
+    "camera_tilt": (lambda a: {"camera_tilt": {"tilt_theta": a}}, 2e-6),
+    "frame_drop": (lambda a: {"frame_drop": {"drop_dt": a, "drop_tstar": 3.27}}, 8e-5),
+}
+RUNGS = (1.0, 2.0, 4.0)
+
+
+def noise_units(sc: Scenario) -> float:
+    """RMS of the effects' noise-free displacement over all samples, in noise sigmas."""
+    quiet = dict(noise_lug_mm=0.0, noise_body_mm=0.0)
+    a, _ = simulate(sc.replace(**quiet), 0)
+    b, _ = simulate(sc.replace(effects={}, **quiet), 0)
+    sig = np.where(np.asarray(a.roles)[a.marker_index] == "lug", sc.noise_lug_mm,
+                   sc.noise_body_mm)
+    d2 = ((a.x - b.x) ** 2 + (a.y - b.y) ** 2) / sig ** 2
+    return float(np.sqrt(np.mean(d2) / 2))
+
+
+def run_one(sc: Scenario, seed: int):
+    rec, truth = simulate(sc, seed)
+    res = fit(rec, rig_of(sc))
+    t0, c0 = time.perf_counter(), time.process_time()
+    ex = explain(res)
+    return ex, truth, time.perf_counter() - t0, time.process_time() - c0
+
+
+def part_speed(out):
+    sc = Scenario(effects={"lug_ripple": _mod(0.003, 1.0, "ripple")})
+    rec, _ = simulate(sc, 7)
+    res = fit(rec, rig_of(sc))
+    rows = []
+    for call in ("first", "second"):
+        t0, c0 = time.perf_counter(), time.process_time()
+        ex = explain(res)
+        rows.append({"call": call, "wall_s": time.perf_counter() - t0,
+                     "cpu_s": time.process_time() - c0, "verdict": ex.verdict,
+                     "effects": ex.effects, "steps": ex.timing_s})
+        print(f"speed: {call} call {rows[-1]['wall_s']:.1f} s wall, {rows[-1]['cpu_s']:.1f} s "
+              f"CPU -> {ex.verdict} {ex.effects}; {json.dumps(ex.timing_s)}", flush=True)
+    out["speed"] = {"frames": 650, "cores": os.cpu_count(), "load_avg": os.getloadavg(),
+                    "runs": rows}
+
+
+def part_far(out, n_clean, n_null):
+    alarms, rows = 0, []
+    for seed in range(1000, 1000 + n_clean):
+        ex, truth, wall, cpu = run_one(Scenario(), seed)
+        alarms += ex.verdict != "none"
+        d = ex.detection_before
+        rows.append({"seed": seed, "verdict": ex.verdict, "effects": ex.effects,
+                     "p": [d.chi2_p, d.ljung_box_p, d.periodogram_p, d.line_p],
+                     "slip_z": (ex.final.slip.value - truth["slip"]) / ex.final.slip.std})
+        print(f"far: seed {seed} -> {ex.verdict} {ex.effects} p={np.round(rows[-1]['p'], 3)} "
+              f"slip z {rows[-1]['slip_z']:+.2f}", flush=True)
+    lo, hi = _binom_ci(alarms, n_clean)
+    out["false_alarms"] = {"clean_recordings": n_clean, "alarms": alarms,
+                           "rate": alarms / max(n_clean, 1), "ci95": [lo, hi], "runs": rows}
+    print(f"false-alarm rate on {n_clean} clean recordings: {alarms}/{n_clean} "
+          f"(95 % CI {lo:.3f}-{hi:.3f})", flush=True)
+    if n_null:
+        rate = _linearised_null(n_null)
+        out["false_alarms"]["linearised_null"] = {"draws": n_null, "rate": rate}
+        print(f"false-alarm rate of the detector on {n_null} linearised-null residual sets: "
+              f"{rate:.3f}", flush=True)
+
+
+def _linearised_null(n):
+    from fitlug.explain import detect, geometry
+    from fitlug.explain._engine import Engine
+    from fitlug.fit._noise import fourth_differences, noise_from_differences
+
+    rec, _ = simulate(Scenario(), 999)
+    res = fit(rec, rig_of(Scenario()))
+    geo = geometry(res)
+    eng = Engine(res)
+    J = eng.base_jacobian(eng.theta0)
+    U = np.linalg.svd(J, full_matrices=False)[0]
+    rng = np.random.default_rng(5)
+    alarms = 0
+    for _ in range(n):
+        e = rng.normal(size=J.shape[0])
+        r = e - U @ (U.T @ e)
+        for role in (0, 1):  # the noise re-estimated from these residuals, as fit() does
+            diffs = []
+            for s in geo.series_ids():
+                sel = np.flatnonzero((geo.series == s) & (geo.role == role))
+                if len(sel):
+                    sel = sel[np.argsort(geo.t[sel])]
+                    diffs.append(fourth_differences(geo.t[sel], r[sel]))
+            r = np.where(geo.role == role, r / noise_from_differences(diffs)[0], r)
+        alarms += not detect(geo, r, res.dof).consistent
+    return alarms / n
+
+
+def _binom_ci(k, n):
+    from scipy import stats
+
+    lo = stats.beta.ppf(0.025, k, n - k + 1) if k > 0 else 0.0
+    hi = stats.beta.ppf(0.975, k + 1, n - k) if k < n else 1.0
+    return float(lo), float(hi)
+
+
+def part_ladder(out, effects, seeds):
+    res_all = {}
+    for eid in effects:
+        make, thr = LADDER[eid]
+        rows = []
+        for k, f in enumerate(RUNGS):
+            sc = Scenario(effects=make(thr * f))
+            units = noise_units(sc)
+            found = 0
+            for s in range(seeds):
+                ex, truth, wall, _ = run_one(sc, 2000 + 100 * k + s)
+                found += ex.verdict == "explained" and ex.effects == [eid]
+            rows.append({"size": thr * f, "noise_units": units, "found": found, "of": seeds})
+            print(f"ladder: {eid} size {thr * f:.3g} ({units:.3f} sigma rms): "
+                  f"{found}/{seeds} found", flush=True)
+        ok = [r for r in rows if r["found"] >= 0.9 * r["of"]]
+        res_all[eid] = {"rungs": rows,
+                        "smallest_found_90pct_noise_units": ok[0]["noise_units"] if ok else None,
+                        "smallest_found_90pct_size": ok[0]["size"] if ok else None}
+        print(f"ladder: {eid}: smallest amplitude found >= 90 %: "
+              f"{res_all[eid]['smallest_found_90pct_noise_units']} sigma rms", flush=True)
+    out["ladder"] = {"seeds_per_rung": seeds, "rungs": list(RUNGS), "effects": res_all}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--part", default="speed,far,ladder")
+    ap.add_argument("--clean", type=int, default=20)
+    ap.add_argument("--null", type=int, default=400)
+    ap.add_argument("--seeds", type=int, default=4)
+    ap.add_argument("--effects", default=",".join(LADDER))
+    ap.add_argument("--out")
+    args = ap.parse_args(argv)
+    out = {}
+    parts = args.part.split(",")
+    if "speed" in parts:
+        part_speed(out)
+    if "far" in parts:
+        part_far(out, args.clean, args.null)
+    if "ladder" in parts:
+        part_ladder(out, args.effects.split(","), args.seeds)
+    if args.out:
+        with open(args.out, "w") as fh:
+            json.dump(out, fh, indent=1, default=float)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
