@@ -19,27 +19,59 @@ from .._errors import InputError
 
 
 def body_reference(rec, body_ids, t_ref=0.0):
-    """(times, X) at the body markers' unique times, and their offsets (cx, cy); X(t_ref) = 0."""
+    """(times, X) at the body markers' unique times, and their offsets (cx, cy); X(t_ref) = 0.
+
+    Markers may be seen over different spans (entering or leaving the view): the offsets
+    are chained through overlaps, starting from the marker seen longest around t_ref.
+    """
     tracks = []
-    cx, cy = [], []
     for m in body_ids:
         sel = (rec.marker_index == m) & np.isfinite(rec.x) & np.isfinite(rec.y)
         t, x, y = rec.t[sel], rec.x[sel], rec.y[sel]
         if len(t) < 2:
             raise InputError(rec.path, f"body marker {rec.markers[m]} has fewer than 2 valid samples")
-        c = float(np.interp(t_ref, t, x))
-        tracks.append((t, x - c))
-        cx.append(c)
-        cy.append(float(np.median(y)))
-    tu = np.unique(np.concatenate([t for t, _ in tracks]))
+        tracks.append((t, x, y))
+    tu = np.unique(np.concatenate([t for t, _, _ in tracks]))
+    # reference: the marker whose span is closest to t_ref, longest first
+    dist = [max(t[0] - t_ref, t_ref - t[-1], 0.0) for t, _, _ in tracks]
+    order = sorted(range(len(tracks)), key=lambda j: (dist[j], -len(tracks[j][0])))
+    cx = np.full(len(tracks), np.nan)
     acc = np.zeros_like(tu)
     cnt = np.zeros_like(tu)
-    for t, xr in tracks:
+    j0 = order[0]
+    t0, x0, _ = tracks[j0]
+    cx[j0] = float(np.interp(t_ref, t0, x0))
+    pending = order[1:]
+    while True:
+        acc[:] = 0
+        cnt[:] = 0
+        for j in range(len(tracks)):
+            if np.isfinite(cx[j]):
+                t, x, _ = tracks[j]
+                idx = np.searchsorted(tu, t)
+                acc[idx] += x - cx[j]
+                cnt[idx] += 1
+        if not pending:
+            break
+        seen = cnt > 0
+        # the pending marker with the largest overlap with what is known
+        best, best_n = None, -1
+        for j in pending:
+            n = int(np.sum(seen[np.searchsorted(tu, tracks[j][0])]))
+            if n > best_n:
+                best, best_n = j, n
+        t, x, _ = tracks[best]
         idx = np.searchsorted(tu, t)
-        acc[idx] += xr
-        cnt[idx] += 1
+        X_known = np.where(seen, acc / np.maximum(cnt, 1), np.nan)
+        if best_n > 0:
+            cx[best] = float(np.median((x - X_known[idx])[seen[idx]]))
+        else:  # no overlap at all: bridge with the known X extrapolated flat
+            k = np.flatnonzero(seen)
+            cx[best] = float(x[0] - np.interp(t[0], tu[k], X_known[k]))
+        pending.remove(best)
     X = acc / np.maximum(cnt, 1)
-    return tu, X, np.array(cx), np.array(cy)
+    cy = np.array([float(np.median(y)) for _, _, y in tracks])
+    return tu, X, cx, cy
 
 
 def _project(px, py, R, D, e):
