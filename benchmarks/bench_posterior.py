@@ -21,6 +21,7 @@ import sys
 import tempfile
 import time
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -111,6 +112,9 @@ def coverage(n: int, seed0: int, log=None):
         if log:
             with open(log, "a") as fh:
                 fh.write(json.dumps(row) + "\n")
+        # every recording has its own knots, static in the layout, so its own compiled
+        # functions: drop them, or a long run exhausts LLVM's code memory (seen at ~46)
+        jax.clear_caches()
     print(f"  ({time.perf_counter() - t_start:.0f} s for {n} recordings)")
     return rows
 

@@ -43,6 +43,9 @@ def runs():
         res = fit(rec, rig_of(sc), noise={"lug": sc.noise_lug_mm, "body": sc.noise_body_mm})
         post = sample_posterior(res, seed=seed, time_budget_s=60.0)
         out.append((truth, res, post))
+        # each recording's knots are static in its layout, so it compiles its own functions:
+        # drop them, or a long test session runs out of LLVM code memory
+        jax.clear_caches()
     return out
 
 
@@ -228,14 +231,16 @@ def test_driver_recovers_a_correlated_gaussian():
     assert 0.15 < ch.acceptance.mean() < 0.7
 
 
-def test_driver_respects_a_truncating_prior():
+def test_driver_respects_a_truncating_prior(capsys):
     # N(0.5, 1) truncated to x > 0, like the prior beta > 0 on a poorly measured beta
     def lp(x):
         return jnp.where(x[0] > 0, -0.5 * (x[0] - 0.5) ** 2, -jnp.inf)
 
     rng = np.random.default_rng(2)
     p0 = np.abs(rng.normal(0.5, 1.0, (32, 1))) + 1e-3
-    ch = run_ensemble(_jax_log_prob(lp), p0, names=("x",), seed=1, time_budget_s=60)
+    ch = run_ensemble(_jax_log_prob(lp), p0, names=("x",), seed=1, time_budget_s=60,
+                      progress=True)
+    assert capsys.readouterr().err == ""  # the progress bar is silent off a terminal
     x = ch.flat()[:, 0]
     assert x.min() > 0
     tn = stats.truncnorm(-0.5, np.inf, loc=0.5, scale=1.0)
