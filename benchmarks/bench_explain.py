@@ -151,12 +151,12 @@ def _binom_ci(k, n):
     return float(lo), float(hi)
 
 
-def part_ladder(out, effects, seeds):
+def part_ladder(out, effects, seeds, rungs=RUNGS):
     res_all = {}
     for eid in effects:
         make, thr = LADDER[eid]
         rows = []
-        for k, f in enumerate(RUNGS):
+        for k, f in enumerate(rungs):
             sc = Scenario(effects=make(thr * f))
             units = noise_units(sc)
             found = 0
@@ -172,7 +172,7 @@ def part_ladder(out, effects, seeds):
                         "smallest_found_90pct_size": ok[0]["size"] if ok else None}
         print(f"ladder: {eid}: smallest amplitude found >= 90 %: "
               f"{res_all[eid]['smallest_found_90pct_noise_units']} sigma rms", flush=True)
-    out["ladder"] = {"seeds_per_rung": seeds, "rungs": list(RUNGS), "effects": res_all}
+    out["ladder"] = {"seeds_per_rung": seeds, "rungs": list(rungs), "effects": res_all}
 
 
 def main(argv=None) -> int:
@@ -182,6 +182,8 @@ def main(argv=None) -> int:
     ap.add_argument("--null", type=int, default=400)
     ap.add_argument("--seeds", type=int, default=4)
     ap.add_argument("--effects", default=",".join(LADDER))
+    ap.add_argument("--rungs", default=",".join(f"{r:g}" for r in RUNGS),
+                    help="multiples of each effect's reference size")
     ap.add_argument("--out")
     args = ap.parse_args(argv)
     out = {}
@@ -191,7 +193,8 @@ def main(argv=None) -> int:
     if "far" in parts:
         part_far(out, args.clean, args.null)
     if "ladder" in parts:
-        part_ladder(out, args.effects.split(","), args.seeds)
+        part_ladder(out, args.effects.split(","), args.seeds,
+                    tuple(float(r) for r in args.rungs.split(",")))
     if args.out:
         with open(args.out, "w") as fh:
             json.dump(out, fh, indent=1, default=float)

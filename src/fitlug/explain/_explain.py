@@ -115,7 +115,24 @@ class Explanation:
             if self.final.residuals is not self.base.residuals:
                 out["maps"]["after"] = residual_map(g, self.final.residuals)
                 out["spectra"]["after"] = spectrum_summary(g, self.final.residuals)
-        return out
+        return _plain(out)
+
+
+def _plain(x):
+    """JSON-safe copy: numpy scalars to Python, non-finite numbers to None (strict JSON)."""
+    if isinstance(x, dict):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    if isinstance(x, (int, np.integer)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        return float(x) if math.isfinite(x) else None
+    if isinstance(x, np.ndarray):
+        return _plain(x.tolist())
+    return x
 
 
 def _bar(progress, total, desc):

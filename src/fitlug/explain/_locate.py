@@ -253,5 +253,5 @@ def spectrum_summary(geo: Geometry, r: np.ndarray, df: float = 0.1) -> dict:
     tot = np.bincount(b, P, len(edges) - 1)
     ok = cnt > 0
     return {"f_hz": [round(float(v), 4) for v in (edges[:-1] + df / 2)[ok]],
-            "power": [float(v) for v in (tot[ok] / cnt[ok])],
+            "power": [float(f"{v:.4g}") for v in (tot[ok] / cnt[ok])],
             "lug_passing_hz": geo.f_lug, "wheel_revolution_hz": geo.f_wheel}

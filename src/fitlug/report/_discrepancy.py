@@ -139,10 +139,10 @@ def discrepancy_section(fit_json: dict, state=None) -> str:
     if not d:
         skipped = (fit_json or {}).get("discrepancy_skipped")
         if skipped:
-            return (f'<section class="fl-disc"><h2>What the model left out</h2>'
+            return (f'<section id="discrepancy" class="fl-disc"><h2>What the model left out</h2>'
                     f"<p>Not examined ({_e(skipped)}).</p></section>")
         return ""
-    out = [_CSS, '<section class="fl-disc"><h2>What the model left out</h2>']
+    out = ['<section id="discrepancy" class="fl-disc">', _CSS, "<h2>What the model left out</h2>"]
     v = d.get("verdict")
     det = d.get("detection_before") or {}
     if v == "none":
