@@ -105,7 +105,8 @@ def coverage(n: int, seed0: int, log=None):
                       "pit": float(np.mean(x < truth[q])), "lsq_std": res.quantities[q].std}
         rows.append(row)
         s = row["slip"]
-        line = (f"  [{k + 1:3d}/{n}] seed {seed}: z(s0) = {(s['median'] - s['truth']) / s['std']:+.2f}"
+        z = (s["median"] - s["truth"]) / s["std"]
+        line = (f"  [{k + 1:3d}/{n}] seed {seed}: z(s0) = {z:+.2f}"
                 f"  std/CRB = {s['std'] / row['crb_s0']:.3f}  fit {row['fit_s']:.1f} s, "
                 f"posterior {row['posterior_s']:.2f} s, ESS {row['ess']:.0f}")
         print(line, flush=True)

@@ -11,7 +11,7 @@ import pytest
 from fitlug import InputError
 from fitlug.cli import main
 from fitlug.fit import fit, sample_posterior
-from fitlug.io import read_json, write_json
+from fitlug.io import write_json
 from fitlug.report import fit_json, load_state, save_state, write_report
 from fitlug.report import _plots
 from fitlug.sim import REFERENCE_SLIP, Scenario, rig_of, simulate

@@ -14,10 +14,11 @@ Two evaluations of this marginal. 'exact' evaluates r(theta, eta_hat) with the f
 ~10 s of CPU for a converged chain: over the report's time target on its own). 'gaussian'
 is its Gaussian limit, r linear in theta too: -2 log L = (theta - theta_hat)^T F
 (theta - theta_hat), F = J_theta^T P J_theta, which costs microseconds. On the reference
-recording the two give the same median (to 1e-5 sigma) and std (to 0.4 %). method='auto' (default) evaluates the exact marginal at 2-sigma
-points around the optimum (principal axes and diagonals) and uses the Gaussian limit only
-when it agrees to `LINEARITY_TOL` in delta-chi^2 everywhere there; otherwise it samples
-the exact marginal under the time budget. The check's largest discrepancy is reported.
+recording the two give the same median (to 1e-5 sigma) and std (to 0.4 %).
+method='auto' (default) evaluates the exact marginal at 2-sigma points around the
+optimum (principal axes and diagonals) and uses the Gaussian limit only when it agrees
+to `LINEARITY_TOL` in delta-chi^2 everywhere there; otherwise it samples the exact
+marginal under the time budget. The check's largest discrepancy is reported.
 
 Priors (flat otherwise): beta > 0 (k > 0), s0 >= 0 (C_rr >= 0), slide_mu >= 0 (a
 positive friction limit F_max). The measurement noise per role is held at the fit's

@@ -103,11 +103,12 @@ def _summary(fj, st) -> str:
         parts.append(f' &mdash; reference paper: {_fmt(fj["reference_paper_slip"])}')
     parts.append("</div>")
     verdict = (fj.get("discrepancy") or {}).get("verdict")
+    effects = ", ".join((fj.get("least_squares") or {}).get("effects", [])) or "none"
     lines = [f"Input: <code>{html.escape(str(fj.get('input')))}</code>; "
              f"fitlug {html.escape(str(fj.get('fitlug_version', '')))}.",
              f"Uncertainty: {html.escape(str(fj.get('uncertainty_method', '')))}.",
              f"chi2/dof under the final model: {_fmt(fj.get('chi2_per_dof'), 4)}; effects: "
-             f"{html.escape(', '.join((fj.get('least_squares') or {}).get('effects', [])) or 'none')}."]
+             f"{html.escape(effects)}."]
     if verdict:
         lines.append(f"Discrepancy verdict: <b>{html.escape(verdict)}</b>.")
     if mc is None:
