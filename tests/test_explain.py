@@ -175,7 +175,7 @@ def test_the_discrepancy_block_follows_data_md(frame_drop_explained):
         assert p["axis"] in ("x", "y")
         assert p["segment"] in ("bottom", "rear_arc", "top", "front_arc", "body")
         assert p["phase"] in ("accelerate", "cruise", "decelerate", "all")
-        assert 0 < p["share_of_misfit"] <= 1
+        assert 0 <= p["share_of_misfit"] <= 1
     assert all(DATA_MD_EFFECT <= set(e) for e in doc["effects"])
     assert doc["effects"][0]["delta_bic"] < -10
     for key in ("slip_before", "slip_after"):

@@ -19,8 +19,11 @@ Rounds stop when the residuals pass detection or nothing more earns its place. W
 or more effects added, each must still earn its place in the final model (backward
 check). The final model is polished with its exact Jacobian (:mod:`._final`); its
 residuals decide the verdict: consistent -> 'explained', else 'unexplained' with the
-located remaining mismatch. An unexplained mismatch also widens the error bars
-(:mod:`._robust`).
+located remaining mismatch, and its error bars widened (:mod:`._robust`).
+'unexplained' needs a place: residuals that fail a test while no part of them stands
+out (no cell of significant structured misfit, no spectral line or series with
+p < 1e-4) are a false alarm of the tests (they allow 5 %), and the verdict follows the
+effects ('none' without any).
 """
 
 from __future__ import annotations
@@ -154,7 +157,7 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
     geo = geometry(res)
     sig_est = res.problem.noise_source in ("differences", "residual differences")
     det0 = detect(geo, res.residuals, res.dof, sigma_estimated=sig_est, alpha=alpha)
-    loc0 = locate(geo, res.residuals)
+    loc0 = locate(geo, res.residuals, det0)
     timing["detect_locate"] = time.perf_counter() - t_start
     if det0.consistent:
         timing["total"] = time.perf_counter() - t_start
@@ -251,22 +254,23 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
         accepted, steps, theta = _backward(eng, accepted, steps, theta, chi2, lnN)
 
     if not accepted:
-        det1 = det0
-        loc1 = loc0
-        final, method = robust_result(res, geo)
         timing["total"] = time.perf_counter() - t_start
-        return Explanation("unexplained", res, final, [], loc0.parts, [], det0, det1, loc0,
-                           loc1, rounds, method, timing, geo)
+        if not loc0.parts:  # a marginal test result that points nowhere: noise
+            return Explanation("none", res, res, [], [], [], det0, det0, loc0, loc0, rounds,
+                               "least squares", timing, geo)
+        final, method = robust_result(res, geo)
+        return Explanation("unexplained", res, final, [], loc0.parts, [], det0, det0, loc0,
+                           loc0, rounds, method, timing, geo)
 
     t0 = time.perf_counter()
     final = final_fit(res, eng, accepted, theta)
     timing["final_fit"] = time.perf_counter() - t0
     det1 = detect(geo, final.residuals, final.dof, sigma_estimated=sig_est, alpha=alpha)
-    loc1 = locate(geo, final.residuals)
+    loc1 = locate(geo, final.residuals, det1)
     if steps:  # the last step's chi2 from the exact final fit
         steps[-1].chi2_per_dof_after = float(final.chi2_per_dof)
         steps[-1].params = final.effect_params(steps[-1].effect)
-    if det1.consistent:
+    if det1.consistent or not loc1.parts:
         verdict, located, method = "explained", loc0.parts, "least squares"
     else:
         verdict, located = "unexplained", loc1.parts

@@ -24,6 +24,7 @@ MAX_PARTS = 6
 MARKER_COVER = 0.8  # list markers until they hold this share of a part
 PHASE_DOMINANCE = 0.6
 WINDOW_S = 0.5
+STRONG_P = 1e-4  # a test-only part needs this p-value (a place, not a fluke)
 PEAK_FACTOR = 8.0  # a spectral peak must exceed the median power this many times
 
 
@@ -125,8 +126,13 @@ def locked_power(geo: Geometry, r: np.ndarray) -> dict:
     return out
 
 
-def locate(geo: Geometry, r: np.ndarray) -> Location:
-    """Break the misfit of residuals `r` down and list the located parts."""
+def locate(geo: Geometry, r: np.ndarray, det=None) -> Location:
+    """Break the misfit of residuals `r` down and list the located parts.
+
+    With the residuals' :class:`~fitlug.explain.Detection` `det`, a strong spectral line
+    or one strongly non-white series (p < STRONG_P) is a located part too, so a misfit
+    too fast for the lag-1 measure (a vibration above ~15 Hz) still has a place.
+    """
     r = np.where(geo.valid, np.asarray(r, float), 0.0)
     m = lag_products(geo, r)
     pc = _pair_counts(geo)
@@ -158,7 +164,55 @@ def locate(geo: Geometry, r: np.ndarray) -> Location:
         "locked_to_wheel_revolution_share": float(np.clip(locked["wheel_revolution"] / pos, 0, 1))
         if M > 0 else 0.0,
     }
-    return Location(total=M, total_z=M / sdM, breakdown=bd, parts=_parts(geo, r, m, pc, M))
+    parts = _parts(geo, r, m, pc, M)
+    if det is not None:
+        parts += _test_parts(geo, r, det, parts)
+    return Location(total=M, total_z=M / sdM, breakdown=bd, parts=parts)
+
+
+def _test_parts(geo, r, det, parts) -> list:
+    """Parts for a strong spectral line and a strongly non-white series (see locate).
+
+    Their share of the misfit is their share of the excess chi^2 (sum r^2 - n), which
+    counts fast misfit too.
+    """
+    out = []
+    tot = max(float(np.sum(r[geo.valid] ** 2)) - geo.n, 1e-300)
+
+    def share(sel):
+        return float(np.clip((np.sum(r[sel] ** 2) - sel.sum()) / tot, 0.0, 1.0))
+
+    if det.line_p < STRONG_P and det.line_group:
+        role, ax = det.line_group.split(".")
+        rl, axi = (0 if role == "lug" else 1), AXES.index(ax)
+        sel = geo.valid & (geo.role == rl) & (geo.axis == axi)
+        segs = np.unique(geo.segment[sel])
+        # the segment whose gated spectrum carries most power at the line
+        best, seg_best = -1.0, int(segs[0])
+        for sg in segs:
+            f, P = spectrum(geo, r, sel & (geo.segment == sg))
+            if len(f):
+                v = float(P[np.argmin(np.abs(f - det.line_hz))])
+                if v > best:
+                    best, seg_best = v, int(sg)
+        names = sorted({geo.markers[k] for k in np.unique(geo.marker[sel])})
+        out.append({"markers": names, "axis": ax, "segment": SEGMENTS[seg_best], "phase": "all",
+                    "frequency_hz": float(det.line_hz),
+                    "t_range_s": [float(geo.t[sel].min()), float(geo.t[sel].max())],
+                    "share_of_misfit": share(sel), "test": "spectral line",
+                    "p_value": float(det.line_p)})
+    if det.periodogram_p < STRONG_P and det.periodogram_series:
+        name, ax = det.periodogram_series.rsplit(".", 1)
+        if not any(name in p["markers"] and p["axis"] == ax for p in parts + out):
+            mk, axi = geo.markers.index(name), AXES.index(ax)
+            sel = geo.valid & (geo.marker == mk) & (geo.axis == axi)
+            seg = int(np.bincount(geo.segment[sel], r[sel] ** 2).argmax())
+            out.append({"markers": [name], "axis": ax, "segment": SEGMENTS[seg],
+                        "phase": "all", "frequency_hz": None,
+                        "t_range_s": [float(geo.t[sel].min()), float(geo.t[sel].max())],
+                        "share_of_misfit": share(sel), "test": "cumulative periodogram",
+                        "p_value": float(det.periodogram_p)})
+    return out
 
 
 def _parts(geo, r, m, pc, M) -> list:
