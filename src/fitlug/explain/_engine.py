@@ -139,11 +139,24 @@ class Engine:
         return np.vstack(out)
 
     def base_jacobian(self, theta) -> np.ndarray:
-        """Exact Jacobian of the starting model wrt its free parameters at theta, (S, n)."""
+        """Jacobian of the starting model wrt its free parameters at theta, (S, n).
+
+        Exact for the starting model; an added effect that maps the time stamps
+        (frame_drop) is applied to the sample times first, since a 10 ms shift changes the
+        fine speed-spline columns by tens of percent after the lost frame.
+        """
         flat = jnp.asarray(theta[self.cur_idx])
         fixed = {k: jnp.asarray(self.get(theta, k), float) for k in self.cur_fixed_names}
-        return np.asarray(_jac_block(flat, fixed, self.cur_packing, self.res.problem.lay,
-                                     self.obs))
+        lay = self.res.problem.lay
+        maps = [c for e, c in CATALOG.items()
+                if c.time_map is not None and e not in self.res.effects]
+        if maps:
+            p = {k: jnp.asarray(v) for k, v in self.params(theta).items()}
+            lt, bt = lay.lug_t, lay.body_t
+            for c in maps:
+                lt, bt = c.time_map(p, lt), c.time_map(p, bt)
+            lay = lay.with_times(lt, lay.lug_i, bt, lay.body_j)
+        return np.asarray(_jac_block(flat, fixed, self.cur_packing, lay, self.obs))
 
     def step_of(self, name: str) -> float:
         for cls in CATALOG.values():
