@@ -185,7 +185,7 @@ def _init_speed(lay, obs, cx0):
                 + (-2 * t3 + 3 * t2) * I[i + 1] + (t3 - t2) * h * Bn[i + 1])
 
     tb = np.asarray(lay.body_t)
-    A = herm(tb) - herm(np.full(1, lay.t_ref))
+    A = herm(tb) - herm(np.full(1, float(lay.t_ref)))
     w = np.asarray(obs["body_w"])
     J = np.asarray(lay.body_j)
     C = np.zeros((len(tb), lay.n_body))

@@ -46,9 +46,11 @@ class Layout(eqx.Module):
     n_belt: int = eqx.field(static=True)  # N, lugs on the belt
     n_contact: int = eqx.field(static=True)  # n
     L: float = eqx.field(static=True)  # load-bearing length, mm
+    # knots of the speed spline and the gauge time are arrays, not static fields: a static
+    # field is part of the compiled function's key, and every recording has its own knots
+    breaks: jax.Array  # (K - 2,) spline breakpoints, s (metadata: the bases hold them)
+    t_ref: jax.Array  # () X(t_ref) = psi(t_ref) = 0
     effects: tuple = eqx.field(static=True)
-    breaks: tuple = eqx.field(static=True)
-    t_ref: float = eqx.field(static=True, default=0.0)  # X(t_ref) = psi(t_ref) = 0
 
     @property
     def n_coef(self) -> int:
@@ -77,11 +79,11 @@ def make_layout(*, breaks, t_lo, t_hi, fps, lug_t, lug_i, body_t, body_j, n_lug,
     br = np.asarray(breaks, dtype=float)
     f = lambda t, d: jnp.asarray(_spline.design(t, br, d))  # noqa: E731
     lay = Layout(grid=jnp.asarray(grid), Bn=f(grid, 0), dBn=f(grid, 1), Bm=f(mid, 0),
-                 dBm=f(mid, 1), lug_t=jnp.asarray(lug_t, float), lug_i=jnp.asarray(lug_i, int),
+                 dBm=f(mid, 1), breaks=jnp.asarray(br), t_ref=jnp.asarray(float(t_ref)),
+                 lug_t=jnp.asarray(lug_t, float), lug_i=jnp.asarray(lug_i, int),
                  body_t=jnp.asarray(body_t, float), body_j=jnp.asarray(body_j, int), h=h,
                  n_lug=int(n_lug), n_body=int(n_body), n_belt=int(n_belt),
-                 n_contact=int(n_contact), L=float(L), effects=(), breaks=tuple(br.tolist()),
-                 t_ref=float(t_ref))
+                 n_contact=int(n_contact), L=float(L), effects=())
     return lay.with_effects(effects)
 
 

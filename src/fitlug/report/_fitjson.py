@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._version import __version__
-from ..sim import REFERENCE_SLIP
+from .._reference import REFERENCE_SLIP
 
 
 def _num(x):

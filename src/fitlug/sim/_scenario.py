@@ -6,7 +6,7 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 
-REFERENCE_SLIP = 0.07716  # the reference paper: n = 8, dl' = 1.4 mm, L = 127 mm
+from .._reference import REFERENCE_SLIP as REFERENCE_SLIP
 
 
 @dataclass
