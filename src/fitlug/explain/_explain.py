@@ -82,6 +82,16 @@ class Explanation:
     timing_s: dict = field(default_factory=dict)
     geometry: object = None  # fitlug.explain.Geometry of the residual vectors
 
+    def _final_params(self, step: Step) -> dict:
+        """The effect's parameters under the final model, with standard errors (and as
+        they were when the effect was added, before later effects and the polish)."""
+        try:
+            params = self.final.effect_params(step.effect)
+            std = self.final.effect_params_std(step.effect)
+        except (KeyError, AttributeError):  # the final model lost it: keep the step's
+            params, std = step.params, None
+        return {"params": params, "params_std": std, "params_when_added": step.params}
+
     def to_json(self) -> dict:
         """The `discrepancy` block of fit.json (DATA.md)."""
         def slip(res):
@@ -90,7 +100,7 @@ class Explanation:
         out = {
             "verdict": self.verdict,
             "located": self.located,
-            "effects": [{"id": s.effect, "params": s.params, "delta_bic": s.delta_bic,
+            "effects": [{"id": s.effect, **self._final_params(s), "delta_bic": s.delta_bic,
                          "chi2_per_dof_before": s.chi2_per_dof_before,
                          "chi2_per_dof_after": s.chi2_per_dof_after,
                          "misfit_removed_share": s.misfit_removed_share,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import jax
@@ -100,6 +101,39 @@ class FitResult:
 
     def effect_params(self, effect_id: str) -> dict:
         return CATALOG[effect_id].report({k: np.asarray(v) for k, v in self.params.items()})
+
+    def effect_params_std(self, effect_id: str) -> dict:
+        """Standard errors of :meth:`effect_params` (delta method through the effect's
+        `report`, central differences in its fitted parameters; held ones count as exact)."""
+        eff = CATALOG[effect_id]
+        base = {k: np.asarray(v, float) for k, v in self.params.items()}
+        sl = self.packing.slices()
+        free = [k for k in eff.defaults if k in sl]
+        idx = [sl[k].start for k in free]
+        rep0 = eff.report(base)
+        if not free:
+            return {k: 0.0 if v is not None else None for k, v in rep0.items()}
+        grads = {k: np.zeros(len(free)) for k in rep0}
+        for j, name in enumerate(free):
+            sd = float(np.sqrt(max(self.cov[idx[j], idx[j]], 0.0)))
+            h = max(1e-3 * sd, 1e-9 * max(abs(float(base[name])), eff.scales.get(name, 1.0)))
+            outs = []
+            for sgn in (1.0, -1.0):
+                q = dict(base)
+                q[name] = base[name] + sgn * h
+                outs.append(eff.report(q))
+            for k in rep0:
+                a, b = outs[0][k], outs[1][k]
+                if a is None or b is None or rep0[k] is None:
+                    grads[k] = None
+                elif grads[k] is not None:
+                    d = a - b
+                    if "phi" in k:  # an angle: the short way round
+                        d = math.remainder(d, 2 * math.pi)
+                    grads[k][j] = d / (2 * h)
+        C = self.cov[np.ix_(idx, idx)]
+        return {k: (None if g is None else float(np.sqrt(max(g @ C @ g, 0.0))))
+                for k, g in grads.items()}
 
 
 def compute_quantities(res_params, packing, flat, cov, lay, mass_kg, fixed) -> dict:

@@ -169,7 +169,10 @@ def discrepancy_section(fit_json: dict, state=None) -> str:
         out.append("<h3>Named effects</h3><table><tr><th>effect</th><th>parameters</th>"
                    "<th>ΔBIC</th><th>chi²/dof before → after</th><th>meaning</th></tr>")
         for e in d["effects"]:
-            params = ", ".join(f"{_e(k)} = {_num(x)}" for k, x in (e.get("params") or {}).items())
+            std = e.get("params_std") or {}
+            params = ", ".join(f"{_e(k)} = {_num(x)}" + (f" ± {_num(std[k], 2)}" if std.get(k)
+                                                        else "")
+                               for k, x in (e.get("params") or {}).items())
             out.append(f"<tr><td>{_e(e['id'])}</td><td>{params}</td>"
                        f"<td>{_num(e.get('delta_bic'), 5)}</td>"
                        f"<td>{_num(e.get('chi2_per_dof_before'))} → "
