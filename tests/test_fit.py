@@ -1,6 +1,5 @@
 """Least-squares fit against known truth: simulated, independently generated, perturbed."""
 
-import dataclasses
 import json
 import os
 
@@ -11,7 +10,7 @@ import pytest
 import independent_sim
 from fitlug import FitError, InputError
 from fitlug.fit import build_problem, fit, fit_problem
-from fitlug.io import Recording, Rig, read_rig, read_trajectories
+from fitlug.io import read_rig, read_trajectories
 from fitlug.sim import Scenario, rig_of, simulate
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

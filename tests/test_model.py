@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from fitlug.model import CATALOG, belt_length, make_layout, predict, reference_slip, stadium
+from fitlug.model import CATALOG, belt_length, predict, reference_slip, stadium
 from fitlug.model._physics import physical, slip_params_from_physical
 from fitlug.model.effects import Ctx
 from fitlug.sim import Scenario, truth_params
@@ -98,6 +98,30 @@ def test_gradients_match_finite_differences(effects):
         err = np.max(np.abs(np.asarray(fd - ad)))
         # a wrong derivative is off by O(1); FD truncation here is ~1e-6 relative
         assert err <= 1e-5 * (np.max(np.abs(np.asarray(ad))) + 1e-9) + 1e-10, (effects, err)
+
+
+@pytest.mark.parametrize("effects", [(), tuple(CATALOG)])
+def test_structured_jacobian_equals_forward_mode(effects):
+    """fitlug.fit's Jacobian (kinematic columns through the sampled X and psi) is exact."""
+    from fitlug.fit._lsq import Packing, jacobian, residuals
+
+    lay, p = _small_layout(effects)
+    n_l, n_b = lay.lug_t.shape[0], lay.body_t.shape[0]
+    rng = np.random.default_rng(1)
+    obs = {"lug_x": jnp.asarray(rng.normal(size=n_l)), "lug_y": jnp.asarray(rng.normal(size=n_l)),
+           "lug_w": jnp.asarray(rng.uniform(50, 200, n_l)),
+           "body_x": jnp.asarray(rng.normal(size=n_b)),
+           "body_y": jnp.asarray(rng.normal(size=n_b)),
+           "body_w": jnp.asarray(rng.uniform(50, 200, n_b))}
+    fixed_names = {k for e in effects for k in CATALOG[e].fixed_in_fit}
+    packing = Packing.of(p, [k for k in p if k not in fixed_names])
+    fixed = {k: v for k, v in p.items() if k in fixed_names}
+    flat = packing.pack(p)
+    J_fwd = np.asarray(jax.jacfwd(lambda f: residuals(packing.unpack(f, fixed), lay, obs))(flat))
+    J = np.asarray(jacobian(flat, fixed, lay, obs, packing))
+    assert J.shape == J_fwd.shape
+    tol = 1e-10 * np.max(np.abs(J_fwd), axis=0) + 1e-12
+    assert np.all(np.abs(J - J_fwd) <= tol), (effects, np.max(np.abs(J - J_fwd) - tol))
 
 
 def test_effects_are_identity_at_defaults():

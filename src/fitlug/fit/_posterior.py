@@ -39,7 +39,7 @@ import numpy as np
 from .. import _jaxconfig  # noqa: F401
 from .._errors import FitError
 from ..model.effects import CATALOG
-from ._lsq import residuals
+from ._lsq import jacobian, residuals
 from ._mcmc import Chain, autocorr_time, run_ensemble
 from ._result import Estimate, FitResult, derived
 
@@ -157,7 +157,7 @@ def _num(x):
 
 @eqx.filter_jit
 def _jacobian(flat, fixed, lay, obs, packing):
-    return jax.jacfwd(lambda f: residuals(packing.unpack(f, fixed), lay, obs))(flat)
+    return jacobian(flat, fixed, lay, obs, packing)  # structured: same values as jacfwd
 
 
 @eqx.filter_jit

@@ -1,6 +1,7 @@
 """The differentiable track model (MODEL.md §2) and its catalog of extensions (§3)."""
 
 from ._model import (
+    KINEMATIC as KINEMATIC,
     Layout as Layout,
     default_params as default_params,
     hermite as hermite,
@@ -8,7 +9,9 @@ from ._model import (
     kinematics as kinematics,
     make_layout as make_layout,
     param_names as param_names,
+    positions as positions,
     predict as predict,
+    sampled_kinematics as sampled_kinematics,
     segments as segments,
     slip_law as slip_law,
     steady_slip as steady_slip,

@@ -194,14 +194,30 @@ def _true_times(p, lay, t):
     return t
 
 
-def predict(p: dict, lay: Layout):
-    """Model positions at the layout's samples: (lug_x, lug_y, body_x, body_y), mm."""
-    ctx = ctx_of(p, lay)
+#: parameters that reach the positions only through X and psi at the sample times
+KINEMATIC = ("v", "s0", "beta")
+
+
+def sampled_kinematics(p: dict, lay: Layout):
+    """X and psi at the (true) times of the lug and of the body samples: (Xl, psil, Xb, psib).
+
+    The first stage of :func:`predict`. Every sample's position depends on the motion only
+    through its own X and psi, which the fit's structured Jacobian uses."""
     X, psi, vn, dpn = integrate(p, lay)
     tl, tb = _true_times(p, lay, lay.lug_t), _true_times(p, lay, lay.body_t)
-    Xl, psil = hermite(lay, tl, X, vn), hermite(lay, tl, psi, dpn)
-    Xb, psib = hermite(lay, tb, X, vn), hermite(lay, tb, psi, dpn)
+    return (hermite(lay, tl, X, vn), hermite(lay, tl, psi, dpn),
+            hermite(lay, tb, X, vn), hermite(lay, tb, psi, dpn))
 
+
+def predict(p: dict, lay: Layout):
+    """Model positions at the layout's samples: (lug_x, lug_y, body_x, body_y), mm."""
+    return positions(p, lay, *sampled_kinematics(p, lay))
+
+
+def positions(p: dict, lay: Layout, Xl, psil, Xb, psib):
+    """The second stage of :func:`predict`: positions from the sampled X and psi (and every
+    parameter except the kinematic ones, :data:`KINEMATIC`, which it does not read)."""
+    ctx = ctx_of(p, lay)
     top, bottom = _hook(lay, "top_dy"), _hook(lay, "bottom_dy")
     top_dy = (lambda xi: sum(f(p, xi, ctx) for f in top)) if top else None
     bottom_dy = (lambda u: sum(f(p, u, ctx) for f in bottom)) if bottom else None
