@@ -17,9 +17,10 @@ import pytest
 from scipy import stats
 
 from fitlug import FitError
-from fitlug.fit import Posterior, fit, sample_posterior
-from fitlug.fit._mcmc import run_ensemble
-from fitlug.fit._posterior import slip_law_parameters
+from fitlug.fit import fit
+from fitlug.posterior import Posterior, sample_posterior
+from fitlug.posterior._mcmc import run_ensemble
+from fitlug.posterior._posterior import slip_law_parameters
 from fitlug.sim import Scenario, rig_of, simulate
 
 # short recordings (300 frames, 6 lug + 2 body markers): ~4 s per fit on 2 cores

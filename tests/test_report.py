@@ -10,7 +10,8 @@ import pytest
 
 from fitlug import InputError
 from fitlug.cli import main
-from fitlug.fit import fit, sample_posterior
+from fitlug.fit import fit
+from fitlug.posterior import sample_posterior
 from fitlug.io import write_json
 from fitlug.report import fit_json, load_state, save_state, write_report
 from fitlug.report import _plots

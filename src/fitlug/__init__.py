@@ -2,7 +2,8 @@
 
 The stages, each a sub-package, data flowing one way:
 ``vision`` (video -> trajectories) -> ``io`` (files) -> ``model`` (JAX track model) ->
-``fit`` (least squares, posterior) -> ``explain`` (left-out physics) -> ``report``.
+``fit`` (least squares) -> ``explain`` (left-out physics) -> ``posterior`` (emcee)
+-> ``report``.
 
 The most used names are available here; they are imported on first use so that
 ``import fitlug`` stays cheap (no JAX, OpenCV or matplotlib at import time).
@@ -18,7 +19,7 @@ from ._version import __version__ as __version__
 _LAZY = {
     "Recording": "io", "Rig": "io", "read_trajectories": "io", "write_trajectories": "io",
     "read_rig": "io", "find_rig": "io",
-    "fit": "fit", "FitResult": "fit", "build_problem": "fit", "sample_posterior": "fit",
+    "fit": "fit", "FitResult": "fit", "build_problem": "fit", "sample_posterior": "posterior", "Posterior": "posterior",
     "Scenario": "sim", "simulate": "sim", "write_simulation": "sim",
     "explain": "explain",
     "fit_json": "report", "write_report": "report",

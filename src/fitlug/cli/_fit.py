@@ -43,7 +43,7 @@ def run(args) -> int:
         final = expl.final
     post = None
     if not args.no_mcmc:
-        from ..fit import sample_posterior
+        from ..posterior import sample_posterior
 
         post = sample_posterior(final, seed=args.seed, progress=prog,
                                 time_budget_s=args.mcmc_budget)

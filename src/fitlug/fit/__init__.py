@@ -1,4 +1,4 @@
-"""Least-squares fit (optimistix) and posterior (emcee) of the track model."""
+"""Least-squares fit (optimistix) of the track model; the posterior is `fitlug.posterior`."""
 
 from ._fit import (
     fit as fit,
@@ -10,6 +10,5 @@ from ._fit import (
 )
 from ._lsq import covariance as covariance, least_squares as least_squares, residuals as residuals
 from ._noise import estimate_noise as estimate_noise
-from ._posterior import Posterior as Posterior, sample_posterior as sample_posterior
 from ._problem import Problem as Problem, build_problem as build_problem
 from ._result import Estimate as Estimate, FitResult as FitResult, derived as derived

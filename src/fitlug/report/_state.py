@@ -117,7 +117,7 @@ def state_arrays(res, posterior=None, explanation=None) -> tuple[dict, dict]:
 def save_state(out_dir, res, posterior=None, explanation=None) -> str:
     """Write DIR/state.npz for the report (atomically); returns its path.
 
-    res: the final FitResult; posterior: a fitlug.fit.Posterior or None; explanation: an
+    res: the final FitResult; posterior: a fitlug.posterior.Posterior or None; explanation: an
     object with `.base` (the FitResult before any effects) or None.
     """
     from ..io import write_bytes_atomic

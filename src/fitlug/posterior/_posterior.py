@@ -39,9 +39,9 @@ import numpy as np
 from .. import _jaxconfig  # noqa: F401
 from .._errors import FitError
 from ..model.effects import CATALOG
-from ._lsq import jacobian, residuals
+from ..fit._lsq import jacobian, residuals
 from ._mcmc import Chain, autocorr_time, run_ensemble
-from ._result import Estimate, FitResult, derived
+from ..fit._result import Estimate, FitResult, derived
 
 LINEARITY_TOL = 0.25  # max |delta chi^2| between exact and Gaussian marginal at 2 sigma
 CHECK_SIGMA = 2.0
