@@ -220,6 +220,7 @@ def test_missing_values_become_nan(tmp_path):
 # -- bad input: file name, line number and problem in one line -------------------------------
 
 H = "time_s,marker,role,x_mm,y_mm\n"
+HF = "time_s,marker,role,x_mm,y_mm,frame\n"
 BAD = [
     ("", None, "empty file"),
     ("# only a comment\n\n", None, "empty file"),
@@ -230,8 +231,23 @@ BAD = [
     (H + "zero,C1,body,1,2\n", 2, "text in number column time_s: 'zero'"),
     (H + "0,C1,body,1,2\n0.1,B1,wheel,1,2\n", 3, "role must be 'body' or 'lug', got 'wheel'"),
     (H + "0,C1,body,1,2\n0.1,C1,lug,1,2\n", 3, "marker C1 changes role from body to lug"),
-    (H + "0.1,C1,body,1,2\n0,B1,lug,1,2\n0.0,C1,body,1,2\n", 4, "time going backwards for marker C1"),
-    (H + "0.1,C1,body,1,2\n0.1,C1,body,1,2\n", 3, "marker C1 appears twice at time_s = 0.1"),
+    # rows in any order: time goes backwards only against the frame numbers
+    (HF + "0.1,C1,body,1,2,6\n0,B1,lug,1,2,5\n0.0,C1,body,1,2,7\n", 4,
+     "time going backwards for marker C1: frame 7 at 0.0 s here, frame 6 at 0.1 s on line 2"),
+    (HF + "0.1,C1,body,1,2,6\n0.2,C1,body,1,2,6\n", 3,
+     "marker C1: frame 6 has two time stamps, 0.2 s here and 0.1 s on line 2"),
+    (HF + "0.1,C1,body,1,2,6\n0.2,B1,lug,1,2,6\n", 3,
+     "frame 6 has two time stamps: 0.2 s here and 0.1 s on line 2"),
+    (H + "0.1,C1,body,1,2\n0.1,C1,body,1,2.5\n", 3,
+     "marker C1 appears twice at time_s = 0.1 with different values (also on line 2)"),
+    (HF + "0,C1,body,1,2,9223372036854775808\n", 2, "frame number 9223372036854775808 is out of range"),
+    (HF + "0,C1,body,1,2,1e19\n", 2, "frame number 1e19 is out of range"),
+    (HF + "0,C1,body,1,2,-1E19\n", 2, "frame number -1E19 is out of range"),
+    ("time_s;marker;role;x_mm;y_mm\n0;C1;body;1;2\n", 1, "the separator looks wrong: ';'"),
+    ("time_s\tmarker\trole\tx_mm\ty_mm\n0\tC1\tbody\t1\t2\n", 1,
+     "the separator looks wrong: tab"),
+    ("time_s marker  role x_mm y_mm\n0 C1 body 1 2\n", 1, "the separator looks wrong: spaces"),
+    (H + "0;C1;body;1;2\n", 2, "the separator looks wrong: ';'"),
     (H + "0,C1,body,1,2\n,C1,body,1,2\n", 3, "empty value in column time_s"),
     (H + "0,C1,body,1,2\nnan,C1,body,1,2\n", 3, "NaN value in column time_s"),
     (H + "0,C1,body,1,2\n0.1,C1,body,inf,2\n", 3, "infinite value in column x_mm: 'inf'"),
@@ -241,7 +257,7 @@ BAD = [
     ("time_s,marker,role,x_mm,y_mm,sigma_mm\n0,C1,body,1,2,-0.1\n", 2, "sigma_mm must be > 0"),
     ("# fps: fast\n" + H + "0,C1,body,1,2\n", 1, "metadata fps must be a number > 0"),
     ("time_s,C1_x_mm,C1_y_mm,B1_x_mm\n0,1,2,3\n", 1, "column B1_x_mm has no partner column B1_y_mm"),
-    ("time_s,C1_x_mm,C1_y_mm\n0,1,2\n0,1,2\n", 3, "appears twice at time_s = 0.0"),
+    ("time_s,C1_x_mm,C1_y_mm\n0,1,2\n0,1,3\n", 3, "time_s = 0.0 appears twice with different"),
     ("time_s,C1_x_mm,C1_y_mm\n0,1,2\n0.1,1,x\n", 3, "text in number column C1_y_mm: 'x'"),
     ("C1_x_mm,C1_y_mm\n1,2\n", 1, "missing required column 'time_s'"),
     (H.replace("role", "marker"), 1, "column 'marker' appears twice"),

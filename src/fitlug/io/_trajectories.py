@@ -38,8 +38,10 @@ class _Table:
     def __init__(self, path: str):
         self.path = path
         self.meta: dict[str, str] = {}
+        self.meta_lines: dict[str, int] = {}
         self.header: list[str] = []
         self.header_line = 0
+        self.header_text = ""
         self.rows: list[list[str]] = []
         self.lines: list[int] = []
 
@@ -52,6 +54,7 @@ class _Table:
 def _read_table(path: str) -> _Table:
     table = _Table(path)
     lineno = 0
+    last = [""]  # the text of the line the csv reader took last
 
     def lines(fh):
         nonlocal lineno
@@ -63,9 +66,11 @@ def _read_table(path: str) -> _Table:
                 match = _META_LINE.match(stripped)
                 if match and not table.header:  # metadata only from the preamble
                     table.meta[match.group(1)] = match.group(2)
+                    table.meta_lines[match.group(1)] = lineno
                     if match.group(1) == "fps":
                         _check_fps(table, match.group(2), lineno)
                 continue
+            last[0] = text
             yield text
 
     try:
@@ -92,6 +97,7 @@ def _read_table(path: str) -> _Table:
                 if not table.header:
                     table.header = [c.strip() for c in row]
                     table.header_line = lineno
+                    table.header_text = last[0]
                 else:
                     table.rows.append(row)
                     table.lines.append(lineno)
@@ -100,6 +106,24 @@ def _read_table(path: str) -> _Table:
     if not table.header:
         raise InputError(path, "empty file: no header line")
     return table
+
+
+def _separator(text: str) -> str | None:
+    """The separator a line of fields seems to use when it has no comma: ';', tab, '|' or
+    runs of spaces; None when it looks like one field (or has commas)."""
+    text = text.strip()
+    if not text or "," in text:
+        return None
+    counts = {";": text.count(";"), "tab": text.count("\t"), "'|'": text.count("|")}
+    best = max(counts, key=counts.get)
+    if counts[best]:
+        return "';'" if best == ";" else best
+    return "spaces" if len(text.split()) >= 2 else None
+
+
+def _separator_error(table: _Table, sep: str, line: int) -> InputError:
+    return table.error(f"the separator looks wrong: {sep} between the fields, but "
+                       f"trajectories.csv must be comma-separated (DATA.md)", line=line)
 
 
 def _check_fps(table: _Table, text: str, line: int) -> None:
@@ -129,6 +153,9 @@ def _check_row_lengths(table: _Table) -> None:
     for i, row in enumerate(table.rows):
         # trailing empty fields (a trailing comma) are harmless
         if len(row) < width or (len(row) > width and any(f.strip() for f in row[width:])):
+            sep = _separator(",".join(row)) if len(row) < width else None
+            if sep:
+                raise _separator_error(table, sep, table.lines[i])
             raise table.error(f"row has {len(row)} fields, the header has {width}", row=i)
 
 
@@ -159,56 +186,184 @@ def _floats(table: _Table, j: int, name: str, *, missing_ok: bool) -> np.ndarray
     return values
 
 
+# frame numbers beyond 2**53 cannot be told apart as float64 (and 2**63 overflows int64)
+_FRAME_LIMIT = 2 ** 53
+# a gap of more than this many frame intervals with no sample of any marker is not a
+# recording but a time stamp far off (and would cost one model row per missing frame)
+_MAX_GAP_FRAMES = 1000
+_MAX_FRAMES = 10_000_000
+# metadata / rig fps and the time stamps must agree to this relative tolerance
+_FPS_TOLERANCE = 0.02
+
+
 def _ints(table: _Table, j: int, name: str) -> np.ndarray:
     raw = [row[j] for row in table.rows]
     try:
-        return np.fromiter(map(int, raw), dtype=np.int64, count=len(raw))
-    except ValueError:
+        out = np.fromiter(map(int, raw), dtype=np.int64, count=len(raw))
+    except (ValueError, OverflowError):  # text, '5.0', '1e19' or a number past int64
         out = np.empty(len(raw), dtype=np.int64)
         for i, s in enumerate(raw):
-            try:
-                out[i] = int(s)
-                continue
-            except ValueError:
-                pass
-            try:
-                value = float(s)
-            except ValueError:
-                value = float("nan")
             if not s.strip():
                 raise table.error(f"empty value in column {name}", row=i) from None
-            if not (np.isfinite(value) and value.is_integer()):
-                raise table.error(f"column {name} must hold integers, got {s.strip()!r}",
-                                  row=i) from None
-            out[i] = int(value)
-        return out
-
-
-def _check_time_order(table: _Table, t: np.ndarray, mi: np.ndarray, rows: np.ndarray,
-                      markers: list[str]) -> np.ndarray:
-    """Require strictly increasing time per marker in file order; return the sorting order.
-
-    `rows` maps each sample to its row in the table (for the line number of an error).
-    The returned stable order sorts samples by (marker, file order) == (marker, time).
-    """
-    order = np.argsort(mi, kind="stable")
-    ts, ms = t[order], mi[order]
-    bad = np.flatnonzero((ms[1:] == ms[:-1]) & (ts[1:] <= ts[:-1]))
+            try:
+                value = int(s)
+            except ValueError:
+                try:
+                    number = float(s)
+                except ValueError:
+                    number = float("nan")
+                if not (np.isfinite(number) and number.is_integer()):
+                    raise table.error(f"column {name} must hold integers, got {s.strip()!r}",
+                                      row=i) from None
+                value = int(number)
+            if abs(value) > _FRAME_LIMIT:
+                raise table.error(f"{name} number {s.strip()} is out of range (|{name}| must "
+                                  f"be below 2^53)", row=i)
+            out[i] = value
+    bad = np.flatnonzero(np.abs(out) > _FRAME_LIMIT)
     if bad.size:
-        k = int(bad[np.argmin(rows[order[bad + 1]])])  # the earliest offending row in the file
-        here, before = int(rows[order[k + 1]]), int(rows[order[k]])
-        marker = markers[int(ms[k])]
-        if ts[k + 1] == ts[k]:
-            problem = (f"marker {marker} appears twice at time_s = {float(ts[k])!r} "
-                       f"(also on line {table.lines[before]})")
-        else:
-            problem = (f"time going backwards for marker {marker}: {float(ts[k + 1])!r} s after "
-                       f"{float(ts[k])!r} s on line {table.lines[before]}")
-        raise table.error(problem, row=here)
+        i = int(bad[0])
+        raise table.error(f"{name} number {raw[i].strip()} is out of range (|{name}| must be "
+                          f"below 2^53)", row=i)
+    return out
+
+
+def _who(markers: list[str], k) -> str:
+    return f"marker {markers[int(k)]}" if markers else "the rows"
+
+
+def _same_sample(values: list[np.ndarray], a: int, b: int) -> bool:
+    return all(v[a] == v[b] or (v.dtype.kind == "f" and np.isnan(v[a]) and np.isnan(v[b]))
+               for v in values)
+
+
+def _sort_samples(table: _Table, t: np.ndarray, mi: np.ndarray, rows: np.ndarray,
+                  markers: list[str], values: list[np.ndarray],
+                  frame: np.ndarray | None) -> np.ndarray:
+    """The order that sorts samples by (marker, time), checked; rows may come in any order.
+
+    With rows in any order, "time going backwards" can only show as (DATA.md, README
+    "Readings of the contract"): one marker at one time stamp twice with different values
+    (an identical repeated row is dropped with a warning), or a frame column that
+    disagrees with the time stamps (a marker's frame numbers not increasing with its time,
+    or one frame number with two time stamps). `rows` maps each sample to its table row
+    (for the line numbers); `values` are the per-sample columns compared for duplicates.
+    Returns the indices of the kept samples in (marker, time) order.
+    """
+    order = np.lexsort((rows, t, mi))  # ties (duplicates) stay in file order
+    ts, ms = t[order], mi[order]
+    dup = np.flatnonzero((ms[1:] == ms[:-1]) & (ts[1:] == ts[:-1]))
+    drop = []
+    for k in dup.tolist():
+        a, b = int(order[k]), int(order[k + 1])
+        if _same_sample(values, a, b):
+            drop.append(k + 1)
+            continue
+        here, before = int(rows[b]), int(rows[a])
+        what = (f"marker {markers[int(ms[k])]} appears twice at time_s = {float(ts[k])!r}"
+                if markers else f"time_s = {float(ts[k])!r} appears twice")
+        raise table.error(f"{what} with different values (also on line {table.lines[before]})",
+                          row=here)
+    if drop:
+        import warnings
+        first = int(order[drop[0]])
+        warnings.warn(f"{table.path}:{table.lines[int(rows[first])]}: {len(drop)} repeated "
+                      f"row(s) (same marker, time and values as an earlier row) ignored",
+                      stacklevel=3)
+        order = np.delete(order, drop)
+        ms = mi[order]
+    if frame is not None:
+        fs = frame[order]
+        bad = np.flatnonzero((ms[1:] == ms[:-1]) & (fs[1:] <= fs[:-1]))
+        if bad.size:
+            k = int(bad[np.argmin(np.maximum(rows[order[bad]], rows[order[bad + 1]]))])
+            here, other = sorted((int(order[k]), int(order[k + 1])), key=lambda i: -rows[i])
+            who, line = _who(markers, ms[k]), table.lines[int(rows[other])]
+            if frame[here] == frame[other]:
+                problem = (f"{who}: frame {int(frame[here])} has two time stamps, "
+                           f"{float(t[here])!r} s here and {float(t[other])!r} s on line {line}")
+            else:
+                problem = (f"time going backwards for {who}: frame {int(frame[here])} at "
+                           f"{float(t[here])!r} s here, frame {int(frame[other])} at "
+                           f"{float(t[other])!r} s on line {line} (the frame numbers and the "
+                           f"time stamps disagree)")
+            raise table.error(problem, row=int(rows[here]))
+        # one frame, one time stamp, whichever marker
+        by_frame = np.lexsort((t, frame))
+        fs, ts = frame[by_frame], t[by_frame]
+        bad = np.flatnonzero((fs[1:] == fs[:-1]) & (ts[1:] != ts[:-1]))
+        if bad.size:
+            k = int(bad[0])
+            a, b = sorted((int(by_frame[k]), int(by_frame[k + 1])), key=lambda i: rows[i])
+            raise table.error(f"frame {int(fs[k])} has two time stamps: {float(t[b])!r} s here "
+                              f"and {float(t[a])!r} s on line {table.lines[int(rows[a])]}",
+                              row=int(rows[b]))
     return order
 
 
-def _read_long(table: _Table, cols: dict[str, int]) -> Recording:
+def _frame_interval(times: np.ndarray) -> float:
+    """The frame interval of sorted distinct time stamps: the mean step over runs of up to
+    ten missing frames (robust to gaps and to time stamps rounded to a few decimals)."""
+    d = np.diff(times)
+    med = float(np.median(d))
+    k = np.rint(d / med)
+    ok = (k >= 1) & (k <= 10)
+    return float(d[ok].sum() / k[ok].sum()) if ok.any() else med
+
+
+def _check_frame_rate(table: _Table, t: np.ndarray, frame: np.ndarray | None,
+                      rig: "Rig | None") -> None:
+    """Refuse a time stamp far off (one gap of more than _MAX_GAP_FRAMES frame intervals
+    in which no marker is seen) and a metadata or rig fps that disagrees with the time
+    stamps. Runs on the distinct time stamps, before anything per-frame is allocated."""
+    times, first = np.unique(t, return_index=True)  # first: a sample at each time
+    if times.size < 3:
+        return
+    with np.errstate(over="ignore", invalid="ignore"):
+        d = np.diff(times)
+    if not np.isfinite(d).all():
+        d = np.nan_to_num(d, posinf=np.finfo(float).max)
+    med = float(np.median(d))
+    gaps = np.flatnonzero(d > _MAX_GAP_FRAMES * med)
+    if gaps.size:
+        g = int(gaps[np.argmax(d[gaps])])
+        if times.size - g - 1 <= g + 1:  # fewer time stamps after the gap: they are off
+            odd, other, side = g + 1, g, "after"
+        else:
+            odd, other, side = g, g + 1, "before"
+        raise table.error(
+            f"time_s = {float(times[odd])!r} breaks the frame rate: it lies {float(d[g]):.6g} s "
+            f"({float(d[g]) / med:.3g} frame intervals of {med:.6g} s) {side} the nearest other "
+            f"time stamp, {float(times[other])!r} s on line {table.lines[int(first[other])]} "
+            f"(a time stamp far off?)", row=int(first[odd]))
+    dt = _frame_interval(times)
+    span = float(times[-1] - times[0])
+    if span / dt > _MAX_FRAMES:
+        raise table.error(f"the time stamps span {span:.6g} s = {span / dt:.3g} frame intervals "
+                          f"of {dt:.6g} s: more than {_MAX_FRAMES} frames", row=int(first[-1]))
+    step = 1
+    if frame is not None:  # a decimated recording: the frame numbers step by k
+        f_at = frame[first]
+        df = np.diff(f_at)
+        single = np.rint(d / dt) == 1
+        if single.any():
+            step = max(int(np.median(df[single])), 1)
+    data_fps = step / dt
+    claims = []
+    if "fps" in table.meta:
+        claims.append((float(table.meta["fps"]), "metadata fps",
+                       table.path, table.meta_lines.get("fps")))
+    if rig is not None and rig.fps is not None:
+        claims.append((float(rig.fps), "[camera] fps", rig.path, None))
+    for fps, what, path, line in claims:
+        if abs(fps / data_fps - 1) > _FPS_TOLERANCE:
+            frames = f" and frame numbers stepping by {step}" if step != 1 else ""
+            raise InputError(path, f"{what} {fps:g} disagrees with the time stamps of "
+                                   f"{table.path}: one frame every {dt:.6g} s{frames} "
+                                   f"= {data_fps:.6g} fps", line=line)
+
+
+def _read_long(table: _Table, cols: dict[str, int], rig: "Rig | None") -> Recording:
     n = len(table.rows)
     t = _floats(table, cols["time_s"], "time_s", missing_ok=False)
     x = _floats(table, cols["x_mm"], "x_mm", missing_ok=True)
@@ -243,7 +398,9 @@ def _read_long(table: _Table, cols: dict[str, int]) -> Recording:
             raise table.error("sigma_mm must be > 0, got "
                               f"{table.rows[bad[0]][cols['sigma_mm']].strip()!r}", row=int(bad[0]))
     markers = list(ids)
-    order = _check_time_order(table, t, mi, np.arange(n), markers)
+    _check_frame_rate(table, t, optional.get("frame"), rig)
+    order = _sort_samples(table, t, mi, np.arange(n), markers,
+                          [x, y, *optional.values()], optional.get("frame"))
     return Recording(markers=tuple(markers), roles=tuple(roles), t=t[order],
                      marker_index=mi[order], x=x[order], y=y[order],
                      **{k: v[order] for k, v in optional.items()},
@@ -297,14 +454,18 @@ def _read_wide(table: _Table, cols: dict[str, int], rig: "Rig | None") -> Record
           for m in markers]
     ys = [_floats(table, pairs[m]["y"], table.header[pairs[m]["y"]], missing_ok=True)
           for m in markers]
-    # every marker shares the frame times, so checking one marker checks them all
-    _check_time_order(table, time, np.zeros(n_rows, dtype=np.int64), np.arange(n_rows), markers)
-    optional = {}
-    if "frame" in cols:
-        optional["frame"] = np.tile(_ints(table, cols["frame"], "frame"), n_markers)
-    return Recording(markers=tuple(markers), roles=tuple(roles), t=np.tile(time, n_markers),
+    frame = _ints(table, cols["frame"], "frame") if "frame" in cols else None
+    _check_frame_rate(table, time, frame, rig)
+    # one row per frame, in any order: every marker shares the frame times, so sorting
+    # (and checking) the rows as one marker sorts them all
+    order = _sort_samples(table, time, np.zeros(n_rows, dtype=np.int64), np.arange(n_rows),
+                          [], [*xs, *ys], frame)
+    optional = {} if frame is None else {"frame": np.tile(frame[order], n_markers)}
+    n_rows = order.size
+    return Recording(markers=tuple(markers), roles=tuple(roles), t=np.tile(time[order], n_markers),
                      marker_index=np.repeat(np.arange(n_markers, dtype=np.int64), n_rows),
-                     x=np.concatenate(xs), y=np.concatenate(ys), **optional,
+                     x=np.concatenate([v[order] for v in xs]),
+                     y=np.concatenate([v[order] for v in ys]), **optional,
                      meta=table.meta, path=table.path)
 
 
@@ -332,6 +493,10 @@ def read_trajectories(path: str | os.PathLike, rig: "Rig | None" = None) -> Reco
     """
     path = os.fspath(path)
     table = _read_table(path)
+    named = [c for c in table.header if c]
+    sep = _separator(table.header_text) if len(named) <= 1 else None
+    if sep:
+        raise _separator_error(table, sep, table.header_line)
     cols = _columns(table)
     is_long = "marker" in cols
     is_wide = not is_long and any(_WIDE_COLUMN.match(name) for name in cols)
@@ -347,7 +512,7 @@ def read_trajectories(path: str | os.PathLike, rig: "Rig | None" = None) -> Reco
     if not table.rows:
         raise table.error("no samples: nothing below the header", line=table.header_line)
     _check_row_lengths(table)
-    return _read_long(table, cols) if is_long else _read_wide(table, cols, rig)
+    return _read_long(table, cols, rig) if is_long else _read_wide(table, cols, rig)
 
 
 # -- writing --------------------------------------------------------------------------------
