@@ -21,17 +21,39 @@ class _Bad(Exception):
 
 
 def _positive(value) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) \
-            or not math.isfinite(value) or value <= 0:
+    try:
+        ok = (not isinstance(value, bool) and isinstance(value, (int, float))
+              and math.isfinite(value) and value > 0)
+        number = float(value) if ok else None
+    except OverflowError:  # an integer beyond float64
+        raise _Bad(f"= {value} is beyond any plausible range") from None
+    if number is None:
         raise _Bad(f"must be a number > 0, got {value!r}")
-    return float(value)
+    return number
+
+
+def _within(lo: float, hi: float, unit: str):
+    """A check: a number > 0 within the plausible range [lo, hi] (a value outside it is
+    most likely a typo or another unit, and would break the fit far from here)."""
+    def check(value) -> float:
+        value = _positive(value)
+        if not lo <= value <= hi:
+            raise _Bad(f"= {value:g} {unit} is outside the plausible range {lo:g} to {hi:g} "
+                       f"{unit}".replace("  ", " "))
+        return value
+    return check
 
 
 def _lug_count(value) -> int:
-    ok = (not isinstance(value, bool) and isinstance(value, (int, float))
-          and math.isfinite(value) and float(value).is_integer() and value >= 2)
+    try:
+        ok = (not isinstance(value, bool) and isinstance(value, (int, float))
+              and math.isfinite(value) and float(value).is_integer() and value >= 2)
+    except OverflowError:  # an integer beyond float64
+        raise _Bad(f"= {value} is outside the plausible range 2 to 1000 lugs") from None
     if not ok:
         raise _Bad(f"must be an integer >= 2, got {value!r}")
+    if value > 1000:
+        raise _Bad(f"= {value:g} is outside the plausible range 2 to 1000 lugs")
     return int(value)
 
 
@@ -47,13 +69,13 @@ def _names(value) -> tuple[str, ...]:
 
 # (table, key, Rig attribute, check)
 _FIELDS = (
-    ("track", "load_bearing_length_mm", "load_bearing_length_mm", _positive),
+    ("track", "load_bearing_length_mm", "load_bearing_length_mm", _within(1.0, 1e5, "mm")),
     ("track", "lugs_in_contact", "lugs_in_contact", _lug_count),
-    ("track", "lug_pitch_mm", "lug_pitch_mm", _positive),
-    ("vehicle", "mass_kg", "mass_kg", _positive),
+    ("track", "lug_pitch_mm", "lug_pitch_mm", _within(0.1, 1e4, "mm")),
+    ("vehicle", "mass_kg", "mass_kg", _within(1e-3, 1e6, "kg")),
     ("markers", "body", "body_markers", _names),
     ("markers", "lug", "lug_markers", _names),
-    ("camera", "fps", "fps", _positive),
+    ("camera", "fps", "fps", _within(0.01, 1e8, "frames/s")),
 )
 _TABLES = ("track", "vehicle", "markers", "camera")
 
@@ -63,12 +85,13 @@ class Rig:
     """Known facts about the rig (defaults: the reference robot).
 
     Attributes:
-        load_bearing_length_mm: L, length of the load-bearing segment, mm (> 0).
-        lugs_in_contact: n, lugs in contact with the ground (integer >= 2).
-        lug_pitch_mm: p, lug pitch, mm, or None (then fitted).
-        mass_kg: mass carried by this track, kg, or None (stiffness then not identifiable).
+        load_bearing_length_mm: L, length of the load-bearing segment, mm (1 to 1e5).
+        lugs_in_contact: n, lugs in contact with the ground (integer, 2 to 1000).
+        lug_pitch_mm: p, lug pitch, mm (0.1 to 1e4), or None (then fitted).
+        mass_kg: mass carried by this track, kg (1e-3 to 1e6), or None (stiffness then
+            not identifiable).
         body_markers, lug_markers: marker ids by role, for wide-form trajectory files.
-        fps: camera frame rate, 1/s ([camera] fps), or None.
+        fps: camera frame rate, 1/s ([camera] fps, 0.01 to 1e8), or None.
         extra: every other table/key of rig.toml, kept as read ({table: {key: value}}).
         path: the file it was read from (not part of equality).
 
