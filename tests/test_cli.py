@@ -65,7 +65,7 @@ def test_bad_input_one_line_error_and_no_output(tmp_path, capsys):
 
 def test_simulate_writes_a_recording(tmp_path, capsys):
     d = tmp_path / "sim"
-    assert main(["simulate", str(d), "--seed", "3", "--duration", "2",
+    assert main(["simulate", str(d), "--seed", "3", "--duration", "2.5",
                  "--effect", "belt_sag:sag_d=0.5", "-q"]) == 0
     for f in ("trajectories.csv", "rig.toml", "truth.json"):
         assert (d / f).exists()
@@ -79,3 +79,59 @@ def test_console_script_runs():
     r = subprocess.run([sys.executable, "-m", "fitlug.cli", "--version"], capture_output=True,
                        text=True, check=True)
     assert r.stdout.startswith("fitlug ")
+
+
+def test_out_naming_an_existing_file_is_refused_before_fitting(tmp_path, capsys):
+    taken = tmp_path / "taken"
+    taken.write_text("keep me")
+    for out, problem in ((taken, "is an existing file, not a folder"),
+                         (taken / "sub", "cannot be created")):
+        assert main([REF, "--no-mcmc", "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and err.startswith("fit-lug: error: --out: ")
+        assert problem in err
+    assert taken.read_text() == "keep me"
+
+
+@pytest.mark.parametrize("options,problem", [
+    (["--duration", "-1"], "--duration: must be a number > 0, got -1.0"),
+    (["--duration", "0"], "--duration: must be a number > 0"),
+    (["--duration", "0.05"], "--duration: 0.05 s at 100 fps gives 5 frames"),
+    (["--fps", "0"], "--fps: must be a number > 0"),
+    (["--fps", "-5"], "--fps: must be a number > 0, got -5.0"),
+    (["--fps", "inf"], "--fps: must be a number > 0, got inf"),
+    (["--slip", "nan"], "--slip: must be a number between 0 and 1"),
+    (["--slip", "1"], "--slip: must be a number between 0 and 1"),
+    (["--slip", "-0.1"], "--slip: must be a number between 0 and 1"),
+    (["--effect", "wheel_runout"], "every parameter of wheel_runout is at its identity value "
+                                   "(runout_a=0, runout_b=0)"),
+    (["--effect", "belt_sag:sag_d=nan"], "sag_d must be a finite number"),
+    (["--effect", "warp_drive:x=1"], "unknown effect 'warp_drive'"),
+    (["--scenario", '{"n_belt": 2}'], "not a valid scenario: n_belt"),
+    (["--scenario", '{"lug_markers": 0}'], "not a valid scenario: lug_markers"),
+])
+def test_simulate_refuses_useless_options(tmp_path, capsys, options, problem):
+    out = tmp_path / "sim"
+    assert main(["simulate", str(out), "-q", *options]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and problem in err
+    assert not out.exists()
+
+
+def test_simulate_help_lists_the_effects_and_their_parameters(capsys):
+    from fitlug.model.effects import CATALOG
+    with pytest.raises(SystemExit):
+        main(["simulate", "--help"])
+    out = capsys.readouterr().out
+    for eid, cls in CATALOG.items():
+        line = next(x for x in out.splitlines() if x.strip().startswith(eid + " "))
+        for param in cls.defaults:
+            assert param + "=" in line, (eid, param)
+
+
+def test_simulate_duration_keeps_the_cruise_speed(tmp_path):
+    assert main(["simulate", str(tmp_path / "a"), "--duration", "3.25", "--fps", "40", "-q"]) == 0
+    truth = json.loads((tmp_path / "a" / "truth.json").read_text())
+    from fitlug.sim import Scenario
+    assert truth["profile"]["v_cruise_mm_s"] == pytest.approx(Scenario().v_cruise)
+    assert truth["profile"]["duration_s"] == 3.25 and truth["profile"]["fps"] == 40

@@ -24,3 +24,21 @@ def recording_name(csv_path: str) -> str:
         parent = os.path.basename(os.path.dirname(os.path.abspath(csv_path)))
         return parent or stem
     return stem
+
+
+def check_out_folder(folder: str, option: str = "--out") -> None:
+    """Refuse, before any work, an output folder that cannot be one: an existing file, a
+    path through a file, or a folder (or its first existing parent) that is not writable.
+    Raises InputError naming the option and the path."""
+    from .._errors import InputError
+
+    path = os.path.abspath(folder)
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise InputError(option, f"{folder} is an existing file, not a folder")
+    parent = path
+    while not os.path.exists(parent):
+        parent = os.path.dirname(parent)
+    if not os.path.isdir(parent):
+        raise InputError(option, f"{folder} cannot be created: {parent} is a file")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(option, f"{folder} cannot be written: {parent} is not writable")

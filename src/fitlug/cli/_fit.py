@@ -6,7 +6,7 @@ import argparse
 import os
 import time
 
-from ._common import progress_enabled, recording_name, say
+from ._common import check_out_folder, progress_enabled, recording_name, say
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -30,6 +30,7 @@ def run(args) -> int:
     rig = read_rig(args.rig) if args.rig else find_rig(args.csv)
     rec = read_trajectories(args.csv, rig=rig)
     out = args.out or os.path.join("fits", recording_name(args.csv))
+    check_out_folder(out, "--out" if args.out else "output folder")
     prog = progress_enabled(args)
 
     from ..fit import fit

@@ -75,3 +75,78 @@ class Scenario:
 
     def replace(self, **kw) -> "Scenario":
         return dataclasses.replace(self, **kw)
+
+    def check(self) -> None:
+        """Raise ValueError("<field>: <problem>") for a scenario that would simulate a
+        useless or broken recording (non-finite, out of range, too few frames, a speed
+        profile whose rests and ramps do not fit in the duration)."""
+        def number(name, lo=None, hi=None, *, lo_open=False, hi_open=False, integer=False):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                    or not math.isfinite(value):
+                raise ValueError(f"{name}: must be a finite number, got {value!r}")
+            if integer and not float(value).is_integer():
+                raise ValueError(f"{name}: must be an integer, got {value!r}")
+            below = lo is not None and (value <= lo if lo_open else value < lo)
+            above = hi is not None and (value >= hi if hi_open else value > hi)
+            if below or above:
+                left = "(" if lo_open else "["
+                right = ")" if hi_open else "]"
+                raise ValueError(f"{name}: must lie in {left}{lo:g}, "
+                                 f"{'inf' if hi is None else f'{hi:g}'}{right}, got {value!r}")
+        number("duration_s", 0, lo_open=True)
+        number("fps", 0, 1e6, lo_open=True)
+        frames = round(self.duration_s * self.fps)
+        if not 20 <= frames <= 1_000_000:
+            raise ValueError(f"duration_s: {self.duration_s:g} s at {self.fps:g} fps gives "
+                             f"{frames} frames; 20 to 1000000 are needed")
+        number("rest_s", 0)
+        number("ramp_s", 0, lo_open=True)
+        if 2 * self.rest_s + 2 * self.ramp_s > self.duration_s + 1e-12:
+            raise ValueError(f"duration_s: {self.duration_s:g} s is shorter than the speed "
+                             f"profile's two rests and two ramps (2 x {self.rest_s:g} s + "
+                             f"2 x {self.ramp_s:g} s)")
+        if self.ramp not in ("cos", "smoothstep", "quintic"):
+            raise ValueError(f"ramp: must be cos, smoothstep or quintic, got {self.ramp!r}")
+        number("travel_mm", 0, lo_open=True)
+        number("slip", 0, 1, lo_open=True, hi_open=True)
+        number("rolling_resistance", 0, lo_open=True)
+        number("n_contact", 2, 1000, integer=True)
+        number("L_mm", 0, lo_open=True)
+        number("lug_pitch_mm", 0, lo_open=True)
+        number("R_mm", 0, lo_open=True)
+        number("e_mm", 0)
+        number("x_off_mm")
+        number("y_off_mm")
+        number("n_belt", 3, integer=True)
+        if self.D_mm <= 0:
+            raise ValueError(f"n_belt: {self.n_belt} lugs of {self.lug_pitch_mm:g} mm do not "
+                             f"go round two wheels of radius {self.R_mm:g} mm")
+        if self.mass_kg is not None:
+            number("mass_kg", 0, lo_open=True)
+        number("lug_markers", 1, self.n_belt, integer=True)
+        number("lug_spacing", 1, integer=True)
+        number("sigma_start_mm")
+        if len(self.body_markers) < 1 or not all(
+                len(c) == 2 and all(isinstance(v, (int, float)) and math.isfinite(v) for v in c)
+                for c in self.body_markers):
+            raise ValueError(f"body_markers: must be one or more (x, y) offsets in mm, got "
+                             f"{self.body_markers!r}")
+        number("noise_lug_mm", 0)
+        number("noise_body_mm", 0)
+        if not isinstance(self.effects, dict):
+            raise ValueError(f"effects: must map effect id -> {{param: value}}, got "
+                             f"{self.effects!r}")
+        from ..model.effects import CATALOG
+        for eid, vals in self.effects.items():
+            if eid not in CATALOG:
+                raise ValueError(f"effects: unknown effect {eid!r}; known: {', '.join(CATALOG)}")
+            if not isinstance(vals, dict):
+                raise ValueError(f"effects: {eid} must map parameter -> value, got {vals!r}")
+            for k, v in vals.items():
+                if k not in CATALOG[eid].defaults:
+                    raise ValueError(f"effects: {eid} has no parameter {k!r}; known: "
+                                     f"{', '.join(CATALOG[eid].defaults)}")
+                if isinstance(v, bool) or not isinstance(v, (int, float)) \
+                        or not math.isfinite(v):
+                    raise ValueError(f"effects: {eid} {k} must be a finite number, got {v!r}")

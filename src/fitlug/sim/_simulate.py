@@ -52,6 +52,7 @@ def truth_params(sc: Scenario, lay, breaks) -> dict:
 
 def simulate(sc: Scenario, seed: int = 0) -> tuple[Recording, dict]:
     """Draw one recording of `sc` (noise seeded by `seed`); returns (recording, truth)."""
+    sc.check()
     rng = np.random.default_rng(seed)
     frames = np.arange(int(round(sc.duration_s * sc.fps)))
     t = frames / sc.fps
