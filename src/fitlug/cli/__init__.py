@@ -51,6 +51,12 @@ def _top_help() -> str:
     return "\n".join(lines)
 
 
+def _one_line_warning(message, category, filename, lineno, line=None) -> str:
+    text = " ".join(str(message).split())
+    kind = "" if category is UserWarning else f"{category.__name__}: "
+    return f"fit-lug: warning: {kind}{text}\n"
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of `fit-lug`; returns the process exit status."""
     from .._errors import FitlugError
@@ -68,8 +74,12 @@ def main(argv: list[str] | None = None) -> int:
         name, rest = "fit", argv
     parser, mod = _build_parser(name)
     args = parser.parse_args(rest)
+    import warnings
     try:
-        return int(mod.run(args) or 0)
+        with warnings.catch_warnings():
+            # a warning is one line too ("fit-lug: warning: file:line: ..."), not two
+            warnings.formatwarning = _one_line_warning
+            return int(mod.run(args) or 0)
     except FitlugError as exc:
         print(f"fit-lug: error: {exc}", file=sys.stderr)
         return 2

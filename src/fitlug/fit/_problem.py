@@ -12,6 +12,7 @@ from ..model import belt_length, make_layout, param_names, place_knots
 from ..model._model import BASE_SCALARS, default_params
 from ..model.effects import CATALOG
 from . import _init
+from ._checks import check_recording
 from ._noise import estimate_noise
 
 MIN_FRAMES = 20
@@ -69,6 +70,7 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
     Raises InputError (naming the file) for: no body or no lug markers, too few frames,
     fewer valid samples than parameters.
     """
+    rec = check_recording(rec, rig)  # plausibility: empty markers, no motion, units (_checks)
     path = rec.path
     body_ids = [m for m, r in enumerate(rec.roles) if r == "body"]
     lug_ids = [m for m, r in enumerate(rec.roles) if r == "lug"]

@@ -1,0 +1,194 @@
+"""Plausibility of a recording before it is fitted: say what looks wrong, in one line.
+
+`check_recording` runs first in `build_problem`. It refuses (InputError naming the file)
+what the fit could only turn into a misleading "did not converge" or a silently wrong
+number, and drops markers that hold no sample at all (with a warning line):
+
+- a marker with no valid sample (x_mm, y_mm empty in every row): dropped, with a warning
+  naming it. A tracker may list a marker it never found, and the other markers still
+  measure everything; refusing would block a good recording for an empty column. When
+  every marker of a role is empty the recording is refused (naming them).
+- a robot that never moves: the body markers' travel is within the noise (or below 1 µm).
+  If the lug markers do move, the message says the track turns while the body stands
+  still (slip 100 %).
+- values in another unit, judged from figures that do not depend on the motion profile:
+  the markers' vertical spread in a frame (lug markers above and below the wheels, body
+  markers above: 2 mm to 5 m on any tracked vehicle), the noise from fourth differences
+  (below 1 mm; fitlug.fit._noise), the body's mean speed (below 10 m/s) and the frame
+  interval (at most 1 s). The message names the figure, its plausible range and the
+  unit the data look like (metres or micrometres as mm, milliseconds as s). Noise below
+  0.1 µm alone is not refused: a noiseless simulation has it.
+- a [camera] fps in rig.toml that disagrees with the time stamps (fitlug.io checks it
+  when it reads the file with its rig; this repeats it for recordings built in memory).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from .._errors import InputError
+from ._noise import fourth_differences, noise_from_differences
+
+# plausible ranges (mm, mm/s, s); outside: most likely another unit
+SPREAD_MM = (2.0, 5000.0)
+NOISE_MAX_MM = 1.0
+SPEED_MAX_MM_S = 1e4
+FRAME_INTERVAL_MAX_S = 1.0
+# a robot "moves" when its body travels more than this many noise sigmas (and > 1 µm)
+MOVE_SIGMAS = 50.0
+MOVE_MIN_MM = 1e-3
+
+
+def _unit_hint(value: float, lo: float, hi: float) -> str:
+    """Which unit a figure outside [lo, hi] looks like, as a phrase."""
+    if value < lo:
+        return "the positions look like metres, not mm (x 1000)" if value * 1000 >= lo * 0.5 \
+            else "the positions look far too small for mm"
+    return "the positions look like micrometres, not mm (/ 1000)" if value / 1000 <= hi * 2 \
+        else "the positions look far too large for mm"
+
+
+def _drop_empty(rec):
+    valid = rec.valid
+    counts = np.bincount(rec.marker_index[valid], minlength=rec.n_markers)
+    empty = [m for m in range(rec.n_markers) if counts[m] == 0]
+    if not empty:
+        return rec
+    for role in ("body", "lug"):
+        ids = [m for m, r in enumerate(rec.roles) if r == role]
+        if ids and all(m in empty for m in ids):
+            names = ", ".join(rec.markers[m] for m in ids)
+            raise InputError(rec.path, f"every {role} marker ({names}) is empty: x_mm and y_mm "
+                                       "are missing in all their rows")
+    names = ", ".join(rec.markers[m] for m in empty)
+    warnings.warn(f"{rec.path or '<recording>'}: marker(s) {names} have no valid sample "
+                  "(x_mm, y_mm empty in all their rows): left out of the fit", stacklevel=3)
+    keep = np.array([m not in empty for m in range(rec.n_markers)])
+    new_index = np.cumsum(keep) - 1
+    rows = keep[rec.marker_index]
+    changes = {name: getattr(rec, name)[rows]
+               for name in ("t", "x", "y", "sigma", "frame", "x_px", "y_px", "quality")
+               if getattr(rec, name) is not None}
+    return rec.with_(markers=tuple(m for m, k in zip(rec.markers, keep) if k),
+                     roles=tuple(r for r, k in zip(rec.roles, keep) if k),
+                     marker_index=new_index[rec.marker_index[rows]], **changes)
+
+
+def _per_marker(rec, role):
+    """(t, x, y) of the valid samples of each marker with `role`."""
+    valid = rec.valid
+    out = []
+    for m, r in enumerate(rec.roles):
+        if r == role:
+            sel = valid & (rec.marker_index == m)
+            out.append((rec.t[sel], rec.x[sel], rec.y[sel]))
+    return out
+
+
+def _noise(tracks) -> float:
+    diffs = [fourth_differences(t, v) for t, x, y in tracks for v in (x, y)]
+    sigma, _ = noise_from_differences(diffs)
+    return sigma
+
+
+def _span(v: np.ndarray) -> float:
+    return float(np.percentile(v, 99) - np.percentile(v, 1)) if v.size >= 2 else 0.0
+
+
+def _check_moves(rec, body, lug, sigma) -> None:
+    travel = max((_span(x) for _, x, _ in body), default=0.0)
+    floor = max(MOVE_SIGMAS * (sigma if np.isfinite(sigma) else 0.0), MOVE_MIN_MM)
+    if travel > floor:
+        return
+    lug_travel = max((_span(x) for _, x, _ in lug), default=0.0)
+    t = rec.t[rec.valid]
+    duration = float(t.max() - t.min()) if t.size else 0.0
+    what = (f"the robot never moves: its body markers travel {travel:.3g} mm in "
+            f"{duration:.3g} s, within the noise ({sigma:.2g} mm)")
+    if lug_travel > floor:
+        what += (f", while the lug markers travel {lug_travel:.3g} mm: the track turns but "
+                 f"the body stands still (slip 100 %?)")
+    raise InputError(rec.path, what + "; the fit needs a recording of the robot driving")
+
+
+def _check_units(rec, body, lug, sigma) -> None:
+    valid = rec.valid
+    t, y = rec.t[valid], rec.y[valid]
+    # vertical spread in a frame: markers above and below the wheels and on the body
+    order = np.argsort(t, kind="stable")
+    ts, ys = t[order], y[order]
+    starts = np.flatnonzero(np.r_[True, ts[1:] != ts[:-1]])
+    counts = np.diff(np.r_[starts, ts.size])
+    multi = counts >= 2
+    if multi.any():
+        spread = float(np.median((np.maximum.reduceat(ys, starts)
+                                  - np.minimum.reduceat(ys, starts))[multi]))
+        lo, hi = SPREAD_MM
+        if not lo <= spread <= hi:
+            raise InputError(rec.path, f"the markers' vertical spread in a frame is "
+                                       f"{spread:.3g} mm (median over frames), outside the "
+                                       f"plausible {lo:g} mm to {hi / 1000:g} m for a tracked "
+                                       f"robot: {_unit_hint(spread, lo, hi)}")
+    if np.isfinite(sigma) and sigma > NOISE_MAX_MM:
+        raise InputError(rec.path, f"the position noise (from 4th differences) is "
+                                   f"{sigma:.3g} mm, above the plausible {NOISE_MAX_MM:g} mm: "
+                                   f"{_unit_hint(sigma, 0.0, NOISE_MAX_MM)} (or the tracker "
+                                   "failed)")
+    times = np.unique(t)
+    if times.size >= 2:
+        step = float(np.median(np.diff(times)))
+        if step > FRAME_INTERVAL_MAX_S:
+            raise InputError(rec.path, f"one frame every {step:.6g} s (median time step) is "
+                                       f"slower than any plausible camera (at most "
+                                       f"{FRAME_INTERVAL_MAX_S:g} s): the time stamps look "
+                                       "like milliseconds, not seconds")
+        duration = float(times[-1] - times[0])
+        travel = max((_span(x) for _, x, _ in body), default=0.0)
+        speed = travel / duration
+        if speed > SPEED_MAX_MM_S:
+            raise InputError(rec.path, f"the body markers travel {travel:.4g} mm in "
+                                       f"{duration:.4g} s = {speed / 1000:.3g} m/s, above the "
+                                       f"plausible {SPEED_MAX_MM_S / 1000:g} m/s: "
+                                       f"{_unit_hint(speed, 0.0, SPEED_MAX_MM_S)}")
+
+
+def _check_rig_fps(rec, rig) -> None:
+    fps = getattr(rig, "fps", None)
+    times = np.unique(rec.t)
+    if fps is None or times.size < 3:
+        return
+    d = np.diff(times)
+    med = float(np.median(d))
+    k = np.rint(d / med)
+    ok = (k >= 1) & (k <= 10)
+    dt = float(d[ok].sum() / k[ok].sum())
+    step = 1
+    if rec.frame is not None:  # a decimated recording: frame numbers step by k
+        _, first = np.unique(rec.t, return_index=True)
+        df = np.diff(rec.frame[first])
+        single = np.rint(d / dt) == 1
+        if single.any():
+            step = max(int(np.median(df[single])), 1)
+    if abs(fps * dt / step - 1) > 0.02:
+        raise InputError(getattr(rig, "path", None),
+                         f"[camera] fps {fps:g} disagrees with the time stamps of "
+                         f"{rec.path or 'the recording'}: one frame every {dt:.6g} s = "
+                         f"{step / dt:.6g} fps")
+
+
+def check_recording(rec, rig):
+    """The recording to fit: `rec` less its empty markers (warned), after the checks above.
+
+    Raises:
+        InputError: naming the file and what looks wrong (see the module docstring).
+    """
+    rec = _drop_empty(rec)
+    _check_rig_fps(rec, rig)
+    body, lug = _per_marker(rec, "body"), _per_marker(rec, "lug")
+    sigma = _noise(body + lug)
+    if body:
+        _check_moves(rec, body, lug, sigma)
+    _check_units(rec, body, lug, sigma)
+    return rec
