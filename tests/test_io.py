@@ -499,3 +499,161 @@ def test_large_file_reads_correctly(tmp_path):
     back = read_trajectories(path)
     assert back == rec
     assert math.isclose(back.fps, 1000.0, rel_tol=1e-9)
+
+
+# -- issue 11: the reference recording, broken one way at a time ----------------------------
+
+REF_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "data",
+                       "reference")
+REF_CSV = os.path.join(REF_DIR, "trajectories.csv")
+
+
+def _ref_lines():
+    with open(REF_CSV, encoding="utf-8") as fh:
+        lines = fh.read().splitlines()
+    n_meta = sum(1 for line in lines if line.startswith("#"))
+    return lines[:n_meta], lines[n_meta], lines[n_meta + 1:]
+
+
+@pytest.mark.parametrize("stamp", ["649.0", "1e5", "-1e5", "1e300"])
+def test_a_time_stamp_far_off_is_named_by_its_line(tmp_path, stamp):
+    meta, header, rows = _ref_lines()
+    fields = rows[-1].split(",")
+    fields[0] = stamp
+    rows[-1] = ",".join(fields)
+    path = _write(tmp_path, "\n".join(meta + [header] + rows) + "\n")
+    with pytest.raises(InputError) as err:
+        read_trajectories(path)
+    last = len(meta) + 1 + len(rows)  # the physical line of the last row
+    assert str(err.value).startswith(f"{path}:{last}: time_s = {float(stamp)!r} breaks the "
+                                     "frame rate")
+    assert "frame intervals of 0.01 s" in str(err.value)
+
+
+def test_rows_fully_shuffled_read_like_the_sorted_file(tmp_path):
+    meta, header, rows = _ref_lines()
+    shuffled = list(rows)
+    np.random.default_rng(11).shuffle(shuffled)
+    a = read_trajectories(REF_CSV)
+    b = read_trajectories(_write(tmp_path, "\n".join(meta + [header] + shuffled) + "\n"))
+    assert set(a.markers) == set(b.markers)
+    for name in a.markers:
+        sa, sb = a.marker_index == a.markers.index(name), b.marker_index == b.markers.index(name)
+        for field in ("t", "x", "y", "frame"):
+            assert np.array_equal(getattr(a, field)[sa], getattr(b, field)[sb]), (name, field)
+        assert a.role_of(name) == b.role_of(name)
+
+
+def test_a_repeated_identical_row_is_dropped_with_a_warning(tmp_path):
+    meta, header, rows = _ref_lines()
+    path = _write(tmp_path, "\n".join(meta + [header] + rows + [rows[7]]) + "\n")
+    with pytest.warns(UserWarning, match=r"1 repeated row\(s\)"):
+        rec = read_trajectories(path)
+    assert rec == read_trajectories(REF_CSV).with_(path=path)
+
+
+@pytest.mark.parametrize("fps,where", [("50", "meta"), ("103", "meta"), ("200", "rig"),
+                                       ("99.9", None), ("100", None)])
+def test_fps_that_disagrees_with_the_time_stamps(tmp_path, fps, where):
+    meta, header, rows = _ref_lines()  # 100 fps, frame numbers step by one
+    rig = None
+    if where == "meta":
+        meta = [f"# fps: {fps}"] + [m for m in meta if not m.startswith("# fps")]
+    elif where == "rig":
+        rig_path = tmp_path / "rig.toml"
+        rig_path.write_text(f"[camera]\nfps = {fps}\n")
+        rig = read_rig(rig_path)
+    else:
+        rig = Rig(fps=float(fps))
+    path = _write(tmp_path, "\n".join(meta + [header] + rows) + "\n")
+    if where is None:  # within 2 %
+        assert read_trajectories(path, rig=rig).n_samples == len(rows)
+        return
+    with pytest.raises(InputError) as err:
+        read_trajectories(path, rig=rig)
+    message = str(err.value)
+    if where == "meta":
+        assert message.startswith(f"{path}:1: metadata fps {fps} disagrees")
+    else:
+        assert message.startswith(f"{rig_path}: [camera] fps {fps} disagrees")
+    assert "= 100 fps" in message
+
+
+def test_fps_of_a_decimated_recording_agrees_through_its_frame_numbers(tmp_path):
+    meta, header, rows = _ref_lines()
+    every_other = [r for r in rows if int(r.split(",")[5]) % 2 == 0]  # frames 0, 2, 4, ...
+    path = _write(tmp_path, "\n".join(meta + [header] + every_other) + "\n")
+    assert read_trajectories(path).fps == 100.0  # '# fps: 100' with frames stepping by 2
+    no_frames = "\n".join(meta + [header.rsplit(",", 1)[0]]
+                          + [r.rsplit(",", 1)[0] for r in every_other]) + "\n"
+    with pytest.raises(InputError, match="metadata fps 100 disagrees .* = 50 fps"):
+        read_trajectories(_write(tmp_path, no_frames, "noframes.csv"))
+
+
+# -- plausibility before the fit (fitlug.fit._checks), on the reference recording ------------
+
+def _ref_variant(name, **changes):
+    return read_trajectories(REF_CSV).with_(path=name, **changes)
+
+
+def test_build_problem_refuses_positions_in_metres():
+    from fitlug.fit._problem import build_problem
+    ref = read_trajectories(REF_CSV)
+    with pytest.raises(InputError, match=r"^metres\.csv: the markers' vertical spread in a "
+                                         r"frame is 0\.07\d+ mm .* look like metres"):
+        build_problem(ref.with_(path="metres.csv", x=ref.x / 1000, y=ref.y / 1000),
+                      read_rig(os.path.join(REF_DIR, "rig.toml")))
+
+
+def test_plausibility_checks_name_what_looks_wrong():
+    from fitlug.fit._checks import check_recording
+    ref = read_trajectories(REF_CSV)
+    rig = read_rig(os.path.join(REF_DIR, "rig.toml"))
+    assert check_recording(ref, rig) is ref
+    with pytest.raises(InputError, match=r"7\.\d+e\+04 mm .* look like micrometres"):
+        check_recording(ref.with_(x=ref.x * 1000, y=ref.y * 1000), rig)
+    with pytest.raises(InputError, match="time stamps look like milliseconds"):
+        check_recording(ref.with_(t=ref.t * 1000), Rig())
+    noisy = np.random.default_rng(1).normal(0, 3.0, ref.x.shape)  # 3 mm of noise
+    with pytest.raises(InputError, match=r"position noise .* is [23](\.\d+)? mm, above "
+                                         r"the plausible 1 mm: the tracker failed"):
+        check_recording(ref.with_(x=ref.x + noisy, y=ref.y + noisy), rig)
+    fast = ref.with_(t=ref.t / 100)  # 108 mm/s -> 10.8 m/s
+    with pytest.raises(InputError, match="10.8 m/s, above the plausible 10 m/s"):
+        check_recording(fast, Rig(fps=10000.0))
+    with pytest.raises(InputError, match=r"\[camera\] fps 50 disagrees"):
+        check_recording(ref, Rig(fps=50.0))
+
+
+def test_a_robot_that_never_moves_is_named():
+    from fitlug.fit._checks import check_recording
+    ref = read_trajectories(REF_CSV)
+    starts = np.searchsorted(ref.marker_index, np.arange(ref.n_markers))  # sorted by marker
+    rng = np.random.default_rng(2)
+    x0, y0 = ref.x[starts][ref.marker_index], ref.y[starts][ref.marker_index]
+    still = ref.with_(x=x0 + rng.normal(0, 0.005, x0.shape), y=y0 + rng.normal(0, 0.005, x0.shape))
+    with pytest.raises(InputError, match=r"the robot never moves: its body markers travel "
+                                         r"0\.0\d+ mm in 6\.49 s"):
+        check_recording(still, Rig())
+    body = np.isin(ref.marker_index, ref.markers_of("body"))
+    stuck = ref.with_(x=np.where(body, still.x, ref.x), y=np.where(body, still.y, ref.y))
+    with pytest.raises(InputError, match="the track turns but the body stands still"):
+        check_recording(stuck, Rig())
+
+
+def test_an_empty_marker_is_dropped_by_name():
+    from fitlug.fit._checks import check_recording
+    ref = read_trajectories(REF_CSV)
+    gone = ref.marker_index == ref.markers.index("B05")
+    rec = ref.with_(x=np.where(gone, np.nan, ref.x), y=np.where(gone, np.nan, ref.y))
+    with pytest.warns(UserWarning, match=r"marker\(s\) B05 have no valid sample"):
+        kept = check_recording(rec, Rig())
+    assert "B05" not in kept.markers and kept.n_markers == ref.n_markers - 1
+    assert kept.n_samples == ref.n_samples - int(gone.sum())
+    for name in kept.markers:  # every other marker untouched
+        a = ref.marker_index == ref.markers.index(name)
+        b = kept.marker_index == kept.markers.index(name)
+        assert np.array_equal(ref.x[a], kept.x[b]) and np.array_equal(ref.t[a], kept.t[b])
+    body = np.isin(ref.marker_index, ref.markers_of("body"))
+    with pytest.raises(InputError, match=r"every body marker \(C1, C2\) is empty"):
+        check_recording(ref.with_(x=np.where(body, np.nan, ref.x)), Rig())

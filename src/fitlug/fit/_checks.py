@@ -134,8 +134,8 @@ def _check_units(rec, body, lug, sigma) -> None:
     if np.isfinite(sigma) and sigma > NOISE_MAX_MM:
         raise InputError(rec.path, f"the position noise (from 4th differences) is "
                                    f"{sigma:.3g} mm, above the plausible {NOISE_MAX_MM:g} mm: "
-                                   f"{_unit_hint(sigma, 0.0, NOISE_MAX_MM)} (or the tracker "
-                                   "failed)")
+                                   "the tracker failed, or the positions are in another unit "
+                                   "than mm")
     times = np.unique(t)
     if times.size >= 2:
         step = float(np.median(np.diff(times)))
