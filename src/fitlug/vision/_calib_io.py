@@ -102,7 +102,7 @@ def _format(data: dict) -> str:
 def _matrix(path, value, shape, key):
     try:
         arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise InputError(path, f"{key} must be numbers, got {value!r:.60}", place=key) from None
     if shape is not None and arr.shape != shape:
         raise InputError(path, f"{key} must have shape {shape}, got {arr.shape}", place=key)
@@ -148,9 +148,23 @@ def calibration_from_dict(data: dict, path: str | None = None) -> Calibration:
             isinstance(v, dict) and {"image", "rms_px", "outlier"} <= v.keys() for v in per_view):
         raise InputError(path, "per_view must be a list of {image, rms_px, outlier}",
                          place="per_view")
+    for v in per_view:
+        if v["rms_px"] is not None:
+            _matrix(path, v["rms_px"], (), "per_view rms_px")
+    flags = data.get("flags") or 0
+    if isinstance(flags, bool) or not isinstance(flags, int) or not 0 <= flags < 2 ** 31:
+        raise InputError(path, f"flags must be an integer of OpenCV calibration flags, got "
+                         f"{flags!r:.60}", place="flags")
+    for key, kinds, what in (("rejected", (list,), "a list"),
+                             ("scale", (dict,), "an object"),
+                             ("std_px", (dict,), "an object"),
+                             ("board", (str, dict), "a string or an object")):
+        value = data.get(key)
+        if value is not None and not isinstance(value, kinds):
+            raise InputError(path, f"{key} must be {what} or null, got {value!r:.60}", place=key)
     return Calibration(k, dist, (int(size[0]), int(size[1])), rms_px=rms,
                        per_view=[dict(v) for v in per_view], mm_per_px=scale,
-                       board=data.get("board"), flags=int(data.get("flags") or 0),
+                       board=data.get("board"), flags=flags,
                        std=data.get("std_px"), rejected=list(data.get("rejected") or []),
                        scale=data.get("scale"), source=path)
 
@@ -194,12 +208,19 @@ def load_calibration(path: str | os.PathLike) -> Calibration:
             raise InputError(path, "no such file")
         return _load_opencv_storage(path)
     try:
-        with open(path, encoding="utf-8") as fh:
-            text = fh.read()
+        with open(path, "rb") as fh:
+            raw = fh.read()
     except OSError as exc:
         raise InputError(path, f"cannot read: {exc.strerror or exc}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(path, f"not UTF-8 text ({exc.reason})",
+                         line=raw.count(b"\n", 0, exc.start) + 1) from None
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise InputError(path, f"not valid JSON: {exc.msg}", line=exc.lineno) from None
+    except RecursionError:
+        raise InputError(path, "not valid JSON: nested too deeply") from None
     return calibration_from_dict(data, path)
