@@ -135,3 +135,70 @@ def test_simulate_duration_keeps_the_cruise_speed(tmp_path):
     from fitlug.sim import Scenario
     assert truth["profile"]["v_cruise_mm_s"] == pytest.approx(Scenario().v_cruise)
     assert truth["profile"]["duration_s"] == 3.25 and truth["profile"]["fps"] == 40
+
+
+def _ref_parts():
+    with open(REF) as fh:
+        lines = fh.read().splitlines()
+    n_meta = sum(1 for line in lines if line.startswith("#"))
+    return lines[:n_meta], lines[n_meta], lines[n_meta + 1:]
+
+
+def _frozen(rows):
+    """Every marker held at its first position (plus the file's own noise): no motion."""
+    first, out = {}, []
+    for row in rows:
+        f = row.split(",")
+        x, y = first.setdefault(f[1], (float(f[3]), float(f[4])))
+        noise = (hash(row) % 1000 - 500) * 1e-5
+        out.append(",".join(f[:3] + [repr(x + noise), repr(y - noise)] + f[5:]))
+    return out
+
+
+def _case(kind):
+    meta, header, rows = _ref_parts()
+    rig = "[track]\nload_bearing_length_mm = 127.0\nlugs_in_contact = 8\n[camera]\nfps = 100\n"
+    if kind == "rig_1e300":
+        rig = rig.replace("127.0", "1e300")
+    elif kind == "rig_fps":
+        rig = rig.replace("fps = 100", "fps = 120")
+    elif kind == "meta_fps":
+        meta = ["# fps: 25"] + meta[1:]
+    elif kind == "semicolons":
+        header, rows = header.replace(",", ";"), [r.replace(",", ";") for r in rows]
+    elif kind == "frame_1e19":
+        rows[100] = ",".join(rows[100].split(",")[:5] + ["1e19"])
+    elif kind == "far_off":
+        rows[-1] = ",".join(["649.0"] + rows[-1].split(",")[1:])
+    elif kind == "still":
+        rows = _frozen(rows)
+    elif kind == "metres":
+        rows = [",".join(f[:3] + [repr(float(f[3]) / 1000), repr(float(f[4]) / 1000)] + f[5:])
+                for f in (r.split(",") for r in rows)]
+    return "\n".join(meta + [header] + rows) + "\n", rig
+
+
+@pytest.mark.parametrize("kind,where,problem", [
+    ("rig_1e300", "rig.toml:2", "load_bearing_length_mm = 1e+300 mm is outside the plausible"),
+    ("rig_fps", "rig.toml", "[camera] fps 120 disagrees with the time stamps"),
+    ("meta_fps", "trajectories.csv:1", "metadata fps 25 disagrees with the time stamps"),
+    ("semicolons", "trajectories.csv:4", "the separator looks wrong: ';'"),
+    ("frame_1e19", "trajectories.csv:105", "frame number 1e19 is out of range"),
+    ("far_off", "trajectories.csv:7804", "time_s = 649.0 breaks the frame rate"),
+    ("still", "trajectories.csv", "the robot never moves"),
+    ("metres", "trajectories.csv", "look like metres"),
+])
+def test_bad_recordings_get_one_line_and_no_output(tmp_path, capsys, kind, where, problem):
+    text, rig = _case(kind)
+    folder = tmp_path / "rec"
+    folder.mkdir()
+    (folder / "trajectories.csv").write_text(text)
+    (folder / "rig.toml").write_text(rig)
+    out = tmp_path / "out"
+    assert main([str(folder / "trajectories.csv"), "--no-mcmc", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0, err
+    assert err.startswith(f"fit-lug: error: {folder}/{where}: "), err
+    assert problem in err
+    assert not out.exists()
+    assert (folder / "trajectories.csv").read_text() == text  # inputs never modified
