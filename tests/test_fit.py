@@ -139,10 +139,16 @@ def test_bad_recordings_get_one_line_errors():
         with pytest.raises(InputError, match=text) as ei:
             build_problem(_drop_role(rec, role), rig)
         assert "rec.csv" in str(ei.value) and "\n" not in str(ei.value)
-    # a body marker that is listed but never found
-    x = np.where(rec.marker_index == rec.markers.index("C1"), np.nan, rec.x)
+    # a body marker found once only
+    c1 = np.flatnonzero(rec.marker_index == rec.markers.index("C1"))
+    x = rec.x.copy()
+    x[c1[1:]] = np.nan
     with pytest.raises(InputError, match="body marker C1 has fewer than 2 valid samples"):
         build_problem(rec.with_(x=x), rig)
+    # a body marker that is listed but never found is left out, with a warning (issue 11)
+    x[c1[0]] = np.nan
+    with pytest.warns(UserWarning, match=r"rec\.csv: marker\(s\) C1 have no valid sample"):
+        assert "C1" not in build_problem(rec.with_(x=x), rig).rec.markers
     short = rec.t < 0.1
     few = rec.with_(t=rec.t[short], marker_index=rec.marker_index[short], x=rec.x[short],
                     y=rec.y[short], frame=rec.frame[short])

@@ -116,15 +116,18 @@ def _check_moves(rec, body, lug, sigma) -> None:
 def _check_units(rec, body, lug, sigma) -> None:
     valid = rec.valid
     t, y = rec.t[valid], rec.y[valid]
-    # vertical spread in a frame: markers above and below the wheels and on the body
+    is_body = np.isin(rec.marker_index[valid], rec.markers_of("body"))
+    # vertical spread in a frame, over the frames that see a body and a lug marker: the
+    # body markers sit above the wheels, the lug markers run above and below them
     order = np.argsort(t, kind="stable")
-    ts, ys = t[order], y[order]
-    starts = np.flatnonzero(np.r_[True, ts[1:] != ts[:-1]])
+    ts, ys, bs = t[order], y[order], is_body[order]
+    starts = np.flatnonzero(np.r_[True, ts[1:] != ts[:-1]]) if ts.size else np.empty(0, int)
+    n_body = np.add.reduceat(bs.astype(int), starts) if ts.size else np.empty(0)
     counts = np.diff(np.r_[starts, ts.size])
-    multi = counts >= 2
-    if multi.any():
+    both = (n_body >= 1) & (n_body < counts)
+    if both.any():
         spread = float(np.median((np.maximum.reduceat(ys, starts)
-                                  - np.minimum.reduceat(ys, starts))[multi]))
+                                  - np.minimum.reduceat(ys, starts))[both]))
         lo, hi = SPREAD_MM
         if not lo <= spread <= hi:
             raise InputError(rec.path, f"the markers' vertical spread in a frame is "
@@ -184,8 +187,12 @@ def check_recording(rec, rig):
     Raises:
         InputError: naming the file and what looks wrong (see the module docstring).
     """
+    from ._problem import MIN_FRAMES
+
     rec = _drop_empty(rec)
     _check_rig_fps(rec, rig)
+    if np.unique(rec.t[rec.valid]).size < MIN_FRAMES:
+        return rec  # too short to judge: build_problem says how many frames it needs
     body, lug = _per_marker(rec, "body"), _per_marker(rec, "lug")
     sigma = _noise(body + lug)
     if body:
