@@ -657,3 +657,18 @@ def test_an_empty_marker_is_dropped_by_name():
     body = np.isin(ref.marker_index, ref.markers_of("body"))
     with pytest.raises(InputError, match=r"every body marker \(C1, C2\) is empty"):
         check_recording(ref.with_(x=np.where(body, np.nan, ref.x)), Rig())
+
+
+def test_wide_rows_in_any_order(tmp_path):
+    text = "time_s,frame,C1_x_mm,C1_y_mm,B1_x_mm,B1_y_mm\n" \
+           "0.02,2,5,6,7,8\n0.00,0,1,2,3,4\n0.01,1,,,5,6\n0.00,0,1,2,3,4\n"
+    with pytest.warns(UserWarning, match="repeated row"):
+        rec = read_trajectories(_write(tmp_path, text))
+    assert rec.markers == ("C1", "B1") and rec.roles == ("body", "lug")
+    assert rec.t.tolist() == [0.0, 0.01, 0.02] * 2 and rec.frame.tolist() == [0, 1, 2] * 2
+    assert np.array_equal(rec.x, [1, np.nan, 5, 3, 5, 7], equal_nan=True)
+    assert rec.y.tolist()[3:] == [4.0, 6.0, 8.0]
+    backwards = text.replace("0.02,2,", "0.005,2,").rsplit("0.00,0", 1)[0]
+    with pytest.raises(InputError, match=r":4: time going backwards for every marker: frame 1 "
+                                         r"at 0\.01 s here, frame 2 at 0\.005 s on line 2"):
+        read_trajectories(_write(tmp_path, backwards, "b.csv"))

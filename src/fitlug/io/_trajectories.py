@@ -229,7 +229,7 @@ def _ints(table: _Table, j: int, name: str) -> np.ndarray:
 
 
 def _who(markers: list[str], k) -> str:
-    return f"marker {markers[int(k)]}" if markers else "the rows"
+    return f"marker {markers[int(k)]}" if markers else "every marker"
 
 
 def _same_sample(values: list[np.ndarray], a: int, b: int) -> bool:
