@@ -623,6 +623,11 @@ def test_plausibility_checks_name_what_looks_wrong():
         check_recording(fast, Rig(fps=10000.0))
     with pytest.raises(InputError, match=r"\[camera\] fps 50 disagrees"):
         check_recording(ref, Rig(fps=50.0))
+    far = ref.t.copy()
+    far[np.argmax(far)] = 649.0
+    with pytest.raises(InputError, match=r"time_s = 649\.0 breaks the frame rate: a gap of "
+                                         r"642\.51 s against a frame interval of 0\.01 s"):
+        check_recording(ref.with_(t=far), rig)
 
 
 def test_a_robot_that_never_moves_is_named():

@@ -18,6 +18,7 @@ number, and drops markers that hold no sample at all (with a warning line):
   interval (at most 1 s). The message names the figure, its plausible range and the
   unit the data look like (metres or micrometres as mm, milliseconds as s). Noise below
   0.1 µm alone is not refused: a noiseless simulation has it.
+- a time stamp far off (a gap of more than 1000 frame intervals), and
 - a [camera] fps in rig.toml that disagrees with the time stamps (fitlug.io checks it
   when it reads the file with its rig; this repeats it for recordings built in memory).
 """
@@ -181,6 +182,23 @@ def _check_rig_fps(rec, rig) -> None:
                          f"{step / dt:.6g} fps")
 
 
+def _check_gaps(rec) -> None:
+    """A time stamp far off (fitlug.io names its line when it reads a file; this guards
+    recordings built in memory): refused before anything is allocated per frame."""
+    times = np.unique(rec.t)
+    if times.size < 3:
+        return
+    with np.errstate(over="ignore", invalid="ignore"):
+        d = np.diff(times)
+    med = float(np.median(d))
+    g = int(np.argmax(d))
+    if not d[g] <= 1000 * med:
+        odd = times[g + 1] if times.size - g - 1 <= g + 1 else times[g]
+        raise InputError(rec.path, f"time_s = {float(odd)!r} breaks the frame rate: a gap of "
+                                   f"{float(d[g]):.6g} s against a frame interval of "
+                                   f"{med:.6g} s (a time stamp far off?)")
+
+
 def check_recording(rec, rig):
     """The recording to fit: `rec` less its empty markers (warned), after the checks above.
 
@@ -189,6 +207,7 @@ def check_recording(rec, rig):
     """
     from ._problem import MIN_FRAMES
 
+    _check_gaps(rec)
     rec = _drop_empty(rec)
     _check_rig_fps(rec, rig)
     if np.unique(rec.t[rec.valid]).size < MIN_FRAMES:
