@@ -81,10 +81,9 @@ class Scenario:
         useless or broken recording (non-finite, out of range, too few frames, a speed
         profile whose rests and ramps do not fit in the duration)."""
         def number(name, lo=None, hi=None, *, lo_open=False, hi_open=False, integer=False):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) \
-                    or not math.isfinite(value):
-                raise ValueError(f"{name}: must be a finite number, got {value!r}")
+            value = _finite(getattr(self, name))
+            if value is None:
+                raise ValueError(f"{name}: must be a finite number, got {getattr(self, name)!r}")
             if integer and not float(value).is_integer():
                 raise ValueError(f"{name}: must be an integer, got {value!r}")
             below = lo is not None and (value <= lo if lo_open else value < lo)
@@ -128,7 +127,7 @@ class Scenario:
         number("lug_spacing", 1, integer=True)
         number("sigma_start_mm")
         if len(self.body_markers) < 1 or not all(
-                len(c) == 2 and all(isinstance(v, (int, float)) and math.isfinite(v) for v in c)
+                hasattr(c, "__len__") and len(c) == 2 and all(_finite(v) is not None for v in c)
                 for c in self.body_markers):
             raise ValueError(f"body_markers: must be one or more (x, y) offsets in mm, got "
                              f"{self.body_markers!r}")
@@ -147,6 +146,16 @@ class Scenario:
                 if k not in CATALOG[eid].defaults:
                     raise ValueError(f"effects: {eid} has no parameter {k!r}; known: "
                                      f"{', '.join(CATALOG[eid].defaults)}")
-                if isinstance(v, bool) or not isinstance(v, (int, float)) \
-                        or not math.isfinite(v):
+                if _finite(v) is None:
                     raise ValueError(f"effects: {eid} {k} must be a finite number, got {v!r}")
+
+
+def _finite(value) -> float | None:
+    """`value` as a finite float (numpy and JAX scalars too), else None (bools: None)."""
+    if isinstance(value, bool):
+        return None
+    try:
+        number = float(value)
+    except (TypeError, ValueError, OverflowError):
+        return None
+    return number if math.isfinite(number) else None
