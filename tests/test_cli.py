@@ -125,11 +125,37 @@ def test_simulate_help_lists_the_effects_and_their_parameters(capsys):
     from fitlug.model.effects import CATALOG
     with pytest.raises(SystemExit):
         main(["simulate", "--help"])
-    out = capsys.readouterr().out
+    lines = capsys.readouterr().out.splitlines()
     for eid, cls in CATALOG.items():
-        line = next(x for x in out.splitlines() if x.strip().startswith(eid + " "))
+        i = next(i for i, x in enumerate(lines) if x.strip().startswith(eid + " "))
+        # fit.json's names: what the report of a non-identity effect holds
+        reported = cls.report({k: 0.5 for k in cls.defaults})
+        assert lines[i].split("fit.json:")[1].strip().split(", ") == list(reported)
         for param in cls.defaults:
-            assert param + "=" in line, (eid, param)
+            assert param + "=" in lines[i + 1], (eid, param)
+
+
+@pytest.mark.parametrize("eid", ["lug_ripple", "wheel_runout", "body_bounce", "lug_sliding",
+                                 "belt_sag", "ground_sinkage", "lens_distortion",
+                                 "marker_depth", "camera_tilt", "frame_drop"])
+def test_effect_parameters_under_fit_json_names(eid):
+    """--effect with fit.json's names reproduces what fit.json would report."""
+    import numpy as np
+
+    from fitlug.cli._simulate import parse_effect
+    from fitlug.model.effects import CATALOG
+    cls = CATALOG[eid]
+    rng = np.random.default_rng(5)
+    p = {k: float(abs(cls.scales.get(k, 1.0)) * rng.uniform(0.5, 2.0)) for k in cls.defaults}
+    reported = cls.report(p)
+    given = {k: v for k, v in reported.items() if v is not None and k != "inv_s_K"}
+    if eid == "marker_depth":  # its centre is not reported: give it by the model's names
+        given.update(depth_cx=p["depth_cx"], depth_cy=p["depth_cy"])
+    text = eid + ":" + ",".join(f"{k}={v!r}" for k, v in given.items())
+    _, model = parse_effect(text)
+    again = cls.report({**cls.defaults, **model})
+    for k, v in reported.items():
+        assert again[k] == pytest.approx(v, rel=1e-12, abs=1e-15), (k, text)
 
 
 def _ref_parts():

@@ -9,17 +9,64 @@ import os
 from ._common import progress_enabled, say
 
 
+# fit.json's name of an effect parameter -> (model parameter, value -> model value), for the
+# effects whose report renames a parameter one to one; lug_ripple and wheel_runout report
+# the polar form (epsilon, phi_rad) of their (a, b) and are converted in _to_model
+_FIT_NAMES = {
+    "body_bounce": {"A_mm": ("bounce_A", float), "B_per_mm": ("bounce_B", float),
+                    "phi_rad": ("bounce_phi", float)},
+    "lug_sliding": {"inv_s_K": ("slide_mu", float), "s_K": ("slide_mu", lambda v: 1.0 / v)},
+    "belt_sag": {"d_mm": ("sag_d", float)},
+    "ground_sinkage": {"z_max_mm": ("sink_z", float), "u_s_mm": ("sink_us", float)},
+    "lens_distortion": {"k1_per_mm2": ("lens_k1", float), "x_c_mm": ("lens_cx", float),
+                        "y_c_mm": ("lens_cy", float)},
+    "marker_depth": {"epsilon": ("depth_eps", float)},
+    "camera_tilt": {"theta_rad": ("tilt_theta", float)},
+    "frame_drop": {"dt_s": ("drop_dt", float), "t_star_s": ("drop_tstar", float)},
+}
+_POLAR = ("lug_ripple", "wheel_runout")
+
+
+def fit_json_names(cls) -> list[str]:
+    """The parameter names fit.json reports for effect class `cls` (from its report)."""
+    return list(cls.report({k: abs(cls.scales.get(k, 1.0)) or 1.0 for k in cls.defaults}))
+
+
+def _to_model(cls, vals: dict[str, float], text: str) -> dict[str, float]:
+    """Parameters given under fit.json's names, as the model's parameters."""
+    model = {k: v for k, v in vals.items() if k in cls.defaults}
+    given = {k: v for k, v in vals.items() if k not in cls.defaults}
+    if not given:
+        return model
+    if cls.id in _POLAR:
+        unknown = set(given) - {"epsilon", "phi_rad"}
+        if unknown or "epsilon" not in given:
+            raise ValueError(f"--effect {text!r}: {cls.id} takes epsilon[, phi_rad] (as in "
+                             f"fit.json) or {', '.join(cls.defaults)}")
+        eps, phi = given["epsilon"], given.get("phi_rad", 0.0)
+        model.update({f"{cls.prefix}_a": eps * math.cos(phi),
+                      f"{cls.prefix}_b": eps * math.sin(phi)})
+        return model
+    for name, value in given.items():
+        target, convert = _FIT_NAMES.get(cls.id, {})[name]
+        try:
+            model[target] = convert(value)
+        except ZeroDivisionError:
+            raise ValueError(f"--effect {text!r}: {name} must not be 0") from None
+    return model
+
+
 def _effects_help() -> str:
     """The catalog effects and their parameters (the names fit.json uses), for --help."""
     from ..model.effects import CATALOG
 
-    lines = ["effects (--effect ID:P=V,...): parameters as fit.json names them, each shown at",
-             "its identity value (no effect) and, after ~, a typical magnitude; give at least",
-             "one away from its identity value:"]
+    lines = ["effects: --effect ID:P=V,... with P as fit.json names it, or as the model does",
+             "(identity value = no effect, ~ a typical size; give one away from its identity):"]
     for eid, cls in CATALOG.items():
-        params = ", ".join(f"{k}={v:g} (~{cls.scales.get(k, 0):g})"
-                           for k, v in cls.defaults.items())
-        lines.append(f"  {eid:<16} {params}")
+        model = ", ".join(f"{k}={v:g} (~{cls.scales.get(k, 0):g})"
+                          for k, v in cls.defaults.items())
+        lines.append(f"  {eid:<16} fit.json: {', '.join(fit_json_names(cls))}")
+        lines.append(f"  {'':<16} model:    {model}")
     return "\n".join(lines)
 
 
@@ -57,10 +104,11 @@ def parse_effect(text: str) -> tuple[str, dict]:
     eid, _, rest = text.partition(":")
     cls = get(eid.strip())
     vals = {}
+    names = list(cls.defaults) + [n for n in fit_json_names(cls) if n not in cls.defaults]
     for item in filter(None, (s.strip() for s in rest.split(","))):
         k, sep, v = item.partition("=")
-        if not sep or k.strip() not in cls.defaults:
-            raise ValueError(f"--effect {text!r}: expected P=V with P one of {list(cls.defaults)}")
+        if not sep or k.strip() not in names:
+            raise ValueError(f"--effect {text!r}: expected P=V with P one of {names}")
         try:
             value = float(v)
         except ValueError:
@@ -69,6 +117,7 @@ def parse_effect(text: str) -> tuple[str, dict]:
             raise ValueError(f"--effect {text!r}: {k.strip()} must be a finite number, "
                              f"got {v.strip()!r}")
         vals[k.strip()] = value
+    vals = _to_model(cls, vals, text)
     if all(vals.get(k, d) == d for k, d in cls.defaults.items()):
         name, scale = next(iter(cls.scales.items()), (next(iter(cls.defaults)), 1.0))
         identity = ", ".join(f"{k}={d:g}" for k, d in cls.defaults.items())
