@@ -39,7 +39,10 @@ class TrackerConfig:
     max_gap: frames a lost marker is searched for before its track is closed; max_step:
     the farthest a marker may move between two frames before its speed is known;
     min_quality: samples below it are gaps; min_length: shorter tracks are dropped;
-    qs_iter: Levenberg-Marquardt steps per frame.
+    qs_iter: Levenberg-Marquardt steps per frame; watch_frames: frames for which the place
+    a closed track's marker would be is searched (a small region detection each frame), so
+    that a marker lost behind an occluder or to a bad sample is picked up again (under a
+    new id) without waiting for the next whole-frame search.
     """
 
     kinds: tuple = (COG, QS)
@@ -54,6 +57,7 @@ class TrackerConfig:
     min_quality: float = 0.5
     min_length: int = 5
     qs_iter: int = 1
+    watch_frames: int = 40
 
 
 class Tracker:
@@ -68,6 +72,7 @@ class Tracker:
         self.cog_radius = self.config.cog_radius
         self.qs_half = self.config.qs_half
         self._n = 0
+        self._watch: list = []  # (closed track, last frame to search for its marker)
 
     # -- helpers ---------------------------------------------------------------------------
     def _detect(self, frame, roi=None, kinds=None, scale=1):
@@ -117,9 +122,13 @@ class Tracker:
             self._search(frame, frame_no, t, xy, unc, found)
         self._accept(frame_no, found)
         if self._n % cfg.redetect_every == 0:
+            self._watch.clear()
             self._pick_up(frame, frame_no)
-        elif cfg.edge_every and self._n % cfg.edge_every == 0:
-            self._pick_up_at_edges(frame, frame_no)
+        else:
+            if self._watch:
+                self._pick_up_lost(frame, frame_no)
+            if cfg.edge_every and self._n % cfg.edge_every == 0:
+                self._pick_up_at_edges(frame, frame_no)
         self._n += 1
 
     def _cog_quality(self, t, area, radius, shear):
@@ -128,11 +137,17 @@ class Tracker:
         across the blur or its shape (traceless second moments, px²)."""
         if t.area is None:
             return 1.0
-        # tolerances ~8x the scatter on clean frames (0.08 %, 0.07 %, 0.015 px²): a disc that
-        # lost 0.6 % of its area at the rim has moved ~0.04 px and scores 0.5
+        # tolerances ~8x the scatter on clean frames of big discs (0.08 %, 0.07 %,
+        # 0.015 px²): a disc that lost 0.6 % of its area at the rim has moved ~0.04 px and
+        # scores 0.5. Small discs in noisy frames scatter more: their relative area and
+        # radius by ~0.9 and ~0.6 noise / (contrast x radius), their shear by ~1.4 noise /
+        # contrast px² (measured on renders, 8-15 px discs, noise 2-4): the tolerances
+        # never go below 3.5 times that.
+        rel = self.noise / max(t.contrast * t.radius, 1e-9)
         ds = math.hypot(shear[0] - t.shear[0], shear[1] - t.shear[1])
-        return min(score(area / t.area - 1, 0.006), score(radius / t.radius - 1, 0.005),
-                   score(ds, 0.12 + 0.2 * math.hypot(*t.shear)))
+        return min(score(area / t.area - 1, max(0.006, 3.5 * 1.0 * rel)),
+                   score(radius / t.radius - 1, max(0.005, 3.5 * 0.7 * rel)),
+                   score(ds, max(0.12, 3.5 * 1.6 * rel * t.radius) + 0.2 * math.hypot(*t.shear)))
 
     def _blur(self, t):
         """Motion-blur streak to allow for, px, and its direction (None: unknown), from the
@@ -152,17 +167,24 @@ class Tracker:
         radius = np.array([t.size for t in tracks])
         blur = [self._blur(t) for t in tracks]
         known = all(d is not None for _, d in blur)
+        # the lighting's slope across each disc, averaged along its track: fitted on the
+        # few interior pixels of a small disc in one frame it is noisy enough to move the
+        # centre by more than the slope itself does
+        slopes = [t.slope for t in tracks]
+        gain = np.array(slopes) if all(g is not None for g in slopes) else None
         fit = refine_cog(frame, pred, radius, blur_px=np.array([b for b, _ in blur]),
-                         blur_dir=np.array([d for _, d in blur]) if known else None)
+                         blur_dir=np.array([d for _, d in blur]) if known else None,
+                         gain_slope=gain)
         area = (fit.flux / np.where(fit.level > 0, fit.level, np.inf)).tolist()
         xy, radii, shear = fit.xy.tolist(), fit.radius.tolist(), fit.shear.tolist()
+        slope = fit.slope.tolist()
         for i, t in enumerate(tracks):
             x, y = xy[i]
             if x != x:  # NaN: the window left the frame
                 continue
             q = self._cog_quality(t, area[i], radii[i], shear[i])
             if math.hypot(x - pred[i, 0], y - pred[i, 1]) <= 1.0 + 3.0 * items[i][2]:
-                found[t.uid] = (fit.xy[i], q, (area[i], radii[i], shear[i]))
+                found[t.uid] = (fit.xy[i], q, (area[i], radii[i], shear[i], slope[i]))
 
     def _refine_qs(self, frame, frame_no, items, found):
         cfg = self.config
@@ -208,7 +230,7 @@ class Tracker:
         if t.kind == COG:
             fit = refine_cog(frame, det.xy[j:j + 1], t.size, blur_px=self._blur(t)[0], n_iter=3)
             area = fit.flux[0] / fit.level[0] if fit.level[0] > 0 else 0.0
-            extra = (area, fit.radius[0], fit.shear[0])
+            extra = (area, fit.radius[0], fit.shear[0], fit.slope[0].tolist())
             q = self._cog_quality(t, area, fit.radius[0], fit.shear[0])
         else:
             row = int(np.flatnonzero(det.kind[:j + 1] == QS).size - 1)
@@ -238,6 +260,8 @@ class Tracker:
                 t.misses += 1
                 if t.misses > cfg.max_gap or (not t.confirmed and t.misses > 1):
                     t.alive = False
+                    if cfg.watch_frames > 0 and (t.confirmed or len(t.frames) >= 2):
+                        self._watch.append((t, frame_no + cfg.watch_frames))
                 continue
             xy, q, extra = got
             t.add(frame_no, xy, q)
@@ -248,6 +272,8 @@ class Tracker:
                 t.shear = extra[2] if t.shear is None else \
                     [0.8 * t.shear[0] + 0.2 * extra[2][0], 0.8 * t.shear[1] + 0.2 * extra[2][1]]
                 t.size = t.radius
+                t.slope = extra[3] if t.slope is None else \
+                    [0.9 * t.slope[0] + 0.1 * extra[3][0], 0.9 * t.slope[1] + 0.1 * extra[3][1]]
             else:
                 if extra[0] is not None:
                     t.rms = ema(t.rms, extra[0])
@@ -262,6 +288,39 @@ class Tracker:
     def _pick_up(self, frame, frame_no):
         """Whole-frame search for markers no track follows."""
         self._add_new(self._detect(frame, scale=self._search_scale()), frame_no)
+
+    def _pick_up_lost(self, frame, frame_no):
+        """Search where the markers of recently closed tracks would be now (their
+        prediction, the region growing with the time since their last sample); a marker
+        found there that no live track follows starts a new track."""
+        cfg = self.config
+        h, w = frame.shape
+        keep = []
+        for t, until in self._watch:
+            if frame_no > until:
+                continue
+            (px, py), unc = t.predict(frame_no)
+            k = frame_no - t.frames[-1]
+            reach = cfg.max_step if unc is None else min(unc * 3.0 + 2.0 + 0.5 * k,
+                                                         cfg.max_step * 2)
+            pad = reach + 2.5 * t.size + 4
+            if not (-pad < px < w + pad and -pad < py < h + pad):
+                continue  # gone out of the picture
+            n_before = len(self.tracks)
+            det = self._detect(frame, roi=(px - pad, py - pad, px + pad + 1, py + pad + 1),
+                               kinds=(t.kind,))
+            if len(det):
+                d = np.hypot(*(det.xy - np.array([px, py])).T)
+                near = d <= reach
+                if near.any():
+                    sel = np.flatnonzero(near)
+                    det = Detections(det.xy[sel], det.kind[sel], det.size[sel], det.contrast[sel],
+                                     {k_: v[np.flatnonzero(near[det.kind == QS])]
+                                      for k_, v in det.extra.items()})
+                    self._add_new(det, frame_no)
+            if len(self.tracks) == n_before:
+                keep.append((t, until))
+        self._watch = keep
 
     def _pick_up_at_edges(self, frame, frame_no):
         """Markers come into view across the frame's edges: search the strips along them
