@@ -7,6 +7,8 @@ stadium path with a constant slip - without importing JAX.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 
@@ -79,10 +81,9 @@ def hard_clip(n_frames: int = 120, image_size=(480, 320), *, seed: int = 0,
     round).
 
     The stadium is sized to the image (d_mm, r_mm default from its width and height); the
-    rig starts with its rear at the left third. Yields nothing lazily: returns (t (F,),
-    frames (F, H, W) uint8, truth (F, M, 2) px, visible (F, M) bool, kinds [str], and with
-    `keep_sub` the sub-frame positions (F, n_sub, M, 2) px, else None). `visible`: the
-    marker is whole in the picture, clear of the bar and of other markers.
+    rig starts with its rear at a fifth of the width. Returns a `HardClip` (frames in
+    memory); `visible`: the marker is whole in the picture, clear of the bar and of other
+    markers; with `keep_sub` the sub-frame positions too (for Cramer-Rao bounds).
     """
     from ._render import RenderOptions, default_camera, ground_to_pixels, gain_field
     from ._render import subframe_positions, render_frame, KINDS
@@ -106,7 +107,6 @@ def hard_clip(n_frames: int = 120, image_size=(480, 320), *, seed: int = 0,
     if origin_mm is None:  # rear of the stadium at a quarter of the width, body mid-height
         origin_mm = (-(0.5 * d + r) - 0.2 * width_mm, r - 0.5 * height_mm)
     kinds = [KINDS[x] for x in roles]
-    radii = np.array([(cog_px if k == "cog" else qs_px / 2 ** 0.5 * 1.0) for k in kinds])
     # visibility: the whole lug disc (twice the bright disc) for COG, the square for QS
     radii = np.where(np.array(kinds) == "cog", cog_px, 0.5 * qs_px * 2 ** 0.5)
     sub = subframe_positions(t, xy, opt.exposure_s, opt.n_sub)
@@ -126,4 +126,24 @@ def hard_clip(n_frames: int = 120, image_size=(480, 320), *, seed: int = 0,
         visible[i] = _visible(truth[i], radii, cam, o)
         if keep_sub:
             subs[i] = sub_px
-    return t, frames, truth, visible, kinds, subs
+    return HardClip(t, frames, truth, visible, kinds, subs, opt, cam, float(bar_px),
+                    float(bar_speed_px))
+
+
+@dataclass
+class HardClip:
+    """Frames of `hard_clip` with their truth: `t` (F,) s, `frames` (F, H, W) uint8,
+    `truth` (F, M, 2) px, `visible` (F, M) bool, `kinds` ('cog'/'qs' per marker), `sub_px`
+    (F, n_sub, M, 2) px or None, the `options` and `camera` drawn with (the bar apart:
+    `bar_px` wide, moving `bar_speed_px` px per frame)."""
+
+    t: np.ndarray
+    frames: np.ndarray
+    truth: np.ndarray
+    visible: np.ndarray
+    kinds: list
+    sub_px: np.ndarray | None
+    options: object
+    camera: object
+    bar_px: float
+    bar_speed_px: float
