@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ._detect import COG, QS, Detections, detect_markers, estimate_noise
-from ._qs import _B, N_PARAMS, refine_qs
+from ._qs import _B, _SLOPES, N_PARAMS, refine_qs
 from ._refine import refine_cog
 from ._trackstate import ema, score, Track
 
@@ -195,13 +195,17 @@ class Tracker:
         warm = all(t.params is not None for t in tracks)
         half = np.array([t.size for t in tracks])
         fit = refine_qs(frame, pred, half, params=params if warm else None,
-                        search=0 if unc < 0.75 else int(np.ceil(unc)) + 1, n_iter=cfg.qs_iter)
+                        search=0 if unc < 0.75 else int(np.ceil(unc)) + 1, n_iter=cfg.qs_iter,
+                        hold_slopes=warm)
         # a fit still on its way (residual well above the track's) gets more steps
         ref = np.array([max(t.rms, self.noise) if t.rms is not None else np.inf for t in tracks])
         slow = np.isfinite(fit.xy[:, 0]) & (fit.rms > 1.2 * ref)
         if slow.any():
-            more = refine_qs(frame, fit.xy[slow], half[slow], params=fit.params[slow], search=0,
-                             n_iter=4)
+            held = fit.params[slow].copy()
+            if warm:
+                held[:, _SLOPES] = params[slow][:, _SLOPES]
+            more = refine_qs(frame, fit.xy[slow], half[slow], params=held, search=0,
+                             n_iter=4, hold_slopes=warm)
             for name in ("xy", "rms", "contrast", "params"):
                 getattr(fit, name)[slow] = getattr(more, name)
         for i, t in enumerate(tracks):
@@ -278,7 +282,10 @@ class Tracker:
                 if extra[0] is not None:
                     t.rms = ema(t.rms, extra[0])
                 t.contrast = float(extra[1])  # the last one: lighting drifts along the track
-                t.params = extra[2]
+                p = np.array(extra[2], dtype=np.float64)
+                if t.params is not None:  # the lighting's slopes: averaged along the track
+                    p[_SLOPES] = 0.9 * t.params[_SLOPES] + 0.1 * p[_SLOPES]
+                t.params = p
 
     def _search_scale(self):
         # with the sizes known and the markers big enough, search a half-size image
