@@ -30,7 +30,8 @@ class QsFit:
     the two edges, px, `contrast` (half the light-dark difference, signed: > 0 when the
     top-left quadrant is light), `rms` (fit residual, grey levels), `inside` (bool),
     `params` (M, N_PARAMS) for warm starts (position in the frame, levels at the marker's
-    centre)."""
+    centre), `dof` (M,) degrees of freedom of the residual (weighted pixels less the
+    parameters: `rms` scatters by ~1/sqrt(2 dof) relative)."""
 
     xy: np.ndarray
     angle: np.ndarray
@@ -39,6 +40,7 @@ class QsFit:
     rms: np.ndarray
     inside: np.ndarray
     params: np.ndarray
+    dof: np.ndarray | None = None
 
 
 def _edge(u, b, derivatives=True):
@@ -211,14 +213,15 @@ def _fit(win, rfit, x, y, p, n_iter, prior=None, hold=False):
         step[:, 3:5] = np.clip(step[:, 3:5], -0.25, 0.25)
         p = best + step
         p[:, 3:5] = np.clip(p[:, 3:5], 0.05, 8.0)
-    rms = np.sqrt(best_data / np.maximum(weight - N_PARAMS, 1))
+    dof = np.maximum(weight - N_PARAMS, 1)
+    rms = np.sqrt(best_data / dof)
     slopes = best[:, _SLOPES].copy()
     if hold and hess is not None:
         # the gradient at the final parameters, linearised from where it was taken
         g = grad - (hess @ (best - at)[..., None])[..., 0]
         sub = hess[:, _SLOPES[:, None], _SLOPES[None, :]] + 1e-9 * np.eye(4)
         slopes += np.linalg.solve(sub, g[:, _SLOPES, None])[..., 0]
-    return best, rms, slopes
+    return best, rms, slopes, dof
 
 
 def _edge_widths(win):
@@ -282,7 +285,7 @@ def refine_qs(frame: np.ndarray, xy0: np.ndarray, half_size, *, params: np.ndarr
         sign = np.sign(x - p[:, :1]) * np.sign(y - p[:, 1:2])
         p[:, _B] = ((win - p[:, _A, None]) * sign * mask).sum(axis=1) / n
     hold = hold_slopes and params is not None
-    p, rms, slopes = _fit(win, rfit, x, y, p, n_iter, None if params is None else params[:, 3:5],
+    p, rms, slopes, dof = _fit(win, rfit, x, y, p, n_iter, None if params is None else params[:, 3:5],
                           hold=hold)
     xy = base + p[:, :2]
     bad = ~inside | ~np.isfinite(xy).all(axis=1) | (np.abs(p[:, :2]) > 2).any(axis=1)
@@ -292,4 +295,4 @@ def refine_qs(frame: np.ndarray, xy0: np.ndarray, half_size, *, params: np.ndarr
     out[:, _A] += p[:, _A + 1] * p[:, 0] + p[:, _A + 2] * p[:, 1]
     out[:, _B] += p[:, _B + 1] * p[:, 0] + p[:, _B + 2] * p[:, 1]
     out[:, _SLOPES] = slopes
-    return QsFit(xy, p[:, 2].copy(), p[:, 3:5].copy(), out[:, _B].copy(), rms, inside, out)
+    return QsFit(xy, p[:, 2].copy(), p[:, 3:5].copy(), out[:, _B].copy(), rms, inside, out, dof)

@@ -144,10 +144,14 @@ class Tracker:
         # contrast px² (measured on renders, 8-15 px discs, noise 2-4): the tolerances
         # never go below 3.5 times that.
         rel = self.noise / max(t.contrast * t.radius, 1e-9)
+        # the references of a young track rest on a few samples, the first of them taken
+        # with a round aperture before the blur's direction was known: wider tolerances
+        young = 1.0 if t.confirmed else 3.0
         ds = math.hypot(shear[0] - t.shear[0], shear[1] - t.shear[1])
-        return min(score(area / t.area - 1, max(0.006, 3.5 * 1.0 * rel)),
-                   score(radius / t.radius - 1, max(0.005, 3.5 * 0.7 * rel)),
-                   score(ds, max(0.12, 3.5 * 1.6 * rel * t.radius) + 0.2 * math.hypot(*t.shear)))
+        return min(score(area / t.area - 1, young * max(0.006, 3.5 * 1.0 * rel)),
+                   score(radius / t.radius - 1, young * max(0.005, 3.5 * 0.7 * rel)),
+                   score(ds, young * max(0.12, 3.5 * 1.6 * rel * t.radius)
+                         + 0.2 * math.hypot(*t.shear)))
 
     def _blur(self, t):
         """Motion-blur streak to allow for, px, and its direction (None: unknown), from the
@@ -206,14 +210,17 @@ class Tracker:
                 held[:, _SLOPES] = params[slow][:, _SLOPES]
             more = refine_qs(frame, fit.xy[slow], half[slow], params=held, search=0,
                              n_iter=4, hold_slopes=warm)
-            for name in ("xy", "rms", "contrast", "params"):
+            for name in ("xy", "rms", "contrast", "params", "dof"):
                 getattr(fit, name)[slow] = getattr(more, name)
         for i, t in enumerate(tracks):
             if not np.isfinite(fit.xy[i, 0]):
                 continue
             q = score(fit.contrast[i] / t.contrast - 1, 0.1)
             if t.rms is not None:  # occlusion or a wrong fit: the residual jumps
-                q = min(q, score(max(fit.rms[i] / max(t.rms, self.noise) - 1, 0.0), 0.25))
+                # (by more than its own scatter: ~1/sqrt(2 dof) relative, large for the few
+                # pixels of a small checker)
+                tol = max(0.25, 3.5 / math.sqrt(2.0 * max(float(fit.dof[i]), 1.0)))
+                q = min(q, score(max(fit.rms[i] / max(t.rms, self.noise) - 1, 0.0), tol))
             d = np.hypot(*(fit.xy[i] - pred[i]))
             if d <= 1.0 + 3.0 * items[i][2]:
                 found[t.uid] = (fit.xy[i], q, (fit.rms[i], fit.contrast[i], fit.params[i]))
