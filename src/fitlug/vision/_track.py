@@ -9,9 +9,16 @@ prediction; else the frame is a gap (a partly hidden, merged or cut-off marker g
 position rather than a wrong one). A track that misses is searched for around its
 prediction for `max_gap` frames (a region detection), then closed: a marker seen again
 later gets a new id, never an old one. New markers: a whole-frame search on the first
-frame and every `redetect_every` frames, and a cheap search along the frame's edges
-every `edge_every` frames for markers coming into view; a detection on a live track's
-marker is not a new marker.
+frame and every `redetect_every` frames, a cheap search along the frame's edges every
+`edge_every` frames for markers coming into view, and for `watch_frames` frames a region
+search where the marker of a closed track would be (back from behind an occluder, or
+after samples that failed the checks); a detection on a live track's marker is not a
+new marker.
+
+The checks scale with the noise: a small disc (8-10 px across) in a noisy frame (sigma 4
+grey levels) scatters in area and width several times more than the fixed tolerances
+made for big discs allow. The lighting's slope across each marker is averaged along its
+track rather than fitted afresh on the few pixels of one frame.
 """
 
 from __future__ import annotations
