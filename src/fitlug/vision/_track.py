@@ -147,18 +147,26 @@ class Tracker:
         # tolerances ~8x the scatter on clean frames of big discs (0.08 %, 0.07 %,
         # 0.015 px²): a disc that lost 0.6 % of its area at the rim has moved ~0.04 px and
         # scores 0.5. Small discs in noisy frames scatter more: their relative area and
-        # radius by ~0.9 and ~0.6 noise / (contrast x radius), their shear by ~1.4 noise /
-        # contrast px² (measured on renders, 8-15 px discs, noise 2-4): the tolerances
-        # never go below 3.5 times that.
+        # radius by ~0.9 and ~0.6 noise / (contrast x radius) (8 px discs: 1.1 and 0.95),
+        # their shear by ~1.4 noise / contrast px² (measured on renders, 8-15 px discs,
+        # noise 2-4): the tolerances never go below 3.5 times 1.3, 1.1 and 1.6 that.
         rel = self.noise / max(t.contrast * t.radius, 1e-9)
         # the references of a young track rest on a few samples, the first of them taken
         # with a round aperture before the blur's direction was known: wider tolerances
         young = 1.0 if t.confirmed else 3.0
         ds = math.hypot(shear[0] - t.shear[0], shear[1] - t.shear[1])
-        return min(score(area / t.area - 1, young * max(0.006, 3.5 * 1.0 * rel)),
-                   score(radius / t.radius - 1, young * max(0.005, 3.5 * 0.7 * rel)),
+        return min(score(area / t.area - 1, young * max(0.006, 3.5 * 1.3 * rel)),
+                   score(radius / t.radius - 1, young * max(0.005, 3.5 * 1.1 * rel)),
                    score(ds, young * max(0.12, 3.5 * 1.6 * rel * t.radius)
                          + 0.2 * math.hypot(*t.shear)))
+
+    @staticmethod
+    def _qs_contrast_tol(t):
+        """Relative change of a checker's contrast allowed between samples: 10 %; the
+        contrast of a checker under 10 px a side comes with its blur widths, which its few
+        pixels fix poorly: 20 %; and more while the track is young (its reference from the
+        detection's fit, which started without a previous frame)."""
+        return (0.1 if t.size >= 5 else 0.2) * (1.0 if t.confirmed else 2.0)
 
     def _blur(self, t):
         """Motion-blur streak to allow for, px, and its direction (None: unknown), from the
@@ -222,7 +230,7 @@ class Tracker:
         for i, t in enumerate(tracks):
             if not np.isfinite(fit.xy[i, 0]):
                 continue
-            q = score(fit.contrast[i] / t.contrast - 1, 0.1)
+            q = score(fit.contrast[i] / t.contrast - 1, self._qs_contrast_tol(t))
             if t.rms is not None:  # occlusion or a wrong fit: the residual jumps
                 # (by more than its own scatter: ~1/sqrt(2 dof) relative, large for the few
                 # pixels of a small checker)
@@ -253,7 +261,7 @@ class Tracker:
         else:
             row = int(np.flatnonzero(det.kind[:j + 1] == QS).size - 1)
             p = det.extra["qs_params"][row]
-            q = score(p[_B] / t.contrast - 1, 0.1)
+            q = score(p[_B] / t.contrast - 1, self._qs_contrast_tol(t))
             extra = (None, p[_B], p)
         found[t.uid] = (det.xy[j], q, extra)
 
