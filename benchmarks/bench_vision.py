@@ -461,13 +461,12 @@ cam = default_camera(0.39, (w, h), dist_coeffs=None)
 opt = RenderOptions(noise_sigma=2.0, exposure_s=0.0)
 rng = np.random.default_rng(0)
 xy = np.array([[200.0 + 130 * k, 400.0 + 200 * (k % 3)] for k in range(10)])
-# a few distinct noisy frames, markers shifted per frame: the source makes each frame on demand
+# a few distinct noisy frames of still markers, copied: the source makes each frame on demand
 base = [render_frame(np.repeat(xy[None], 1, axis=0), ["cog"] * 8 + ["qs"] * 2, cam, opt, rng)
         for _ in range(4)]
 def frames():
     for i in range(n):
-        img = np.roll(base[i % 4], (i // 50) % 7, axis=1)  # a new array each frame
-        yield i, i / 1000.0, img
+        yield i, i / 1000.0, base[i % 4].copy()  # a new array each frame
 if kind == "cine":
     from fitlug.vision import open_source
     src = open_source(sys.argv[3], fps=1000.0)
