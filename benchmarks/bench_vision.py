@@ -183,7 +183,9 @@ def main(argv=None):
                          "folder (e.g. /work/main/src), side by side, in a subprocess")
     ap.add_argument("--memory", action="store_true",
                     help="peak memory of tracking a streamed synthetic video of 2 000 and "
-                         "20 000 frames (and a .cine), each in its own process")
+                         "20 000 frames, each in its own process")
+    ap.add_argument("--memory-frames", type=int, default=None,
+                    help="--memory: the shorter length (the longer is ten times it)")
     args = ap.parse_args(argv)
     if args.memory:
         return main_memory(args)
@@ -455,7 +457,7 @@ _MEM_CODE = """
 import resource, sys, time, numpy as np
 from fitlug.vision import track
 from fitlug.vision._render import RenderOptions, default_camera, render_frame, gain_field
-n = int(sys.argv[1]); kind = sys.argv[2]
+n = int(sys.argv[1])
 w, h = 1632, 1200
 cam = default_camera(0.39, (w, h), dist_coeffs=None)
 opt = RenderOptions(noise_sigma=2.0, exposure_s=0.0)
@@ -467,15 +469,9 @@ base = [render_frame(np.repeat(xy[None], 1, axis=0), ["cog"] * 8 + ["qs"] * 2, c
 def frames():
     for i in range(n):
         yield i, i / 1000.0, base[i % 4].copy()  # a new array each frame
-if kind == "cine":
-    from fitlug.vision import open_source
-    src = open_source(sys.argv[3], fps=1000.0)
-    it = iter(src); total = len(src)
-else:
-    it = frames(); total = n
 t0 = time.perf_counter()
-res = track(it, fps=1000.0)
-print(n, kind, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+res = track(frames(), fps=1000.0)
+print(n, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
       time.perf_counter() - t0, res.xy_px.shape)
 """
 
@@ -485,12 +481,13 @@ def main_memory(args):
 
     print("peak RSS of tracking a streamed 1632x1200 video (10 markers; a generator making "
           "each frame on demand), each length in a fresh process:")
-    for n in (2000, 20000) if not args.frames or args.frames >= 2000 else (args.frames,
-                                                                            10 * args.frames):
-        out = subprocess.run([sys.executable, "-c", _MEM_CODE, str(n), "gen"], check=True,
+    lengths = (2000, 20000) if args.memory_frames is None else (args.memory_frames,
+                                                                 10 * args.memory_frames)
+    for n in lengths:
+        out = subprocess.run([sys.executable, "-c", _MEM_CODE, str(n)], check=True,
                              capture_output=True, text=True).stdout.split()
-        print(f"  {int(out[0]):>6} frames: peak RSS {float(out[2]):.0f} MiB, "
-              f"{float(out[3]):.0f} s ({int(out[0]) / float(out[3]):.0f} frames/s wall)")
+        print(f"  {int(out[0]):>6} frames: peak RSS {float(out[1]):.0f} MiB, "
+              f"{float(out[2]):.0f} s ({int(out[0]) / float(out[2]):.0f} frames/s wall)")
     return 0
 
 
