@@ -14,6 +14,20 @@ One run prints, side by side:
   apart.
 
     python benchmarks/bench_vision.py [--frames 200] [--seed 1]
+
+`--hard` (issue 14): small markers (COG discs 9 px across, QS checkers 10 px a side; see
+--cog-px, --qs-px), noise sigma = 4, a strong lighting gradient and vignetting, motion blur
+from a 4 ms exposure, a dark bar sweeping across the picture (each marker hidden a few
+frames) and markers leaving it (`fitlug.vision._scene.hard_clip`), over --n recordings
+(--workers processes): detection rate over the frames where a marker is whole and clear,
+identity swaps, RMS per axis and 2-D against the Cramer-Rao bound, and speed; with
+--compare-src DIR the same frames are also tracked by the fitlug found in DIR (e.g. a
+checkout of main's src/) side by side. `--memory`: peak RSS of tracking a streamed
+1632x1200 video of 2 000 and 20 000 frames, each in its own process.
+
+    python benchmarks/bench_vision.py --hard --n 4 --workers 4 --frames 200 \
+        --compare-src /work/main/src
+    python benchmarks/bench_vision.py --memory
 """
 
 from __future__ import annotations
@@ -125,13 +139,18 @@ def corner_subpix(img, xy, rng, win=6):
 
 # -- the Cramer-Rao bound --------------------------------------------------------------------
 
-def crb_variance(kind, sub_px, gain_patch_fn, sigma2, half=24):
+def crb_variance(kind, sub_px, gain_patch_fn, sigma2, half=24, opt=None, s=S):
     """CRB variances (x, y) of one sample: Fisher information of (x, y, brightness,
-    background offset) from the noise-free rendering of its sub-frame positions."""
+    background offset) from the noise-free rendering of its sub-frame positions.
+    opt: the RenderOptions drawn with (default OPT); s: mm per px."""
+    OPT = globals()["OPT"] if opt is None else opt  # noqa: N806
+    S = s  # noqa: N806
     centre = np.round(sub_px.mean(axis=0))
     x0, y0 = int(centre[0]) - half, int(centre[1]) - half
     n = 2 * half + 1
     gain = gain_patch_fn(x0, y0, n)
+    if gain.shape != (n, n) or x0 < 0 or y0 < 0:
+        return np.full(2, np.nan)  # (the patch leaves the frame)
 
     def render(pts, scale=1.0):
         canvas = np.full((n, n), OPT.background)
@@ -162,7 +181,30 @@ def main(argv=None):
                     help="timed passes over the frames for the steady-state speed")
     ap.add_argument("--compare-every", type=int, default=5,
                     help="run the comparison methods and the bound on every Nth frame")
+    ap.add_argument("--hard", action="store_true",
+                    help="the hard scenario: small markers (COG discs 9 px, QS checkers 10 px), "
+                         "noise sigma 4, strong lighting gradient, motion blur, a dark bar "
+                         "sweeping across, markers leaving the picture (issue 14)")
+    ap.add_argument("--n", type=int, default=2,
+                    help="--hard: recordings (seeds) to track")
+    ap.add_argument("--workers", type=int, default=1,
+                    help="--hard: processes over recordings (spawned)")
+    ap.add_argument("--size", default="1632x1200", help="--hard: image size WxH")
+    ap.add_argument("--cog-px", type=float, default=9.0, help="--hard: COG disc diameter px")
+    ap.add_argument("--qs-px", type=float, default=10.0, help="--hard: QS checker side px")
+    ap.add_argument("--compare-src", default=None,
+                    help="--hard: also track the same frames with the fitlug sources in this "
+                         "folder (e.g. /work/main/src), side by side, in a subprocess")
+    ap.add_argument("--memory", action="store_true",
+                    help="peak memory of tracking a streamed synthetic video of 2 000 and "
+                         "20 000 frames, each in its own process")
+    ap.add_argument("--memory-frames", type=int, default=None,
+                    help="--memory: the shorter length (the longer is ten times it)")
     args = ap.parse_args(argv)
+    if args.memory:
+        return main_memory(args)
+    if args.hard:
+        return main_hard(args)
     rng = np.random.default_rng(args.seed)
 
     t0 = time.perf_counter()
@@ -283,6 +325,183 @@ def main(argv=None):
           f"{redetect} frames: with it, best {1 / (cpu_b.min() + search / redetect):.0f} and "
           f"median {1 / (np.median(cpu_b) + search / redetect):.0f} frames/s CPU")
     print(f"decoding apart (8-bit PNG via open_source): {1 / dec:.0f} frames/s")
+    return 0
+
+
+# -- the hard scenario (issue 14) --------------------------------------------------------------
+
+_TRACK_CODE = """
+import sys, time, numpy as np
+from fitlug.vision import Tracker, track
+frames = np.load(sys.argv[1], mmap_mode="r")
+frames = np.ascontiguousarray(frames)
+t0, c0 = time.perf_counter(), time.process_time()
+res = track(frames, fps=100.0)
+wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+blocks = []
+for _ in range(int(sys.argv[3])):
+    tr = Tracker()
+    tr.step(0, 0.0, frames[0])
+    for start in range(1, len(frames) - 24, 25):
+        c1 = time.process_time()
+        for i in range(start, start + 25):
+            tr.step(i, i / 100.0, frames[i])
+        blocks.append((time.process_time() - c1) / 25)
+np.savez(sys.argv[2], xy=res.xy_px, wall=wall, cpu=cpu, blocks=np.array(blocks))
+"""
+
+
+def _track_with(src, frames, repeats):
+    """Track `frames` with the fitlug package found in `src` (None: this one), in a fresh
+    process; returns (xy_px (F, K, 2), whole-run CPU s, steady-state CPU s per frame
+    (blocks of 25))."""
+    import subprocess
+
+    with tempfile.TemporaryDirectory() as tmp:
+        np.save(os.path.join(tmp, "frames.npy"), frames)
+        env = dict(os.environ)
+        if src is not None:
+            env["PYTHONPATH"] = os.path.abspath(src)
+        out = os.path.join(tmp, "res.npz")
+        subprocess.run([sys.executable, "-c", _TRACK_CODE, os.path.join(tmp, "frames.npy"), out,
+                        str(repeats)], check=True, env=env)
+        r = np.load(out)
+        return r["xy"], float(r["cpu"]), r["blocks"]
+
+
+class _Res:
+    def __init__(self, xy):
+        self.xy_px = xy
+        self.markers = list(range(xy.shape[1]))
+
+
+def _hard_one(job):
+    """One hard recording: render, track with this tree (and `compare`), the bound."""
+    seed, n_frames, size, cog_px, qs_px, compare, repeats, every = job
+    from fitlug.vision._scene import hard_clip
+
+    clip = hard_clip(n_frames, size, seed=seed, cog_px=cog_px, qs_px=qs_px, keep_sub=True)
+    out = {"frames": n_frames, "markers": len(clip.kinds), "kinds": clip.kinds}
+    for name, src in (("after", None), ("before", compare)):
+        if name == "before" and src is None:
+            continue
+        xy, cpu, blocks = _track_with(src, clip.frames, repeats)
+        err, rate, swaps, ids = evaluate_tracks(_Res(xy), clip.truth, clip.visible, clip.kinds)
+        found = _found(xy, clip.truth)
+        out[name] = {"err": err, "swaps": swaps, "ids": ids, "cpu": cpu, "blocks": blocks,
+                     "hits": (found & clip.visible).sum(axis=0), "vis": clip.visible.sum(axis=0)}
+    gain = _render.gain_field(size, clip.options)
+    sigma2 = clip.options.noise_sigma ** 2 + 1.0 / 12.0
+    crb = {"cog": [], "qs": []}
+    for i in range(0, n_frames, every):
+        for j, kind in enumerate(clip.kinds):
+            if clip.visible[i, j]:
+                crb[kind].append(crb_variance(
+                    kind, clip.sub_px[i, :, j],
+                    lambda x0, y0, n: gain[y0:y0 + n, x0:x0 + n].astype(np.float64),
+                    sigma2, half=int(2 * max(cog_px, qs_px)), opt=clip.options, s=S))
+    out["crb"] = crb
+    return out
+
+
+def _found(xy, truth, tol=0.5):
+    """(F, M) a track has a sample within `tol` px of the marker."""
+    found = np.zeros(truth.shape[:2], bool)
+    for k in range(xy.shape[1]):
+        d = np.hypot(*(xy[:, k, None, :] - truth).transpose(2, 0, 1))  # (F, M)
+        found |= d < tol
+    return found
+
+
+def main_hard(args):
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    size = tuple(int(v) for v in args.size.lower().split("x"))
+    jobs = [(args.seed + i, args.frames, size, args.cog_px, args.qs_px, args.compare_src,
+             args.speed_repeats, max(1, args.compare_every)) for i in range(args.n)]
+    t0 = time.perf_counter()
+    if args.workers > 1:
+        with ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context("spawn")) as ex:
+            runs = list(ex.map(_hard_one, jobs))
+    else:
+        runs = [_hard_one(j) for j in jobs]
+    kinds = runs[0]["kinds"]
+    print(f"hard footage: {args.n} recordings x {args.frames} frames {size[0]}x{size[1]}, "
+          f"{kinds.count('cog')} COG discs {args.cog_px:g} px across, {kinds.count('qs')} QS "
+          f"checkers {args.qs_px:g} px a side; noise 4, gradient (0.4, 0.2), vignetting 0.15, "
+          f"4 ms exposure, a dark bar 10 px wide sweeping across, markers leaving the picture "
+          f"({time.perf_counter() - t0:.0f} s)")
+    bound = {k: np.sqrt(np.nanmean(np.concatenate([np.asarray(r["crb"][k]).reshape(-1, 2)
+                                                    for r in runs]), axis=0))
+             for k in ("cog", "qs")}
+    print(f"{'tracker':<8}{'type':>5}{'detected':>10}{'rms x':>8}{'rms y':>8}{'rms 2D':>8}"
+          f"{'CRB 2D':>8}{'vs CRB':>8}{'swaps':>7}  {'worst marker':>12}")
+    for name in ("before", "after"):
+        if name not in runs[0]:
+            continue
+        for kind in ("cog", "qs"):
+            cols = [j for j, k in enumerate(kinds) if k == kind]
+            hits = sum(r[name]["hits"][cols].sum() for r in runs)
+            vis = sum(r[name]["vis"][cols].sum() for r in runs)
+            worst = min(r[name]["hits"][j] / max(r[name]["vis"][j], 1) for r in runs for j in cols)
+            e = np.concatenate([r[name]["err"][kind] for r in runs])
+            ax = np.sqrt(np.mean(e ** 2, axis=0))
+            two, b2 = np.sqrt(np.sum(ax ** 2)), np.sqrt(np.sum(bound[kind] ** 2))
+            swaps = sum(r[name]["swaps"] for r in runs)
+            print(f"{name:<8}{kind:>5}{hits / vis:>10.2%}{ax[0]:>8.4f}{ax[1]:>8.4f}{two:>8.4f}"
+                  f"{b2:>8.4f}{two / b2:>7.2f}x{swaps:>7}  {worst:>12.1%}")
+    print("(detected: share of the frames where a marker is whole in the picture and clear of "
+          "the bar and other markers that have a sample within 0.5 px; rms over those samples; "
+          "swaps: tracks that jump to another marker or stray 0.5 px)")
+    for name in ("before", "after"):
+        if name not in runs[0]:
+            continue
+        b = np.concatenate([r[name]["blocks"] for r in runs])
+        whole = sum(r["frames"] for r in runs) / sum(r[name]["cpu"] for r in runs)
+        print(f"speed {name}: whole run {whole:.0f} frames/s CPU; steady state best "
+              f"{1 / b.min():.0f}, median {1 / np.median(b):.0f} frames/s CPU "
+              f"(load {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores)")
+    return 0
+
+
+# -- memory against the video's length ----------------------------------------------------------
+
+_MEM_CODE = """
+import resource, sys, time, numpy as np
+from fitlug.vision import track
+from fitlug.vision._render import RenderOptions, default_camera, render_frame, gain_field
+n = int(sys.argv[1])
+w, h = 1632, 1200
+cam = default_camera(0.39, (w, h), dist_coeffs=None)
+opt = RenderOptions(noise_sigma=2.0, exposure_s=0.0)
+rng = np.random.default_rng(0)
+xy = np.array([[200.0 + 130 * k, 400.0 + 200 * (k % 3)] for k in range(10)])
+# a few distinct noisy frames of still markers, copied: the source makes each frame on demand
+base = [render_frame(np.repeat(xy[None], 1, axis=0), ["cog"] * 8 + ["qs"] * 2, cam, opt, rng)
+        for _ in range(4)]
+def frames():
+    for i in range(n):
+        yield i, i / 1000.0, base[i % 4].copy()  # a new array each frame
+t0 = time.perf_counter()
+res = track(frames(), fps=1000.0)
+print(n, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+      time.perf_counter() - t0, res.xy_px.shape)
+"""
+
+
+def main_memory(args):
+    import subprocess
+
+    print("peak RSS of tracking a streamed 1632x1200 video (10 markers; a generator making "
+          "each frame on demand), each length in a fresh process:")
+    lengths = (2000, 20000) if args.memory_frames is None else (args.memory_frames,
+                                                                 10 * args.memory_frames)
+    for n in lengths:
+        out = subprocess.run([sys.executable, "-c", _MEM_CODE, str(n)], check=True,
+                             capture_output=True, text=True).stdout.split()
+        print(f"  {int(out[0]):>6} frames: peak RSS {float(out[1]):.0f} MiB, "
+              f"{float(out[2]):.0f} s ({int(out[0]) / float(out[2]):.0f} frames/s wall)")
     return 0
 
 

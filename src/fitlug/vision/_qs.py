@@ -30,7 +30,8 @@ class QsFit:
     the two edges, px, `contrast` (half the light-dark difference, signed: > 0 when the
     top-left quadrant is light), `rms` (fit residual, grey levels), `inside` (bool),
     `params` (M, N_PARAMS) for warm starts (position in the frame, levels at the marker's
-    centre)."""
+    centre), `dof` (M,) degrees of freedom of the residual (weighted pixels less the
+    parameters: `rms` scatters by ~1/sqrt(2 dof) relative)."""
 
     xy: np.ndarray
     angle: np.ndarray
@@ -39,6 +40,7 @@ class QsFit:
     rms: np.ndarray
     inside: np.ndarray
     params: np.ndarray
+    dof: np.ndarray | None = None
 
 
 def _edge(u, b, derivatives=True):
@@ -138,7 +140,10 @@ def _model(win, rfit, x, y, p, jacobian=True):
     return res, jac, (res * res).sum(axis=1), m.sum(axis=1)
 
 
-def _fit(win, rfit, x, y, p, n_iter, prior=None):
+_SLOPES = np.array([_A + 1, _A + 2, _B + 1, _B + 2])  # the planes' slopes
+
+
+def _fit(win, rfit, x, y, p, n_iter, prior=None, hold=False):
     """Levenberg-Marquardt on the checker model, all markers at once.
 
     p (M, N_PARAMS) is the start; returns the best parameters found and the residual RMS.
@@ -147,12 +152,16 @@ def _fit(win, rfit, x, y, p, n_iter, prior=None):
     point-symmetric too) from pulling the centre. A step that raises the cost is undone
     and retried with more damping. prior: blur widths (M, 2) to stay near (those of the
     previous frame), held with a small fraction of the data's own weight so that a flat
-    direction of the cost cannot wander off frame after frame.
+    direction of the cost cannot wander off frame after frame. hold: keep the slopes of
+    the offset and contrast planes at their start values (averaged over frames: fitted in
+    one frame on the few pixels of a small checker they are noisy, and they correlate with
+    the centre); the slopes this frame's data alone would give at the fitted centre (one
+    Gauss-Newton step) come back as the third result (else the fitted ones).
     """
     diag = np.arange(N_PARAMS)
     lam = np.full(p.shape[0], 1e-3)
     best, best_cost = p, np.full(p.shape[0], np.inf)
-    best_data = weight = hess = grad = pw = None
+    best_data = weight = hess = grad = pw = at = None
     for it in range(n_iter + 1):
         last = it == n_iter
         # the last evaluation only checks the last step: no Jacobian needed
@@ -186,18 +195,33 @@ def _fit(win, rfit, x, y, p, n_iter, prior=None):
                 weight = np.where(better, w, weight)
                 hess = np.where(better[:, None, None], h, hess)
                 grad = np.where(better[:, None], gr, grad)
+            at = best  # where hess and grad were taken
         best_cost = np.where(better, cost, best_cost)
         lam = np.where(better, 0.3 * lam, 10.0 * lam)
         damped = hess.copy()
         damped[:, diag, diag] *= 1.0 + lam[:, None]
         damped[:, diag, diag] += 1e-9
-        step = np.linalg.solve(damped, grad[..., None])[..., 0]
+        g = grad
+        if hold:
+            damped[:, _SLOPES, :] = 0.0
+            damped[:, :, _SLOPES] = 0.0
+            damped[:, _SLOPES, _SLOPES] = 1.0
+            g = grad.copy()
+            g[:, _SLOPES] = 0.0
+        step = np.linalg.solve(damped, g[..., None])[..., 0]
         step[:, :2] = np.clip(step[:, :2], -1.0, 1.0)
         step[:, 3:5] = np.clip(step[:, 3:5], -0.25, 0.25)
         p = best + step
         p[:, 3:5] = np.clip(p[:, 3:5], 0.05, 8.0)
-    rms = np.sqrt(best_data / np.maximum(weight - N_PARAMS, 1))
-    return best, rms
+    dof = np.maximum(weight - N_PARAMS, 1)
+    rms = np.sqrt(best_data / dof)
+    slopes = best[:, _SLOPES].copy()
+    if hold and hess is not None:
+        # the gradient at the final parameters, linearised from where it was taken
+        g = grad - (hess @ (best - at)[..., None])[..., 0]
+        sub = hess[:, _SLOPES[:, None], _SLOPES[None, :]] + 1e-9 * np.eye(4)
+        slopes += np.linalg.solve(sub, g[:, _SLOPES, None])[..., 0]
+    return best, rms, slopes, dof
 
 
 def _edge_widths(win):
@@ -215,13 +239,16 @@ def _edge_widths(win):
 
 
 def refine_qs(frame: np.ndarray, xy0: np.ndarray, half_size, *, params: np.ndarray | None = None,
-              search: int = 2, n_iter: int = 4) -> QsFit:
+              search: int = 2, n_iter: int = 4, hold_slopes: bool = False) -> QsFit:
     """Centres of QS markers near first guesses.
 
     frame: (H, W) grey image; xy0: (M, 2) first guesses px; half_size: half the side of
     the checkers, px, scalar or (M,); params: (M, N_PARAMS) results of the previous frame
     (warm start: angle, blur widths and levels), or None; search: ± range of the coarse
-    search, px (0: trust xy0 and skip it). The fit uses the pixels of the largest disc
+    search, px (0: trust xy0 and skip it); hold_slopes: keep the lighting's slopes across
+    the checker (offset and contrast planes) at those of `params` (their average along a
+    track: a small checker's own are noisy), returning in `params` the slopes this frame
+    alone gives, for that average. The fit uses the pixels of the largest disc
     inside the checker that the blur of its outer edge does not reach.
     """
     xy0 = np.asarray(xy0, dtype=np.float64).reshape(-1, 2)
@@ -257,7 +284,9 @@ def refine_qs(frame: np.ndarray, xy0: np.ndarray, half_size, *, params: np.ndarr
         p[:, _A] = (win * mask).sum(axis=1) / n
         sign = np.sign(x - p[:, :1]) * np.sign(y - p[:, 1:2])
         p[:, _B] = ((win - p[:, _A, None]) * sign * mask).sum(axis=1) / n
-    p, rms = _fit(win, rfit, x, y, p, n_iter, None if params is None else params[:, 3:5])
+    hold = hold_slopes and params is not None
+    p, rms, slopes, dof = _fit(win, rfit, x, y, p, n_iter, None if params is None else params[:, 3:5],
+                          hold=hold)
     xy = base + p[:, :2]
     bad = ~inside | ~np.isfinite(xy).all(axis=1) | (np.abs(p[:, :2]) > 2).any(axis=1)
     xy[bad] = np.nan
@@ -265,4 +294,5 @@ def refine_qs(frame: np.ndarray, xy0: np.ndarray, half_size, *, params: np.ndarr
     out[:, :2] = xy
     out[:, _A] += p[:, _A + 1] * p[:, 0] + p[:, _A + 2] * p[:, 1]
     out[:, _B] += p[:, _B + 1] * p[:, 0] + p[:, _B + 2] * p[:, 1]
-    return QsFit(xy, p[:, 2].copy(), p[:, 3:5].copy(), out[:, _B].copy(), rms, inside, out)
+    out[:, _SLOPES] = slopes
+    return QsFit(xy, p[:, 2].copy(), p[:, 3:5].copy(), out[:, _B].copy(), rms, inside, out, dof)

@@ -82,7 +82,8 @@ class CogFit:
     traceless second moments ((mxx - myy) / 2, mxy), px²,
     `noise` (background residual std), `level` (the disc's brightness above the
     background at its centre, fitted on its interior), `slope` (M, 2) relative brightness
-    slope of the disc used for flat-fielding, 1/px, `inside` (bool). flux / level is the
+    slope of the disc fitted on its interior in this frame, 1/px (used for flat-fielding
+    unless `gain_slope` was given), `inside` (bool). flux / level is the
     disc's area whatever the lighting: a partly hidden disc shows less."""
 
     xy: np.ndarray
@@ -132,15 +133,29 @@ def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, blur_
     ra = r + f32(1.0) + f32(0.5) * blur  # aperture: disc, anti-aliased edge, blur
     ok = np.isfinite(xy0).all(axis=1)
     base = np.where(ok[:, None], np.rint(xy0), 0).astype(np.int64)
-    reach = np.ceil((float(ra.max()) + 4.0 if m else 1.0) * 4.0) / 4.0
+    reach = np.ceil((float(ra.max()) + 3.0 if m else 1.0) * 4.0) / 4.0
     win, gx, gy, inside = cut_disc(frame, base, reach, dtype=f32)
     basis = _disc_offsets(reach)[5].astype(f32)
     rho0 = np.sqrt(gx * gx + gy * gy)
     # 1. local background: a plane through an annulus outside the disc (about the window
     #    centre, within half a pixel of the guess)
-    ring = ((rho0 >= ra + f32(1.0)) & (rho0 <= ra + f32(3.5))).astype(f32)
+    ring = ((rho0 >= ra + f32(0.5)) & (rho0 <= ra + f32(2.75))).astype(f32)
     coef = _weighted_plane(ring, win, basis).astype(f32)
     win -= coef @ basis[:, :3].T
+    # the annulus may reach past the dark surround of a small disc (the lug's edge, the
+    # lighter surface beyond it): pixels well above the plane are not background. Their
+    # spread is measured on the pixels below the plane (which they do not reach); fit
+    # again without them.
+    for _ in range(2):
+        below = ring * (win < 0)
+        scale = np.sqrt((below * win * win).sum(axis=1, keepdims=True)
+                        / np.maximum(below.sum(axis=1, keepdims=True), 1))
+        keep = ring * (win <= f32(3.0) * scale + f32(0.5))
+        if (keep.sum(axis=1) == ring.sum(axis=1)).all():
+            break
+        coef2 = _weighted_plane(keep, win, basis).astype(f32)
+        win -= coef2 @ basis[:, :3].T
+        ring = keep
     noise = np.sqrt((ring * win * win).sum(axis=1, dtype=np.float64)
                     / np.maximum(ring.sum(axis=1, dtype=np.float64) - 3, 1))
     # 2. plain centroid steps in the aperture
@@ -171,9 +186,8 @@ def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, blur_
     cc = c.astype(np.float64)
     level = coef[:, 0] + coef[:, 1] * cc[:, 0] + coef[:, 2] * cc[:, 1]
     safe = np.where(np.abs(level) > 0, level, 1.0)
-    rel = coef[:, 1:3] / safe[:, None]
-    if gain_slope is not None:
-        rel = np.asarray(gain_slope, dtype=np.float64).reshape(-1, 2)
+    fitted = coef[:, 1:3] / safe[:, None]
+    rel = fitted if gain_slope is None else np.asarray(gain_slope, dtype=np.float64).reshape(-1, 2)
     rel32 = rel.astype(f32)
     flat = win / (f32(1.0) + rel32[:, :1] * dx + rel32[:, 1:] * dy)
     wgt = (flat + wi * (level.astype(f32)[:, None] - flat)) * ap
@@ -192,4 +206,4 @@ def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, blur_
     bad = ~(ok & inside & (flux > 0))
     xy[bad] = np.nan
     shear = np.stack([0.5 * (mxx - myy), mxy], axis=1)
-    return CogFit(xy, flux, contrast, radius_m, streak, shear, noise, level, rel, inside & ok)
+    return CogFit(xy, flux, contrast, radius_m, streak, shear, noise, level, fitted, inside & ok)

@@ -7,6 +7,8 @@ stadium path with a constant slip - without importing JAX.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 
@@ -62,3 +64,86 @@ def stadium_scene(n_frames: int = 100, fps: float = 100.0, *, speed_mm_s: float 
               [f"Q{j + 1}" for j in range(n_body_markers)]
     roles = ["lug"] * n_lug_markers + ["body"] * n_body_markers
     return t, markers, roles, xy
+
+
+def hard_clip(n_frames: int = 120, image_size=(480, 320), *, seed: int = 0,
+              mm_per_px: float = 0.39, cog_px: float = 9.0, qs_px: float = 10.0,
+              noise_sigma: float = 4.0, gradient=(0.4, 0.2), vignetting: float = 0.15,
+              exposure_s: float = 0.004, fps: float = 100.0, speed_mm_s: float = 60.0,
+              bar_px: float = 10.0, bar_speed_px: float = -3.0, n_lug_markers: int = 8,
+              n_body_markers: int = 2, d_mm: float | None = None, r_mm: float | None = None,
+              origin_mm=None, keep_sub: bool = False):
+    """Hard footage with its truth: small markers (COG bright discs `cog_px` across, QS
+    checkers `qs_px` a side), sensor noise `noise_sigma` grey levels, a lighting gradient and
+    vignetting, motion blur (`exposure_s`), a dark vertical bar `bar_px` wide sweeping
+    across the picture at `bar_speed_px` px/frame (hiding each marker a few frames), and
+    the rig driving out of the picture on the right (markers leave and lug markers come
+    round).
+
+    The stadium is sized to the image (d_mm, r_mm default from its width and height); the
+    rig starts with its rear at a fifth of the width. Returns a `HardClip` (frames in
+    memory); `visible`: the marker is whole in the picture, clear of the bar and of other
+    markers; with `keep_sub` the sub-frame positions too (for Cramer-Rao bounds).
+    """
+    from ._render import RenderOptions, default_camera, ground_to_pixels, gain_field
+    from ._render import subframe_positions, render_frame, KINDS
+    from ._render_video import _visible
+
+    w, h = (int(v) for v in image_size)
+    s = float(mm_per_px)
+    # lug disc twice the bright disc
+    opt = RenderOptions(cog_diameter_mm=cog_px * s, lug_diameter_mm=2.0 * cog_px * s,
+                        qs_size_mm=qs_px * s, noise_sigma=noise_sigma, gradient=tuple(gradient),
+                        vignetting=vignetting, exposure_s=exposure_s)
+    width_mm, height_mm = w * s, h * s
+    r = 0.22 * height_mm if r_mm is None else float(r_mm)
+    d = 0.45 * width_mm if d_mm is None else float(d_mm)
+    t, names, roles, xy = stadium_scene(n_frames, fps, speed_mm_s=speed_mm_s,
+                                        n_lug_markers=n_lug_markers,
+                                        n_body_markers=n_body_markers, d_mm=d, r_mm=r,
+                                        e_mm=0.1 * r, n_lugs=max(2 * n_lug_markers + 4, 12),
+                                        ramp_s=0.1 * n_frames / fps)
+    cam = default_camera(s, (w, h))
+    if origin_mm is None:  # rear of the stadium at a quarter of the width, body mid-height
+        origin_mm = (-(0.5 * d + r) - 0.2 * width_mm, r - 0.5 * height_mm)
+    kinds = [KINDS[x] for x in roles]
+    # visibility: the whole lug disc (twice the bright disc) for COG, the square for QS
+    radii = np.where(np.array(kinds) == "cog", cog_px, 0.5 * qs_px * 2 ** 0.5)
+    sub = subframe_positions(t, xy, opt.exposure_s, opt.n_sub)
+    rng = np.random.default_rng(seed)
+    gain = gain_field((w, h), opt)
+    frames = np.empty((t.size, h, w), np.uint8)
+    truth = np.empty((t.size, len(names), 2))
+    visible = np.empty((t.size, len(names)), bool)
+    subs = np.empty((t.size, opt.n_sub, len(names), 2)) if keep_sub else None
+    for i in range(t.size):
+        sub_px = ground_to_pixels(cam, sub[i], origin_mm)
+        x_bar = (w + bar_px if bar_speed_px < 0 else -bar_px) + bar_speed_px * i
+        x_bar = x_bar % (w + 2 * bar_px) - bar_px
+        o = opt.replace(occluders=((x_bar, -1, x_bar + bar_px, h + 1),))
+        frames[i] = render_frame(sub_px, kinds, cam, o, rng, gain)
+        truth[i] = sub_px.mean(axis=0)
+        visible[i] = _visible(truth[i], radii, cam, o)
+        if keep_sub:
+            subs[i] = sub_px
+    return HardClip(t, frames, truth, visible, kinds, subs, opt, cam, float(bar_px),
+                    float(bar_speed_px))
+
+
+@dataclass
+class HardClip:
+    """Frames of `hard_clip` with their truth: `t` (F,) s, `frames` (F, H, W) uint8,
+    `truth` (F, M, 2) px, `visible` (F, M) bool, `kinds` ('cog'/'qs' per marker), `sub_px`
+    (F, n_sub, M, 2) px or None, the `options` and `camera` drawn with (the bar apart:
+    `bar_px` wide, moving `bar_speed_px` px per frame)."""
+
+    t: np.ndarray
+    frames: np.ndarray
+    truth: np.ndarray
+    visible: np.ndarray
+    kinds: list
+    sub_px: np.ndarray | None
+    options: object
+    camera: object
+    bar_px: float
+    bar_speed_px: float

@@ -9,20 +9,28 @@ prediction; else the frame is a gap (a partly hidden, merged or cut-off marker g
 position rather than a wrong one). A track that misses is searched for around its
 prediction for `max_gap` frames (a region detection), then closed: a marker seen again
 later gets a new id, never an old one. New markers: a whole-frame search on the first
-frame and every `redetect_every` frames, and a cheap search along the frame's edges
-every `edge_every` frames for markers coming into view; a detection on a live track's
-marker is not a new marker.
+frame and every `redetect_every` frames, a cheap search along the frame's edges every
+`edge_every` frames for markers coming into view, and for `watch_frames` frames a region
+search where the marker of a closed track would be (back from behind an occluder, or
+after samples that failed the checks); a detection on a live track's marker is not a
+new marker.
+
+The checks scale with the noise: a small disc (8-10 px across) in a noisy frame (sigma 4
+grey levels) scatters in area and width several times more than the fixed tolerances
+made for big discs allow. The lighting's slope across each marker is averaged along its
+track rather than fitted afresh on the few pixels of one frame.
 """
 
 from __future__ import annotations
 
 import math
+from array import array
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ._detect import COG, QS, Detections, detect_markers, estimate_noise
-from ._qs import _B, N_PARAMS, refine_qs
+from ._qs import _B, _SLOPES, N_PARAMS, refine_qs
 from ._refine import refine_cog
 from ._trackstate import ema, score, Track
 
@@ -39,7 +47,10 @@ class TrackerConfig:
     max_gap: frames a lost marker is searched for before its track is closed; max_step:
     the farthest a marker may move between two frames before its speed is known;
     min_quality: samples below it are gaps; min_length: shorter tracks are dropped;
-    qs_iter: Levenberg-Marquardt steps per frame.
+    qs_iter: Levenberg-Marquardt steps per frame; watch_frames: frames for which the place
+    a closed track's marker would be is searched (a small region detection each frame), so
+    that a marker lost behind an occluder or to a bad sample is picked up again (under a
+    new id) without waiting for the next whole-frame search.
     """
 
     kinds: tuple = (COG, QS)
@@ -54,6 +65,7 @@ class TrackerConfig:
     min_quality: float = 0.5
     min_length: int = 5
     qs_iter: int = 1
+    watch_frames: int = 40
 
 
 class Tracker:
@@ -62,12 +74,13 @@ class Tracker:
     def __init__(self, config: TrackerConfig | None = None):
         self.config = config or TrackerConfig()
         self.tracks: list[Track] = []
-        self.frames: list[int] = []
-        self.times: list[float] = []
+        self.frames = array("q")  # typed arrays: memory grows by 16 bytes a frame
+        self.times = array("d")
         self.noise = None
         self.cog_radius = self.config.cog_radius
         self.qs_half = self.config.qs_half
         self._n = 0
+        self._watch: list = []  # (closed track, last frame to search for its marker)
 
     # -- helpers ---------------------------------------------------------------------------
     def _detect(self, frame, roi=None, kinds=None, scale=1):
@@ -117,9 +130,13 @@ class Tracker:
             self._search(frame, frame_no, t, xy, unc, found)
         self._accept(frame_no, found)
         if self._n % cfg.redetect_every == 0:
+            self._watch.clear()
             self._pick_up(frame, frame_no)
-        elif cfg.edge_every and self._n % cfg.edge_every == 0:
-            self._pick_up_at_edges(frame, frame_no)
+        else:
+            if self._watch:
+                self._pick_up_lost(frame, frame_no)
+            if cfg.edge_every and self._n % cfg.edge_every == 0:
+                self._pick_up_at_edges(frame, frame_no)
         self._n += 1
 
     def _cog_quality(self, t, area, radius, shear):
@@ -128,11 +145,29 @@ class Tracker:
         across the blur or its shape (traceless second moments, px²)."""
         if t.area is None:
             return 1.0
-        # tolerances ~8x the scatter on clean frames (0.08 %, 0.07 %, 0.015 px²): a disc that
-        # lost 0.6 % of its area at the rim has moved ~0.04 px and scores 0.5
+        # tolerances ~8x the scatter on clean frames of big discs (0.08 %, 0.07 %,
+        # 0.015 px²): a disc that lost 0.6 % of its area at the rim has moved ~0.04 px and
+        # scores 0.5. Small discs in noisy frames scatter more: their relative area and
+        # radius by ~0.9 and ~0.6 noise / (contrast x radius) (8 px discs: 1.1 and 0.95),
+        # their shear by ~1.4 noise / contrast px² (measured on renders, 8-15 px discs,
+        # noise 2-4): the tolerances never go below 3.5 times 1.3, 1.1 and 1.6 that.
+        rel = self.noise / max(t.contrast * t.radius, 1e-9)
+        # the references of a young track rest on a few samples, the first of them taken
+        # with a round aperture before the blur's direction was known: wider tolerances
+        young = 1.0 if t.confirmed else 3.0
         ds = math.hypot(shear[0] - t.shear[0], shear[1] - t.shear[1])
-        return min(score(area / t.area - 1, 0.006), score(radius / t.radius - 1, 0.005),
-                   score(ds, 0.12 + 0.2 * math.hypot(*t.shear)))
+        return min(score(area / t.area - 1, young * max(0.006, 3.5 * 1.3 * rel)),
+                   score(radius / t.radius - 1, young * max(0.005, 3.5 * 1.1 * rel)),
+                   score(ds, young * max(0.12, 3.5 * 1.6 * rel * t.radius)
+                         + 0.2 * math.hypot(*t.shear)))
+
+    @staticmethod
+    def _qs_contrast_tol(t):
+        """Relative change of a checker's contrast allowed between samples: 10 %; the
+        contrast of a checker under 10 px a side comes with its blur widths, which its few
+        pixels fix poorly: 20 %; and more while the track is young (its reference from the
+        detection's fit, which started without a previous frame)."""
+        return (0.1 if t.size >= 5 else 0.2) * (1.0 if t.confirmed else 2.0)
 
     def _blur(self, t):
         """Motion-blur streak to allow for, px, and its direction (None: unknown), from the
@@ -152,17 +187,24 @@ class Tracker:
         radius = np.array([t.size for t in tracks])
         blur = [self._blur(t) for t in tracks]
         known = all(d is not None for _, d in blur)
+        # the lighting's slope across each disc, averaged along its track: fitted on the
+        # few interior pixels of a small disc in one frame it is noisy enough to move the
+        # centre by more than the slope itself does
+        slopes = [t.slope for t in tracks]
+        gain = np.array(slopes) if all(g is not None for g in slopes) else None
         fit = refine_cog(frame, pred, radius, blur_px=np.array([b for b, _ in blur]),
-                         blur_dir=np.array([d for _, d in blur]) if known else None)
+                         blur_dir=np.array([d for _, d in blur]) if known else None,
+                         gain_slope=gain)
         area = (fit.flux / np.where(fit.level > 0, fit.level, np.inf)).tolist()
         xy, radii, shear = fit.xy.tolist(), fit.radius.tolist(), fit.shear.tolist()
+        slope = fit.slope.tolist()
         for i, t in enumerate(tracks):
             x, y = xy[i]
             if x != x:  # NaN: the window left the frame
                 continue
             q = self._cog_quality(t, area[i], radii[i], shear[i])
             if math.hypot(x - pred[i, 0], y - pred[i, 1]) <= 1.0 + 3.0 * items[i][2]:
-                found[t.uid] = (fit.xy[i], q, (area[i], radii[i], shear[i]))
+                found[t.uid] = (fit.xy[i], q, (area[i], radii[i], shear[i], slope[i]))
 
     def _refine_qs(self, frame, frame_no, items, found):
         cfg = self.config
@@ -173,21 +215,28 @@ class Tracker:
         warm = all(t.params is not None for t in tracks)
         half = np.array([t.size for t in tracks])
         fit = refine_qs(frame, pred, half, params=params if warm else None,
-                        search=0 if unc < 0.75 else int(np.ceil(unc)) + 1, n_iter=cfg.qs_iter)
+                        search=0 if unc < 0.75 else int(np.ceil(unc)) + 1, n_iter=cfg.qs_iter,
+                        hold_slopes=warm)
         # a fit still on its way (residual well above the track's) gets more steps
         ref = np.array([max(t.rms, self.noise) if t.rms is not None else np.inf for t in tracks])
         slow = np.isfinite(fit.xy[:, 0]) & (fit.rms > 1.2 * ref)
         if slow.any():
-            more = refine_qs(frame, fit.xy[slow], half[slow], params=fit.params[slow], search=0,
-                             n_iter=4)
-            for name in ("xy", "rms", "contrast", "params"):
+            held = fit.params[slow].copy()
+            if warm:
+                held[:, _SLOPES] = params[slow][:, _SLOPES]
+            more = refine_qs(frame, fit.xy[slow], half[slow], params=held, search=0,
+                             n_iter=4, hold_slopes=warm)
+            for name in ("xy", "rms", "contrast", "params", "dof"):
                 getattr(fit, name)[slow] = getattr(more, name)
         for i, t in enumerate(tracks):
             if not np.isfinite(fit.xy[i, 0]):
                 continue
-            q = score(fit.contrast[i] / t.contrast - 1, 0.1)
+            q = score(fit.contrast[i] / t.contrast - 1, self._qs_contrast_tol(t))
             if t.rms is not None:  # occlusion or a wrong fit: the residual jumps
-                q = min(q, score(max(fit.rms[i] / max(t.rms, self.noise) - 1, 0.0), 0.25))
+                # (by more than its own scatter: ~1/sqrt(2 dof) relative, large for the few
+                # pixels of a small checker)
+                tol = max(0.25, 3.5 / math.sqrt(2.0 * max(float(fit.dof[i]), 1.0)))
+                q = min(q, score(max(fit.rms[i] / max(t.rms, self.noise) - 1, 0.0), tol))
             d = np.hypot(*(fit.xy[i] - pred[i]))
             if d <= 1.0 + 3.0 * items[i][2]:
                 found[t.uid] = (fit.xy[i], q, (fit.rms[i], fit.contrast[i], fit.params[i]))
@@ -208,12 +257,12 @@ class Tracker:
         if t.kind == COG:
             fit = refine_cog(frame, det.xy[j:j + 1], t.size, blur_px=self._blur(t)[0], n_iter=3)
             area = fit.flux[0] / fit.level[0] if fit.level[0] > 0 else 0.0
-            extra = (area, fit.radius[0], fit.shear[0])
+            extra = (area, fit.radius[0], fit.shear[0], fit.slope[0].tolist())
             q = self._cog_quality(t, area, fit.radius[0], fit.shear[0])
         else:
             row = int(np.flatnonzero(det.kind[:j + 1] == QS).size - 1)
             p = det.extra["qs_params"][row]
-            q = score(p[_B] / t.contrast - 1, 0.1)
+            q = score(p[_B] / t.contrast - 1, self._qs_contrast_tol(t))
             extra = (None, p[_B], p)
         found[t.uid] = (det.xy[j], q, extra)
 
@@ -238,6 +287,8 @@ class Tracker:
                 t.misses += 1
                 if t.misses > cfg.max_gap or (not t.confirmed and t.misses > 1):
                     t.alive = False
+                    if cfg.watch_frames > 0 and (t.confirmed or len(t.frames) >= 2):
+                        self._watch.append((t, frame_no + cfg.watch_frames))
                 continue
             xy, q, extra = got
             t.add(frame_no, xy, q)
@@ -248,11 +299,16 @@ class Tracker:
                 t.shear = extra[2] if t.shear is None else \
                     [0.8 * t.shear[0] + 0.2 * extra[2][0], 0.8 * t.shear[1] + 0.2 * extra[2][1]]
                 t.size = t.radius
+                t.slope = extra[3] if t.slope is None else \
+                    [0.9 * t.slope[0] + 0.1 * extra[3][0], 0.9 * t.slope[1] + 0.1 * extra[3][1]]
             else:
                 if extra[0] is not None:
                     t.rms = ema(t.rms, extra[0])
                 t.contrast = float(extra[1])  # the last one: lighting drifts along the track
-                t.params = extra[2]
+                p = np.array(extra[2], dtype=np.float64)
+                if t.params is not None:  # the lighting's slopes: averaged along the track
+                    p[_SLOPES] = 0.9 * t.params[_SLOPES] + 0.1 * p[_SLOPES]
+                t.params = p
 
     def _search_scale(self):
         # with the sizes known and the markers big enough, search a half-size image
@@ -262,6 +318,39 @@ class Tracker:
     def _pick_up(self, frame, frame_no):
         """Whole-frame search for markers no track follows."""
         self._add_new(self._detect(frame, scale=self._search_scale()), frame_no)
+
+    def _pick_up_lost(self, frame, frame_no):
+        """Search where the markers of recently closed tracks would be now (their
+        prediction, the region growing with the time since their last sample); a marker
+        found there that no live track follows starts a new track."""
+        cfg = self.config
+        h, w = frame.shape
+        keep = []
+        for t, until in self._watch:
+            if frame_no > until:
+                continue
+            (px, py), unc = t.predict(frame_no)
+            k = frame_no - t.frames[-1]
+            reach = cfg.max_step if unc is None else min(unc * 3.0 + 2.0 + 0.5 * k,
+                                                         cfg.max_step * 2)
+            pad = reach + 2.5 * t.size + 4
+            if not (-pad < px < w + pad and -pad < py < h + pad):
+                continue  # gone out of the picture
+            n_before = len(self.tracks)
+            det = self._detect(frame, roi=(px - pad, py - pad, px + pad + 1, py + pad + 1),
+                               kinds=(t.kind,))
+            if len(det):
+                d = np.hypot(*(det.xy - np.array([px, py])).T)
+                near = d <= reach
+                if near.any():
+                    sel = np.flatnonzero(near)
+                    det = Detections(det.xy[sel], det.kind[sel], det.size[sel], det.contrast[sel],
+                                     {k_: v[np.flatnonzero(near[det.kind == QS])]
+                                      for k_, v in det.extra.items()})
+                    self._add_new(det, frame_no)
+            if len(self.tracks) == n_before:
+                keep.append((t, until))
+        self._watch = keep
 
     def _pick_up_at_edges(self, frame, frame_no):
         """Markers come into view across the frame's edges: search the strips along them

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from array import array
 
 import numpy as np
 
@@ -15,16 +16,19 @@ _W5_NEXT = tuple(float(v) for v in np.array([1.0, 1.0, 1.0]) @ _P5)
 class Track:
     """A followed marker: samples (frames, xs, ys, qs: quality), state (misses, alive,
     confirmed) and references for checking new samples (COG: area = flux / level, radius,
-    shear = traceless second moments; QS: rms residual, contrast, fit parameters)."""
+    shear = traceless second moments, slope = relative lighting slope across the disc; QS: rms residual, contrast, fit parameters)."""
 
     __slots__ = ("uid", "kind", "size", "frames", "xs", "ys", "qs", "misses", "alive",
-                 "area", "radius", "shear", "rms", "contrast", "params", "confirmed")
+                 "area", "radius", "shear", "slope", "rms", "contrast", "params",
+                 "confirmed")
 
     def __init__(self, uid, kind, size, frame, xy, contrast, params=None):
         self.uid, self.kind, self.size = uid, kind, float(size)
-        self.frames, self.xs, self.ys, self.qs = [frame], [float(xy[0])], [float(xy[1])], [1.0]
+        # typed arrays, not lists: 8 bytes a sample rather than ~40 (long recordings)
+        self.frames = array("q", [int(frame)])
+        self.xs, self.ys, self.qs = array("d", [xy[0]]), array("d", [xy[1]]), array("d", [1.0])
         self.misses, self.alive, self.confirmed = 0, True, False
-        self.area = self.radius = self.shear = self.rms = None
+        self.area = self.radius = self.shear = self.slope = self.rms = None
         self.contrast = float(contrast)
         self.params = params
 

@@ -1,0 +1,78 @@
+"""Tracking hard footage (issue 14): small markers, noise sigma = 4 grey levels, a strong
+lighting gradient, motion blur, a dark bar sweeping across, markers leaving the picture.
+
+Truth from the renderer (`hard_clip`): every frame where a marker is whole in the picture
+and clear of the bar and of the other markers must give a sample of it (>= 98 %), every
+sample lies on the one marker its track follows (no identity swap, no stray), and the
+positions reach the RMS targets (COG <= 0.02 px, QS <= 0.015 px per axis).
+"""
+
+import numpy as np
+import pytest
+
+from fitlug.vision import track
+from fitlug.vision._scene import hard_clip
+
+
+@pytest.fixture(scope="module")
+def tracked():
+    clip = hard_clip(100, (480, 320), seed=3)  # COG discs 9 px across, checkers 10 px
+    return clip, track(clip.frames, fps=100.0)
+
+
+def _owners(res, truth, stray_px=0.15):
+    """The truth marker each track follows; asserts all its samples lie on that marker."""
+    owner = []
+    for k in range(len(res.markers)):
+        xy = res.xy_px[:, k]
+        ok = np.isfinite(xy[:, 0])
+        d = np.hypot(*(xy[ok, None, :] - truth[ok]).transpose(2, 0, 1))  # (n, M)
+        j = int(np.argmin(np.nanmedian(d, axis=0)))
+        worst = np.nanmax(d[:, j])
+        assert worst < stray_px, f"track {res.markers[k]} strays {worst:.3f} px from marker {j}"
+        owner.append(j)
+    return owner
+
+
+def test_the_scene_is_hard(tracked):
+    clip, _ = tracked
+    vis = clip.visible
+    kinds = np.array(clip.kinds)
+    # markers hidden by the bar for a few frames, some leaving the picture, all small
+    assert (~vis[:, kinds == "cog"]).sum() >= 8 * 3
+    assert not vis[-1].all() and vis[0].sum() >= 8
+    assert clip.options.noise_sigma == 4.0
+    assert 8.0 <= clip.options.cog_diameter_mm / clip.camera.mm_per_px <= 10.0
+    inside = np.isfinite(clip.truth[..., 0]) & (clip.truth[..., 0] < 480)
+    assert (inside & ~vis).any()  # in the picture but not whole or not clear: no sample owed
+
+
+def test_small_markers_are_found_without_swaps(tracked):
+    clip, res = tracked
+    owner = _owners(res, clip.truth)
+    found = np.zeros(clip.visible.shape, bool)
+    for k, j in enumerate(owner):
+        found[:, j] |= np.isfinite(res.xy_px[:, k, 0])
+    for kind in ("cog", "qs"):
+        cols = [j for j, k in enumerate(clip.kinds) if k == kind]
+        vis = clip.visible[:, cols]
+        assert found[:, cols][vis].mean() >= 0.98, f"{kind}: {found[:, cols][vis].mean():.1%}"
+    per_marker = [found[clip.visible[:, j], j].mean() for j in range(len(clip.kinds))]
+    assert min(per_marker) >= 0.95, per_marker
+    # one track per marker for most: a marker may be split (a new id after a loss), never
+    # two markers under one id (checked above)
+    assert len(res.markers) <= len(clip.kinds) + 2
+
+
+def test_positions_reach_the_targets(tracked):
+    clip, res = tracked
+    owner = _owners(res, clip.truth)
+    for kind, target in (("cog", 0.02), ("qs", 0.015)):
+        err = [res.xy_px[:, k] - clip.truth[:, j] for k, j in enumerate(owner)
+               if clip.kinds[j] == kind]
+        vis = [clip.visible[:, j] for k, j in enumerate(owner) if clip.kinds[j] == kind]
+        e = np.concatenate([x[v & np.isfinite(x[:, 0])] for x, v in zip(err, vis)])
+        rms = np.sqrt(np.mean(e ** 2, axis=0))
+        assert e.shape[0] > 50
+        assert rms.max() <= target, f"{kind}: rms {rms} px"
+        assert np.abs(e.mean(axis=0)).max() < 0.5 * target  # and no bias
