@@ -170,7 +170,7 @@ def _fps(rec, frames):
 
 def _init_speed(lay, obs, cx0):
     """Speed-spline coefficients and cx by linear least squares on the body x samples."""
-    Bn, Bm = np.asarray(lay.Bn), np.asarray(lay.Bm)
+    Bn, _, Bm, _ = lay.dense_bases()
     h = lay.h
     # integrated basis at nodes (Simpson, cumulative), then Hermite at the body times
     I = np.vstack([np.zeros(Bn.shape[1]), np.cumsum(h / 6 * (Bn[:-1] + 4 * Bm + Bn[1:]), 0)])  # noqa: E741

@@ -32,15 +32,20 @@ class Layout(eqx.Module):
     """Static structure of one recording: time grid, spline basis, who is sampled when."""
 
     grid: jax.Array  # (G,) node times, s
-    Bn: jax.Array  # (G, K) speed basis at nodes
+    # the speed basis in banded form (a cubic B-spline has 4 nonzero functions at any t):
+    # basis at node g = Bn[g, q] for coefficient jn[g] + q; memory linear in G whatever K
+    Bn: jax.Array  # (G, 4) speed basis at nodes
     dBn: jax.Array
-    Bm: jax.Array  # (G-1, K) at interval midpoints
+    Bm: jax.Array  # (G-1, 4) at interval midpoints
     dBm: jax.Array
+    jn: jax.Array  # (G,) first coefficient of each node's band
+    jm: jax.Array  # (G-1,)
     lug_t: jax.Array  # (S_l,) sample times of lug markers
     lug_i: jax.Array  # (S_l,) lug marker index
     body_t: jax.Array
     body_j: jax.Array
     h: float = eqx.field(static=True)
+    n_coef: int = eqx.field(static=True)  # K, speed-spline coefficients
     n_lug: int = eqx.field(static=True)
     n_body: int = eqx.field(static=True)
     n_belt: int = eqx.field(static=True)  # N, lugs on the belt
@@ -52,9 +57,18 @@ class Layout(eqx.Module):
     t_ref: jax.Array  # () X(t_ref) = psi(t_ref) = 0
     effects: tuple = eqx.field(static=True)
 
-    @property
-    def n_coef(self) -> int:
-        return self.Bn.shape[1]
+    def dense_bases(self):
+        """(Bn, dBn, Bm, dBm) as dense (G, K) matrices (numpy; small layouts only)."""
+        out = []
+        for vals, first in ((self.Bn, self.jn), (self.dBn, self.jn), (self.Bm, self.jm),
+                            (self.dBm, self.jm)):
+            vals, first = np.asarray(vals), np.asarray(first)
+            M = np.zeros((vals.shape[0], self.n_coef))
+            rows = np.arange(vals.shape[0])
+            for q in range(vals.shape[1]):
+                M[rows, first + q] += vals[:, q]
+            out.append(M)
+        return tuple(out)
 
     def with_effects(self, effects) -> "Layout":
         order = tuple(e for e in CATALOG if e in set(effects))
@@ -77,9 +91,13 @@ def make_layout(*, breaks, t_lo, t_hi, fps, lug_t, lug_i, body_t, body_j, n_lug,
     grid = t_lo + h * np.arange(G)
     mid = grid[:-1] + h / 2
     br = np.asarray(breaks, dtype=float)
-    f = lambda t, d: jnp.asarray(_spline.design(t, br, d))  # noqa: E731
-    lay = Layout(grid=jnp.asarray(grid), Bn=f(grid, 0), dBn=f(grid, 1), Bm=f(mid, 0),
-                 dBm=f(mid, 1), breaks=jnp.asarray(br), t_ref=jnp.asarray(float(t_ref)),
+    Bn, jn = _spline.banded(grid, br, 0)
+    dBn, _ = _spline.banded(grid, br, 1)
+    Bm, jm = _spline.banded(mid, br, 0)
+    dBm, _ = _spline.banded(mid, br, 1)
+    f = jnp.asarray
+    lay = Layout(grid=f(grid), Bn=f(Bn), dBn=f(dBn), Bm=f(Bm), dBm=f(dBm), jn=f(jn), jm=f(jm),
+                 n_coef=_spline.n_coefficients(br), breaks=jnp.asarray(br), t_ref=jnp.asarray(float(t_ref)),
                  lug_t=jnp.asarray(lug_t, float), lug_i=jnp.asarray(lug_i, int),
                  body_t=jnp.asarray(body_t, float), body_j=jnp.asarray(body_j, int), h=h,
                  n_lug=int(n_lug), n_body=int(n_body), n_belt=int(n_belt),
@@ -142,11 +160,23 @@ def _rates(p, lay, ctx, v0, a0, psi):
     return v, dpsi
 
 
+def band_dot(vals, first, c):
+    """Rows of a banded basis times coefficients c: sum_q vals[:, q] c[first + q]."""
+    idx = first[:, None] + jnp.arange(vals.shape[1])[None, :]
+    return jnp.sum(vals * c[idx], axis=1)
+
+
+def speed_basis_values(lay: Layout, c):
+    """Base speed and acceleration at the nodes and at the midpoints: (v0n, a0n, v0m, a0m)."""
+    return (band_dot(lay.Bn, lay.jn, c), band_dot(lay.dBn, lay.jn, c),
+            band_dot(lay.Bm, lay.jm, c), band_dot(lay.dBm, lay.jm, c))
+
+
 def integrate(p, lay: Layout):
     """Node values (X, psi, dX/dt, dpsi/dt), each (G,), with X = psi = 0 at lay.t_ref."""
     ctx = ctx_of(p, lay)
     c = p["v"]
-    v0n, a0n, v0m, a0m = lay.Bn @ c, lay.dBn @ c, lay.Bm @ c, lay.dBm @ c
+    v0n, a0n, v0m, a0m = speed_basis_values(lay, c)
     h = lay.h
     if not _hook(lay, "speed"):
         vn, dpn = _rates(p, lay, ctx, v0n, a0n, None)
