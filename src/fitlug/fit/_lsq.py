@@ -210,13 +210,28 @@ class LsqOutput(NamedTuple):
     converged: bool
     steps: int
     packing: Packing
+    normal: np.ndarray | None = None  # J^T J, given when J is not (chunked solve)
 
 
 def least_squares(p0: dict, free, lay, obs, *, max_steps: int = 200, rtol: float = 1e-8,
-                  atol: float = 1e-6) -> LsqOutput:
-    """Minimise |residuals|^2 over the `free` parameters of `p0` (others held fixed)."""
+                  atol: float = 1e-6, chunked: bool | None = None) -> LsqOutput:
+    """Minimise |residuals|^2 over the `free` parameters of `p0` (others held fixed).
+
+    Long recordings (dense Jacobian above LARGE_ENTRIES entries; `chunked` forces the
+    choice) are solved on normal equations accumulated in time chunks: then the output's
+    J is None and `normal` holds J^T J."""
     packing = Packing.of(p0, free)
     fixed = {k: jnp.asarray(v, float) for k, v in p0.items() if k not in packing.names}
+    n_res = 2 * (lay.lug_t.shape[0] + lay.body_t.shape[0])
+    if chunked is None:
+        chunked = n_res * sum(packing.sizes) > LARGE_ENTRIES
+    if chunked and chunkable(p0, lay, packing):
+        flat, A, r, ok, steps = _solve_chunked(packing.pack(p0), fixed, lay, obs, packing,
+                                               chunk_plan(lay), max_steps, rtol, 1e-9)
+        p = packing.unpack(flat, fixed)
+        return LsqOutput(params=p, flat=np.asarray(flat), J=None, r=np.asarray(r),
+                         converged=bool(ok), steps=int(steps), packing=packing,
+                         normal=np.asarray(A))
     flat, J, r, ok, steps = _solve(packing.pack(p0), fixed, lay, obs, packing, max_steps,
                                    rtol, atol)
     p = packing.unpack(flat, fixed)
@@ -454,3 +469,67 @@ def normal_equations(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: 
 def _hermite_weights(tau, h):
     t2, t3 = tau * tau, tau * tau * tau
     return (2 * t3 - 3 * t2 + 1, (t3 - 2 * t2 + tau) * h, -2 * t3 + 3 * t2, (t3 - t2) * h)
+
+
+@eqx.filter_jit
+def _solve_chunked(flat0, fixed, lay, obs, packing: Packing, plan: ChunkPlan, max_steps: int,
+                   rtol: float, atol: float):
+    """Levenberg-Marquardt on the chunked normal equations (Nielsen's damping update),
+    in unit-column scaling from the start; ends on a step below atol (unit columns) or
+    rtol relative to the parameters, or on a step that no longer lowers chi^2 beyond
+    rounding. Returns (flat, J^T J, r, converged, steps)."""
+    def ne(f):
+        return normal_equations(f, fixed, lay, obs, packing, plan)
+
+    def chi2_of(f):
+        r = residuals(packing.unpack(f, fixed), lay, obs)
+        return jnp.sum(r * r)
+
+    A0, g0, c0 = ne(flat0)
+    d = jnp.sqrt(jnp.diag(A0))
+    s = jnp.where(d > 0, 1.0 / jnp.where(d > 0, d, 1.0), 1.0)
+    n = flat0.shape[0]
+    eye = jnp.eye(n)
+
+    def cond(st):
+        return (~st[7]) & (st[6] < max_steps)
+
+    def body(st):
+        flat, A, g, c2, lam, nu, k, done = st
+        As = A * s[:, None] * s[None, :]
+        gs = g * s
+        L = jnp.linalg.cholesky(As + lam * eye)
+        dz = -jax.scipy.linalg.cho_solve((L, True), gs)
+        new = flat + dz * s
+        c2n = chi2_of(new)
+        pred = -(2.0 * gs @ dz + dz @ As @ dz)
+        actual = c2 - c2n
+        rho = actual / jnp.where(pred > 0, pred, 1.0)
+        finite = jnp.isfinite(c2n) & jnp.all(jnp.isfinite(dz))
+        small = jnp.max(jnp.abs(dz) / (atol + rtol * jnp.abs(flat / s))) < 1.0
+        noise = jnp.abs(actual) <= 1e-13 * c2 + 1e-300
+        accept = finite & ((rho > 1e-4) | small | (noise & (jnp.max(jnp.abs(dz)) < 1e-3)))
+        end = accept & (small | noise)
+        A2, g2, c22 = jax.lax.cond(accept & ~end, ne, lambda f: (A, g, c2n), new)
+        lam2 = jnp.where(accept, lam * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3),
+                         lam * nu)
+        nu2 = jnp.where(accept, 2.0, nu * 2.0)
+        return (jnp.where(accept, new, flat), jnp.where(accept, A2, A),
+                jnp.where(accept, g2, g), jnp.where(accept, c22, c2), lam2, nu2, k + 1, end)
+
+    st = (flat0, A0, g0, c0, jnp.asarray(1e-4), jnp.asarray(2.0), jnp.asarray(0), jnp.asarray(False))
+    flat, A, g, c2, lam, nu, k, done = jax.lax.while_loop(cond, body, st)
+    A, _, _ = ne(flat)
+    r = residuals(packing.unpack(flat, fixed), lay, obs)
+    return flat, A, r, done, k
+
+
+def covariance_normal(A: np.ndarray, rcond: float = 1e-12) -> np.ndarray:
+    """:func:`covariance` from the normal matrix J^T J instead of J (same pseudo-inverse)."""
+    A = np.asarray(A)
+    d = np.sqrt(np.maximum(np.diag(A), 0.0))
+    s = 1.0 / np.maximum(d, 1e-300)
+    As = A * np.outer(s, s)
+    w, V = np.linalg.eigh(As)
+    inv = np.where(w > rcond * w.max(), 1.0 / np.where(w > 0, w, 1.0), 0.0)
+    return (V * inv) @ V.T * np.outer(s, s)
