@@ -285,3 +285,65 @@ def segments(p: dict, lay: Layout):
     X, psi, vn, dpn = integrate(p, lay)
     psil = hermite(lay, _true_times(p, lay, lay.lug_t), psi, dpn)
     return stadium(p["sigma0"][lay.lug_i] + psil, ctx)[2]
+
+
+def integrated_basis_rows(lay: Layout, t, chunk: int = 4096):
+    """Rows of d X(t) / d c with X(grid[0]) = 0 for the samples t, by time chunks (numpy).
+
+    The same Simpson cumulation and Hermite interpolation as :func:`integrate` (base
+    model), without the dense (G, K) matrices: yields (sample indices, dense rows
+    (len, K)) per chunk of node intervals, memory chunk x K."""
+    grid = np.asarray(lay.grid)
+    h, G, K = lay.h, grid.shape[0], lay.n_coef
+    Bn, jn = np.asarray(lay.Bn), np.asarray(lay.jn)
+    Bm, jm = np.asarray(lay.Bm), np.asarray(lay.jm)
+    t = np.asarray(t, float)
+    u = (t - grid[0]) / h
+    i = np.clip(np.floor(u).astype(np.int64), 0, G - 2)
+    tau = (u - i)[:, None]
+    w = ((2 * tau ** 3 - 3 * tau ** 2 + 1), (tau ** 3 - 2 * tau ** 2 + tau) * h,
+         (-2 * tau ** 3 + 3 * tau ** 2), (tau ** 3 - tau ** 2) * h)
+    carry = np.zeros(K)
+    for c0 in range(0, G - 1, chunk):
+        c1 = min(c0 + chunk, G - 1)
+        n = c1 - c0
+        inc = np.zeros((n, K))
+        vn = np.zeros((n + 1, K))
+        r = np.arange(n)
+        for q in range(Bn.shape[1]):
+            np.add.at(inc, (r, jn[c0:c1] + q), h / 6 * Bn[c0:c1, q])
+            np.add.at(inc, (r, jm[c0:c1] + q), 4 * h / 6 * Bm[c0:c1, q])
+            np.add.at(inc, (r, jn[c0 + 1:c1 + 1] + q), h / 6 * Bn[c0 + 1:c1 + 1, q])
+            np.add.at(vn, (np.arange(n + 1), jn[c0:c1 + 1] + q), Bn[c0:c1 + 1, q])
+        Inode = carry + np.vstack([np.zeros((1, K)), np.cumsum(inc, 0)])
+        sel = np.flatnonzero((i >= c0) & (i < c1))
+        if len(sel):
+            li = i[sel] - c0
+            rows = (w[0][sel] * Inode[li] + w[1][sel] * vn[li] + w[2][sel] * Inode[li + 1]
+                    + w[3][sel] * vn[li + 1])
+            yield sel, rows
+        carry = Inode[-1]
+
+
+def fit_body_speed(lay: Layout, t, j, x, w):
+    """Speed-spline coefficients and body offsets cx minimising
+    sum w^2 (x - X(t) - cx_j)^2 (X(t_ref) = 0, base model with zero slip): normal
+    equations accumulated by time chunks, memory independent of the recording's length."""
+    K, nb = lay.n_coef, lay.n_body
+    t, j, x, w = (np.asarray(a) for a in (t, j, x, w))
+    ref = np.zeros(K)
+    for _, rows in integrated_basis_rows(lay, np.asarray([float(lay.t_ref)])):
+        ref = rows[0]
+    A = np.zeros((K + nb, K + nb))
+    b = np.zeros(K + nb)
+    for sel, rows in integrated_basis_rows(lay, t):
+        M = np.zeros((len(sel), K + nb))
+        M[:, :K] = rows - ref
+        M[np.arange(len(sel)), K + j[sel]] = 1.0
+        M *= w[sel, None]
+        A += M.T @ M
+        b += M.T @ (x[sel] * w[sel])
+    d = np.sqrt(np.maximum(np.diag(A), 0.0))
+    s = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 1.0)
+    sol = np.linalg.lstsq(A * np.outer(s, s), b * s, rcond=None)[0] * s
+    return sol[:K], sol[K:]
