@@ -364,9 +364,13 @@ def _scatter_rows(vals, cols, width):
     return jnp.zeros((n, width), vals.dtype).at[jnp.arange(n)[:, None], cols].add(vals)
 
 
-def normal_equations(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: ChunkPlan):
+def normal_equations(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: ChunkPlan,
+                     v=None, with_A: bool = True):
     """(J^T J, J^T r, chi^2) of the weighted residuals, in memory linear in the samples and
-    without the dense Jacobian; J is the same exact Jacobian as :func:`jacobian`."""
+    without the dense Jacobian; J is the same exact Jacobian as :func:`jacobian`.
+
+    With `v` (a residual-shaped vector, or (m, N) for m of them) the second output is J^T v
+    instead ((p,) or (m, p)); with_A=False skips J^T J (returned as None)."""
     from ..model._model import _true_times
 
     sl = packing.slices()
@@ -459,11 +463,15 @@ def normal_equations(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: 
         if len(rest_idx):
             Jc = Jc.at[:, rest_idx].set(J_rest[rows])
         Jc = Jc * mask[:, None]
-        return (A + Jc.T @ Jc, g + Jc.T @ (r[rows] * mask)), None
+        A2 = A + Jc.T @ Jc if with_A else A
+        if v is None:
+            return (A2, g + Jc.T @ (r[rows] * mask)), None
+        return (A2, g + (v[..., rows] * mask) @ Jc), None
 
-    init = (jnp.zeros((n_par, n_par)), jnp.zeros(n_par))
+    g0 = jnp.zeros(n_par) if v is None else jnp.zeros(v.shape[:-1] + (n_par,))
+    init = (jnp.zeros((n_par, n_par)) if with_A else jnp.zeros(()), g0)
     (A, g), _ = jax.lax.scan(chunk, init, (plan.rows, plan.mask, plan.ws, preX, preP))
-    return A, g, jnp.sum(r * r)
+    return (A if with_A else None), g, jnp.sum(r * r)
 
 
 def _hermite_weights(tau, h):
@@ -472,56 +480,77 @@ def _hermite_weights(tau, h):
 
 
 @eqx.filter_jit
+def _normal_jit(flat, fixed, lay, obs, packing: Packing, plan: ChunkPlan):
+    return normal_equations(flat, fixed, lay, obs, packing, plan)
+
+
+@eqx.filter_jit
+def _chi2_jit(flat, fixed, lay, obs, packing: Packing):
+    r = residuals(packing.unpack(flat, fixed), lay, obs)
+    return jnp.sum(r * r)
+
+
+@eqx.filter_jit
+def _residuals_jit(flat, fixed, lay, obs, packing: Packing):
+    return residuals(packing.unpack(flat, fixed), lay, obs)
+
+
 def _solve_chunked(flat0, fixed, lay, obs, packing: Packing, plan: ChunkPlan, max_steps: int,
                    rtol: float, atol: float):
-    """Levenberg-Marquardt on the chunked normal equations (Nielsen's damping update),
-    in unit-column scaling from the start; ends on a step below atol (unit columns) or
-    rtol relative to the parameters, or on a step that no longer lowers chi^2 beyond
-    rounding. Returns (flat, J^T J, r, converged, steps)."""
+    """Levenberg-Marquardt on the chunked normal equations (Nielsen's damping update), in
+    unit-column scaling from the start; ends on an accepted step below atol (unit columns)
+    or rtol relative to the parameters, or one that no longer lowers chi^2 beyond rounding.
+
+    The iteration runs in Python around three compiled kernels (normal equations, chi^2,
+    residuals): each step costs a pass over the recording, so the loop's overhead is
+    nothing, and one compilation of the pass serves every step. Returns
+    (flat, J^T J, r, converged, steps)."""
+    flat = np.asarray(flat0, float)
+
     def ne(f):
-        return normal_equations(f, fixed, lay, obs, packing, plan)
+        A, g, c2 = _normal_jit(jnp.asarray(f), fixed, lay, obs, packing, plan)
+        return np.asarray(A), np.asarray(g), float(c2)
 
-    def chi2_of(f):
-        r = residuals(packing.unpack(f, fixed), lay, obs)
-        return jnp.sum(r * r)
-
-    A0, g0, c0 = ne(flat0)
-    d = jnp.sqrt(jnp.diag(A0))
-    s = jnp.where(d > 0, 1.0 / jnp.where(d > 0, d, 1.0), 1.0)
-    n = flat0.shape[0]
-    eye = jnp.eye(n)
-
-    def cond(st):
-        return (~st[7]) & (st[6] < max_steps)
-
-    def body(st):
-        flat, A, g, c2, lam, nu, k, done = st
-        As = A * s[:, None] * s[None, :]
+    A, g, c2 = ne(flat)
+    d = np.sqrt(np.maximum(np.diag(A), 0.0))
+    s = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 1.0)
+    lam, nu, done, k = 1e-4, 2.0, False, 0
+    eye = np.eye(len(flat))
+    while not done and k < max_steps:
+        k += 1
+        As = A * np.outer(s, s)
         gs = g * s
-        L = jnp.linalg.cholesky(As + lam * eye)
-        dz = -jax.scipy.linalg.cho_solve((L, True), gs)
+        try:
+            L = np.linalg.cholesky(As + lam * eye)
+            dz = -_cho_solve(L, gs)
+        except np.linalg.LinAlgError:
+            lam, nu = lam * nu, nu * 2.0
+            continue
         new = flat + dz * s
-        c2n = chi2_of(new)
+        c2n = float(_chi2_jit(jnp.asarray(new), fixed, lay, obs, packing))
         pred = -(2.0 * gs @ dz + dz @ As @ dz)
         actual = c2 - c2n
-        rho = actual / jnp.where(pred > 0, pred, 1.0)
-        finite = jnp.isfinite(c2n) & jnp.all(jnp.isfinite(dz))
-        small = jnp.max(jnp.abs(dz) / (atol + rtol * jnp.abs(flat / s))) < 1.0
-        noise = jnp.abs(actual) <= 1e-13 * c2 + 1e-300
-        accept = finite & ((rho > 1e-4) | small | (noise & (jnp.max(jnp.abs(dz)) < 1e-3)))
-        end = accept & (small | noise)
-        A2, g2, c22 = jax.lax.cond(accept & ~end, ne, lambda f: (A, g, c2n), new)
-        lam2 = jnp.where(accept, lam * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3),
-                         lam * nu)
-        nu2 = jnp.where(accept, 2.0, nu * 2.0)
-        return (jnp.where(accept, new, flat), jnp.where(accept, A2, A),
-                jnp.where(accept, g2, g), jnp.where(accept, c22, c2), lam2, nu2, k + 1, end)
-
-    st = (flat0, A0, g0, c0, jnp.asarray(1e-4), jnp.asarray(2.0), jnp.asarray(0), jnp.asarray(False))
-    flat, A, g, c2, lam, nu, k, done = jax.lax.while_loop(cond, body, st)
-    A, _, _ = ne(flat)
-    r = residuals(packing.unpack(flat, fixed), lay, obs)
+        rho = actual / pred if pred > 0 else -1.0
+        finite = np.isfinite(c2n) and np.all(np.isfinite(dz))
+        small = np.max(np.abs(dz) / (atol + rtol * np.abs(flat / s))) < 1.0
+        noise = abs(actual) <= 1e-13 * c2
+        accept = finite and (rho > 1e-4 or small or (noise and np.max(np.abs(dz)) < 1e-3))
+        if accept:
+            flat = new
+            done = bool(small or noise)
+            lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            nu = 2.0
+            A, g, c2 = ne(flat)
+        else:
+            lam, nu = lam * nu, nu * 2.0
+    r = np.asarray(_residuals_jit(jnp.asarray(flat), fixed, lay, obs, packing))
     return flat, A, r, done, k
+
+
+def _cho_solve(L, b):
+    from scipy.linalg import solve_triangular
+
+    return solve_triangular(L.T, solve_triangular(L, b, lower=True), lower=False)
 
 
 def covariance_normal(A: np.ndarray, rcond: float = 1e-12) -> np.ndarray:
