@@ -19,7 +19,7 @@ bundled 650-frame recording against the least-squares fit alone (target <= 10 s)
 cold first run of a new installation (FITLUG_CACHE_DIR set to an empty folder).
 
     python benchmarks/bench_scale.py --quick            # 650 and 2 000 frames, no extras
-    python benchmarks/bench_scale.py                    # the full ladder (long: run on a quiet machine)
+    python benchmarks/bench_scale.py                    # the full ladder (long: quiet machine)
     python benchmarks/bench_scale.py --frames 2000 10000 --stages simulate lsq
 
 Stages of one size run one after another (each needs the simulated recording); sizes run

@@ -13,6 +13,11 @@ about one sigma): atol 1e-6 stops far below any statistical relevance.
 
 :func:`jacobian` is the exact Jacobian computed through the model's structure (2-3x faster
 than jacfwd); the start scaling, the covariance and the explanation engine use it.
+
+Long recordings (the dense Jacobian above LARGE_ENTRIES entries) never form J: their LM
+runs on J^T J and J^T r accumulated in time chunks (:func:`normal_equations`), same
+optimum (1.7e-10 relative in the parameters on the reference recording), memory linear
+in the samples.
 """
 
 from __future__ import annotations

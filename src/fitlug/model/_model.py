@@ -97,7 +97,8 @@ def make_layout(*, breaks, t_lo, t_hi, fps, lug_t, lug_i, body_t, body_j, n_lug,
     dBm, _ = _spline.banded(mid, br, 1)
     f = jnp.asarray
     lay = Layout(grid=f(grid), Bn=f(Bn), dBn=f(dBn), Bm=f(Bm), dBm=f(dBm), jn=f(jn), jm=f(jm),
-                 n_coef=_spline.n_coefficients(br), breaks=jnp.asarray(br), t_ref=jnp.asarray(float(t_ref)),
+                 n_coef=_spline.n_coefficients(br), breaks=jnp.asarray(br),
+                 t_ref=jnp.asarray(float(t_ref)),
                  lug_t=jnp.asarray(lug_t, float), lug_i=jnp.asarray(lug_i, int),
                  body_t=jnp.asarray(body_t, float), body_j=jnp.asarray(body_j, int), h=h,
                  n_lug=int(n_lug), n_body=int(n_body), n_belt=int(n_belt),
