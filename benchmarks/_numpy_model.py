@@ -5,7 +5,7 @@ import numpy as np
 
 
 def predict(p, lay):
-    Bn, dBn, Bm, dBm = (np.asarray(a) for a in (lay.Bn, lay.dBn, lay.Bm, lay.dBm))
+    Bn, dBn, Bm, dBm = lay.dense_bases()
     grid, h = np.asarray(lay.grid), lay.h
     c = p["v"]
     v0n, a0n, v0m, a0m = Bn @ c, dBn @ c, Bm @ c, dBm @ c

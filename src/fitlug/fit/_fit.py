@@ -10,7 +10,7 @@ import numpy as np
 from .._errors import FitError
 from ..model import param_names
 from ..model.effects import CATALOG
-from ._lsq import covariance, least_squares
+from ._lsq import covariance, covariance_normal, least_squares
 from ._noise import fourth_differences, noise_from_differences
 from ._problem import Problem, build_problem
 from ._result import FitResult, compute_quantities
@@ -34,7 +34,7 @@ def fit_problem(prob: Problem, p_start: dict | None = None, *, free=None, max_st
     out = least_squares(p0, free, prob.lay, prob.obs, max_steps=max_steps)
     chi2 = float(np.sum(out.r ** 2))
     n_data = prob.n_valid
-    cov = covariance(out.J)
+    cov = covariance(out.J) if out.J is not None else covariance_normal(out.normal)
     fixed = {k: v for k, v in out.params.items() if k not in out.packing.names}
     q = compute_quantities(out.params, out.packing, out.flat, cov, prob.lay, prob.rig.mass_kg,
                            fixed)

@@ -13,6 +13,11 @@ about one sigma): atol 1e-6 stops far below any statistical relevance.
 
 :func:`jacobian` is the exact Jacobian computed through the model's structure (2-3x faster
 than jacfwd); the start scaling, the covariance and the explanation engine use it.
+
+Long recordings (the dense Jacobian above LARGE_ENTRIES entries) never form J: their LM
+runs on J^T J and J^T r accumulated in time chunks (:func:`normal_equations`), same
+optimum (1.7e-10 relative in the parameters on the reference recording), memory linear
+in the samples.
 """
 
 from __future__ import annotations
@@ -210,13 +215,28 @@ class LsqOutput(NamedTuple):
     converged: bool
     steps: int
     packing: Packing
+    normal: np.ndarray | None = None  # J^T J, given when J is not (chunked solve)
 
 
 def least_squares(p0: dict, free, lay, obs, *, max_steps: int = 200, rtol: float = 1e-8,
-                  atol: float = 1e-6) -> LsqOutput:
-    """Minimise |residuals|^2 over the `free` parameters of `p0` (others held fixed)."""
+                  atol: float = 1e-6, chunked: bool | None = None) -> LsqOutput:
+    """Minimise |residuals|^2 over the `free` parameters of `p0` (others held fixed).
+
+    Long recordings (dense Jacobian above LARGE_ENTRIES entries; `chunked` forces the
+    choice) are solved on normal equations accumulated in time chunks: then the output's
+    J is None and `normal` holds J^T J."""
     packing = Packing.of(p0, free)
     fixed = {k: jnp.asarray(v, float) for k, v in p0.items() if k not in packing.names}
+    n_res = 2 * (lay.lug_t.shape[0] + lay.body_t.shape[0])
+    if chunked is None:
+        chunked = n_res * sum(packing.sizes) > LARGE_ENTRIES
+    if chunked and chunkable(p0, lay, packing):
+        flat, A, r, ok, steps = _solve_chunked(packing.pack(p0), fixed, lay, obs, packing,
+                                               chunk_plan(lay), max_steps, rtol, 1e-9)
+        p = packing.unpack(flat, fixed)
+        return LsqOutput(params=p, flat=np.asarray(flat), J=None, r=np.asarray(r),
+                         converged=bool(ok), steps=int(steps), packing=packing,
+                         normal=np.asarray(A))
     flat, J, r, ok, steps = _solve(packing.pack(p0), fixed, lay, obs, packing, max_steps,
                                    rtol, atol)
     p = packing.unpack(flat, fixed)
@@ -229,5 +249,321 @@ def covariance(J: np.ndarray, rcond: float = 1e-12) -> np.ndarray:
     s = 1.0 / np.maximum(np.sqrt(np.sum(J * J, 0)), 1e-300)
     A = (J * s).T @ (J * s)
     w, V = np.linalg.eigh(A)
+    inv = np.where(w > rcond * w.max(), 1.0 / np.where(w > 0, w, 1.0), 0.0)
+    return (V * inv) @ V.T * np.outer(s, s)
+
+
+# ---------------------------------------------------------------------------------------
+# Long recordings: the normal equations accumulated in time chunks, bounded memory.
+#
+# The dense Jacobian (2 S residuals x p parameters, and p grows with the duration through
+# the spline's knots) is never formed. One pass over time chunks of the residual rows
+# builds J^T J (p x p), J^T r and chi^2; a chunk's Jacobian rows need d(X, psi)/d theta only
+# at the nodes of its time window, which are the prefix sum up to the window's start (one
+# dense vector per chunk, from per-segment sums of the banded Simpson increments) plus a
+# local cumulative sum. The damped normal equations are then solved by a dense Cholesky of
+# the p x p matrix, in the same unit-column scaling as the optimistix path.
+# ---------------------------------------------------------------------------------------
+
+#: node intervals per time chunk, and the margin each chunk's window adds on both sides
+#: (a time-mapped sample may move by a frame: substeps intervals)
+CHUNK_INTERVALS = 1024
+_MARGIN = 16
+#: the chunked path is used when the dense Jacobian would exceed this many entries
+#: (32 MB; the reference recording has 0.9 M): below it the optimistix path is as fast
+LARGE_ENTRIES = 4_000_000
+
+
+class ChunkPlan(eqx.Module):
+    """Which residual rows each time chunk holds and where its node window starts."""
+
+    rows: jax.Array  # (C, R) residual rows (padded with row 0)
+    mask: jax.Array  # (C, R) 1.0 for real rows
+    ws: jax.Array  # (C,) first node of each chunk's window
+    seg: jax.Array  # (G - 1,) segment of each interval: number of window starts <= k
+    W: int = eqx.field(static=True)  # nodes per window
+
+
+def chunk_plan(lay, chunk: int = CHUNK_INTERVALS, margin: int = _MARGIN) -> ChunkPlan:
+    """Time chunks of a layout's residual rows ([lug x, lug y, body x, body y])."""
+    grid = np.asarray(lay.grid)
+    G = grid.shape[0]
+    lt, bt = np.asarray(lay.lug_t), np.asarray(lay.body_t)
+    t_row = np.concatenate([lt, lt, bt, bt])
+    i0 = np.clip(np.floor((t_row - grid[0]) / lay.h).astype(np.int64), 0, G - 2)
+    cid = i0 // chunk
+    C = int(cid.max()) + 1 if len(cid) else 1
+    W = int(min(chunk + 2 * margin + 2, G))
+    ws = np.clip(np.arange(C) * chunk - margin, 0, G - W)
+    counts = np.bincount(cid, minlength=C)
+    R = max(int(counts.max()), 1)
+    order = np.argsort(cid, kind="stable")
+    starts = np.r_[0, np.cumsum(counts)[:-1]]
+    pos = np.arange(len(order)) - starts[cid[order]]
+    rows = np.zeros((C, R), np.int64)
+    mask = np.zeros((C, R))
+    rows[cid[order], pos] = order
+    mask[cid[order], pos] = 1.0
+    seg = np.searchsorted(ws, np.arange(G - 1), side="right")
+    return ChunkPlan(rows=jnp.asarray(rows), mask=jnp.asarray(mask), ws=jnp.asarray(ws),
+                     seg=jnp.asarray(seg), W=W)
+
+
+def chunkable(p: dict, lay, packing: Packing) -> bool:
+    """Whether the chunked normal equations apply: speed spline, s0, beta and sigma0 free,
+    and no belt-locked speed modulation (which makes psi's ODE non-local in theta)."""
+    from ..model._model import _hook
+
+    return (all(k in packing.names for k in ("v", "s0", "beta", "sigma0"))
+            and not _hook(lay, "speed"))
+
+
+def _kinematic_bands(p: dict, lay):
+    """Banded derivatives of the node rates and of the Simpson increments with respect to
+    the kinematic columns (K spline coefficients, then s0, then beta).
+
+    Returns (rate bands at nodes for X and psi, increment bands per interval for X and
+    psi); a band is (values (n, b), columns (n, b)), repeated columns add up."""
+    from ..model._model import _rates, ctx_of, speed_basis_values
+
+    ctx = ctx_of(p, lay)
+    K = lay.n_coef
+    c = p["v"]
+    v0n, a0n, v0m, a0m = speed_basis_values(lay, c)
+
+    def partials(v0, a0):
+        def F(v, a, s0, beta):
+            return _rates({**p, "s0": s0, "beta": beta}, lay, ctx, v, a, None)[1]
+
+        args = (v0, a0, p["s0"], p["beta"])
+        out = []
+        for k in range(4):
+            tang = [jnp.zeros_like(x) for x in args]
+            tang[k] = jnp.ones_like(args[k])
+            out.append(jax.jvp(F, args, tuple(tang))[1])
+        return out  # dF/dv0, dF/da0, dF/ds0, dF/dbeta (per node)
+
+    def bands(B, dB, first, v0, a0):
+        Fv, Fa, Fs, Fb = partials(v0, a0)
+        n = B.shape[0]
+        cols = jnp.concatenate([first[:, None] + jnp.arange(B.shape[1])[None, :],
+                                jnp.full((n, 1), K), jnp.full((n, 1), K + 1)], axis=1)
+        zx = jnp.zeros((n, 2))
+        bx = jnp.concatenate([B, zx], axis=1)
+        bp = jnp.concatenate([Fv[:, None] * B + Fa[:, None] * dB, Fs[:, None], Fb[:, None]],
+                             axis=1)
+        return bx, bp, cols
+
+    nx, npsi, ncol = bands(lay.Bn, lay.dBn, lay.jn, v0n, a0n)
+    mx, mpsi, mcol = bands(lay.Bm, lay.dBm, lay.jm, v0m, a0m)
+    h6 = lay.h / 6.0
+    icol = jnp.concatenate([ncol[:-1], mcol, ncol[1:]], axis=1)
+    ix = h6 * jnp.concatenate([nx[:-1], 4.0 * mx, nx[1:]], axis=1)
+    ipsi = h6 * jnp.concatenate([npsi[:-1], 4.0 * mpsi, npsi[1:]], axis=1)
+    return (nx, npsi, ncol), (ix, ipsi, icol)
+
+
+def _scatter_rows(vals, cols, width):
+    """Dense (n, width) matrix of banded rows."""
+    n = vals.shape[0]
+    return jnp.zeros((n, width), vals.dtype).at[jnp.arange(n)[:, None], cols].add(vals)
+
+
+def normal_equations(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: ChunkPlan,
+                     v=None, with_A: bool = True):
+    """(J^T J, J^T r, chi^2) of the weighted residuals, in memory linear in the samples and
+    without the dense Jacobian; J is the same exact Jacobian as :func:`jacobian`.
+
+    With `v` (a residual-shaped vector, or (m, N) for m of them) the second output is J^T v
+    instead ((p,) or (m, p)); with_A=False skips J^T J (returned as None)."""
+    from ..model._model import _true_times
+
+    sl = packing.slices()
+    p = packing.unpack(flat, fixed)
+    n_par = flat.shape[0]
+    K = lay.n_coef
+    nk = K + 2
+    G = lay.grid.shape[0]
+    n_l, n_b = lay.lug_t.shape[0], lay.body_t.shape[0]
+
+    def stage2(Xl, psil, Xb, psib):
+        return _weighted(positions(p, lay, Xl, psil, Xb, psib), obs)
+
+    prim = sampled_kinematics(p, lay)
+    one_l, one_b = jnp.ones(n_l), jnp.ones(n_b)
+    zero_l, zero_b = jnp.zeros(n_l), jnp.zeros(n_b)
+    r, dr_dX = jax.jvp(stage2, prim, (one_l, zero_l, one_b, zero_b))
+    _, dr_dpsi = jax.jvp(stage2, prim, (zero_l, one_l, zero_b, one_b))
+    tl, tb = _true_times(p, lay, lay.lug_t), _true_times(p, lay, lay.body_t)
+    t_row = jnp.concatenate([tl, tl, tb, tb])
+    sig_col = jnp.concatenate([lay.lug_i, lay.lug_i, jnp.zeros(2 * n_b, lay.lug_i.dtype)])
+    sig_val = jnp.concatenate([dr_dpsi[:2 * n_l], jnp.zeros(2 * n_b)])
+
+    # the remaining parameters: one forward derivative each through the whole model
+    rest = [k for k in packing.names if k not in KINEMATIC and k != "sigma0"]
+    rest_idx = (np.concatenate([np.arange(sl[k].start, sl[k].stop) for k in rest])
+                if rest else np.zeros(0, np.int64))
+
+    def rest_column(e):
+        return jax.jvp(lambda f: residuals(packing.unpack(f, fixed), lay, obs), (flat,),
+                       (e,))[1]
+
+    if len(rest_idx):
+        E = jnp.zeros((len(rest_idx), n_par)).at[np.arange(len(rest_idx)), rest_idx].set(1.0)
+        J_rest = jax.lax.map(rest_column, E).T  # (N, n_rest)
+    else:
+        J_rest = jnp.zeros((r.shape[0], 0))
+
+    kin_pos = np.r_[np.arange(sl["v"].start, sl["v"].stop), sl["s0"].start, sl["beta"].start]
+    sig_pos = jnp.asarray(np.arange(sl["sigma0"].start, sl["sigma0"].stop))
+
+    (nx, npsi, ncol), (ix, ipsi, icol) = _kinematic_bands(p, lay)
+    # prefix sums of the increments at every window start: per-segment sums, cumulated
+    n_seg = plan.ws.shape[0] + 1
+    seg_rows = plan.seg[:, None] * nk + icol
+    segX = jnp.zeros(n_seg * nk).at[seg_rows].add(ix).reshape(n_seg, nk)
+    segP = jnp.zeros(n_seg * nk).at[seg_rows].add(ipsi).reshape(n_seg, nk)
+    preX, preP = jnp.cumsum(segX, 0)[:-1], jnp.cumsum(segP, 0)[:-1]  # (C, nk)
+
+    # the gauge X(t_ref) = psi(t_ref) = 0: derivative of the value at t_ref
+    u0 = (lay.t_ref - lay.grid[0]) / lay.h
+    i0 = jnp.clip(jnp.floor(u0).astype(int), 0, G - 2)
+    below = (jnp.arange(G - 1) < i0).astype(flat.dtype)[:, None]
+    X0 = jnp.zeros(nk).at[icol].add(ix * below)
+    P0 = jnp.zeros(nk).at[icol].add(ipsi * below)
+    inc0X = jnp.zeros(nk).at[icol[i0]].add(ix[i0])
+    inc0P = jnp.zeros(nk).at[icol[i0]].add(ipsi[i0])
+    vX = [jnp.zeros(nk).at[ncol[i]].add(nx[i]) for i in (i0, i0 + 1)]
+    vP = [jnp.zeros(nk).at[ncol[i]].add(npsi[i]) for i in (i0, i0 + 1)]
+    tau0 = u0 - i0
+    hw0 = _hermite_weights(tau0, lay.h)
+    refX = hw0[0] * X0 + hw0[1] * vX[0] + hw0[2] * (X0 + inc0X) + hw0[3] * vX[1]
+    refP = hw0[0] * P0 + hw0[1] * vP[0] + hw0[2] * (P0 + inc0P) + hw0[3] * vP[1]
+
+    W = plan.W
+
+    def chunk(carry, xs):
+        A, g = carry
+        rows, mask, ws, pX, pP = xs
+        sl_n = lambda a: jax.lax.dynamic_slice_in_dim(a, ws, W, 0)  # noqa: E731
+        sl_i = lambda a: jax.lax.dynamic_slice_in_dim(a, ws, W - 1, 0)  # noqa: E731
+        DX = pX + jnp.concatenate([jnp.zeros((1, nk)), jnp.cumsum(
+            _scatter_rows(sl_i(ix), sl_i(icol), nk), 0)])
+        DP = pP + jnp.concatenate([jnp.zeros((1, nk)), jnp.cumsum(
+            _scatter_rows(sl_i(ipsi), sl_i(icol), nk), 0)])
+        VX = _scatter_rows(sl_n(nx), sl_n(ncol), nk)
+        VP = _scatter_rows(sl_n(npsi), sl_n(ncol), nk)
+        t = t_row[rows]
+        u = (t - lay.grid[0]) / lay.h
+        ig = jnp.clip(jnp.floor(u).astype(int), 0, G - 2)
+        tau = u - ig
+        il = jnp.clip(ig - ws, 0, W - 2)
+        w00, w10, w01, w11 = (w[:, None] for w in _hermite_weights(tau, lay.h))
+        dX = w00 * DX[il] + w10 * VX[il] + w01 * DX[il + 1] + w11 * VX[il + 1] - refX
+        dP = w00 * DP[il] + w10 * VP[il] + w01 * DP[il + 1] + w11 * VP[il + 1] - refP
+        kin = dr_dX[rows][:, None] * dX + dr_dpsi[rows][:, None] * dP
+        Rn = rows.shape[0]
+        Jc = jnp.zeros((Rn, n_par)).at[:, kin_pos].set(kin)
+        Jc = Jc.at[jnp.arange(Rn), sig_pos[sig_col[rows]]].add(sig_val[rows])
+        if len(rest_idx):
+            Jc = Jc.at[:, rest_idx].set(J_rest[rows])
+        Jc = Jc * mask[:, None]
+        A2 = A + Jc.T @ Jc if with_A else A
+        if v is None:
+            return (A2, g + Jc.T @ (r[rows] * mask)), None
+        return (A2, g + (v[..., rows] * mask) @ Jc), None
+
+    g0 = jnp.zeros(n_par) if v is None else jnp.zeros(v.shape[:-1] + (n_par,))
+    init = (jnp.zeros((n_par, n_par)) if with_A else jnp.zeros(()), g0)
+    (A, g), _ = jax.lax.scan(chunk, init, (plan.rows, plan.mask, plan.ws, preX, preP))
+    return (A if with_A else None), g, jnp.sum(r * r)
+
+
+def _hermite_weights(tau, h):
+    t2, t3 = tau * tau, tau * tau * tau
+    return (2 * t3 - 3 * t2 + 1, (t3 - 2 * t2 + tau) * h, -2 * t3 + 3 * t2, (t3 - t2) * h)
+
+
+@eqx.filter_jit
+def _normal_jit(flat, fixed, lay, obs, packing: Packing, plan: ChunkPlan):
+    return normal_equations(flat, fixed, lay, obs, packing, plan)
+
+
+@eqx.filter_jit
+def _chi2_jit(flat, fixed, lay, obs, packing: Packing):
+    r = residuals(packing.unpack(flat, fixed), lay, obs)
+    return jnp.sum(r * r)
+
+
+@eqx.filter_jit
+def _residuals_jit(flat, fixed, lay, obs, packing: Packing):
+    return residuals(packing.unpack(flat, fixed), lay, obs)
+
+
+def _solve_chunked(flat0, fixed, lay, obs, packing: Packing, plan: ChunkPlan, max_steps: int,
+                   rtol: float, atol: float):
+    """Levenberg-Marquardt on the chunked normal equations (Nielsen's damping update), in
+    unit-column scaling from the start; ends on an accepted step below atol (unit columns)
+    or rtol relative to the parameters, or one that no longer lowers chi^2 beyond rounding.
+
+    The iteration runs in Python around three compiled kernels (normal equations, chi^2,
+    residuals): each step costs a pass over the recording, so the loop's overhead is
+    nothing, and one compilation of the pass serves every step. Returns
+    (flat, J^T J, r, converged, steps)."""
+    flat = np.asarray(flat0, float)
+
+    def ne(f):
+        A, g, c2 = _normal_jit(jnp.asarray(f), fixed, lay, obs, packing, plan)
+        return np.asarray(A), np.asarray(g), float(c2)
+
+    A, g, c2 = ne(flat)
+    d = np.sqrt(np.maximum(np.diag(A), 0.0))
+    s = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 1.0)
+    lam, nu, done, k = 1e-4, 2.0, False, 0
+    eye = np.eye(len(flat))
+    while not done and k < max_steps:
+        k += 1
+        As = A * np.outer(s, s)
+        gs = g * s
+        try:
+            L = np.linalg.cholesky(As + lam * eye)
+            dz = -_cho_solve(L, gs)
+        except np.linalg.LinAlgError:
+            lam, nu = lam * nu, nu * 2.0
+            continue
+        new = flat + dz * s
+        c2n = float(_chi2_jit(jnp.asarray(new), fixed, lay, obs, packing))
+        pred = -(2.0 * gs @ dz + dz @ As @ dz)
+        actual = c2 - c2n
+        rho = actual / pred if pred > 0 else -1.0
+        finite = np.isfinite(c2n) and np.all(np.isfinite(dz))
+        small = np.max(np.abs(dz) / (atol + rtol * np.abs(flat / s))) < 1.0
+        noise = abs(actual) <= 1e-13 * c2
+        accept = finite and (rho > 1e-4 or small or (noise and np.max(np.abs(dz)) < 1e-3))
+        if accept:
+            flat = new
+            done = bool(small or noise)
+            lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            nu = 2.0
+            A, g, c2 = ne(flat)
+        else:
+            lam, nu = lam * nu, nu * 2.0
+    r = np.asarray(_residuals_jit(jnp.asarray(flat), fixed, lay, obs, packing))
+    return flat, A, r, done, k
+
+
+def _cho_solve(L, b):
+    from scipy.linalg import solve_triangular
+
+    return solve_triangular(L.T, solve_triangular(L, b, lower=True), lower=False)
+
+
+def covariance_normal(A: np.ndarray, rcond: float = 1e-12) -> np.ndarray:
+    """:func:`covariance` from the normal matrix J^T J instead of J (same pseudo-inverse)."""
+    A = np.asarray(A)
+    d = np.sqrt(np.maximum(np.diag(A), 0.0))
+    s = 1.0 / np.maximum(d, 1e-300)
+    As = A * np.outer(s, s)
+    w, V = np.linalg.eigh(As)
     inv = np.where(w > rcond * w.max(), 1.0 / np.where(w > 0, w, 1.0), 0.0)
     return (V * inv) @ V.T * np.outer(s, s)

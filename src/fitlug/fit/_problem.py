@@ -172,7 +172,11 @@ def _fps(rec, frames):
 
 def _init_speed(lay, obs, cx0):
     """Speed-spline coefficients and cx by linear least squares on the body x samples."""
-    Bn, Bm = np.asarray(lay.Bn), np.asarray(lay.Bm)
+    if lay.grid.shape[0] * lay.n_coef > _DENSE_INIT_ENTRIES:  # long recordings: by chunks
+        from ..model._model import fit_body_speed
+
+        return fit_body_speed(lay, lay.body_t, lay.body_j, obs["body_x"], obs["body_w"])
+    Bn, _, Bm, _ = lay.dense_bases()
     h = lay.h
     # integrated basis at nodes (Simpson, cumulative), then Hermite at the body times
     I = np.vstack([np.zeros(Bn.shape[1]), np.cumsum(h / 6 * (Bn[:-1] + 4 * Bm + Bn[1:]), 0)])  # noqa: E741
@@ -195,6 +199,9 @@ def _init_speed(lay, obs, cx0):
     M = np.hstack([A, C]) * w[:, None]
     sol = np.linalg.lstsq(M, np.asarray(obs["body_x"]) * w, rcond=None)[0]
     return sol[:A.shape[1]], sol[A.shape[1]:]
+
+
+_DENSE_INIT_ENTRIES = 4_000_000  # (G, K) basis entries above which _init_speed chunks
 
 
 def effect_ids(effects) -> tuple:

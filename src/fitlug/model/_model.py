@@ -32,15 +32,20 @@ class Layout(eqx.Module):
     """Static structure of one recording: time grid, spline basis, who is sampled when."""
 
     grid: jax.Array  # (G,) node times, s
-    Bn: jax.Array  # (G, K) speed basis at nodes
+    # the speed basis in banded form (a cubic B-spline has 4 nonzero functions at any t):
+    # basis at node g = Bn[g, q] for coefficient jn[g] + q; memory linear in G whatever K
+    Bn: jax.Array  # (G, 4) speed basis at nodes
     dBn: jax.Array
-    Bm: jax.Array  # (G-1, K) at interval midpoints
+    Bm: jax.Array  # (G-1, 4) at interval midpoints
     dBm: jax.Array
+    jn: jax.Array  # (G,) first coefficient of each node's band
+    jm: jax.Array  # (G-1,)
     lug_t: jax.Array  # (S_l,) sample times of lug markers
     lug_i: jax.Array  # (S_l,) lug marker index
     body_t: jax.Array
     body_j: jax.Array
     h: float = eqx.field(static=True)
+    n_coef: int = eqx.field(static=True)  # K, speed-spline coefficients
     n_lug: int = eqx.field(static=True)
     n_body: int = eqx.field(static=True)
     n_belt: int = eqx.field(static=True)  # N, lugs on the belt
@@ -52,9 +57,18 @@ class Layout(eqx.Module):
     t_ref: jax.Array  # () X(t_ref) = psi(t_ref) = 0
     effects: tuple = eqx.field(static=True)
 
-    @property
-    def n_coef(self) -> int:
-        return self.Bn.shape[1]
+    def dense_bases(self):
+        """(Bn, dBn, Bm, dBm) as dense (G, K) matrices (numpy; small layouts only)."""
+        out = []
+        for vals, first in ((self.Bn, self.jn), (self.dBn, self.jn), (self.Bm, self.jm),
+                            (self.dBm, self.jm)):
+            vals, first = np.asarray(vals), np.asarray(first)
+            M = np.zeros((vals.shape[0], self.n_coef))
+            rows = np.arange(vals.shape[0])
+            for q in range(vals.shape[1]):
+                M[rows, first + q] += vals[:, q]
+            out.append(M)
+        return tuple(out)
 
     def with_effects(self, effects) -> "Layout":
         order = tuple(e for e in CATALOG if e in set(effects))
@@ -77,9 +91,14 @@ def make_layout(*, breaks, t_lo, t_hi, fps, lug_t, lug_i, body_t, body_j, n_lug,
     grid = t_lo + h * np.arange(G)
     mid = grid[:-1] + h / 2
     br = np.asarray(breaks, dtype=float)
-    f = lambda t, d: jnp.asarray(_spline.design(t, br, d))  # noqa: E731
-    lay = Layout(grid=jnp.asarray(grid), Bn=f(grid, 0), dBn=f(grid, 1), Bm=f(mid, 0),
-                 dBm=f(mid, 1), breaks=jnp.asarray(br), t_ref=jnp.asarray(float(t_ref)),
+    Bn, jn = _spline.banded(grid, br, 0)
+    dBn, _ = _spline.banded(grid, br, 1)
+    Bm, jm = _spline.banded(mid, br, 0)
+    dBm, _ = _spline.banded(mid, br, 1)
+    f = jnp.asarray
+    lay = Layout(grid=f(grid), Bn=f(Bn), dBn=f(dBn), Bm=f(Bm), dBm=f(dBm), jn=f(jn), jm=f(jm),
+                 n_coef=_spline.n_coefficients(br), breaks=jnp.asarray(br),
+                 t_ref=jnp.asarray(float(t_ref)),
                  lug_t=jnp.asarray(lug_t, float), lug_i=jnp.asarray(lug_i, int),
                  body_t=jnp.asarray(body_t, float), body_j=jnp.asarray(body_j, int), h=h,
                  n_lug=int(n_lug), n_body=int(n_body), n_belt=int(n_belt),
@@ -142,11 +161,23 @@ def _rates(p, lay, ctx, v0, a0, psi):
     return v, dpsi
 
 
+def band_dot(vals, first, c):
+    """Rows of a banded basis times coefficients c: sum_q vals[:, q] c[first + q]."""
+    idx = first[:, None] + jnp.arange(vals.shape[1])[None, :]
+    return jnp.sum(vals * c[idx], axis=1)
+
+
+def speed_basis_values(lay: Layout, c):
+    """Base speed and acceleration at the nodes and at the midpoints: (v0n, a0n, v0m, a0m)."""
+    return (band_dot(lay.Bn, lay.jn, c), band_dot(lay.dBn, lay.jn, c),
+            band_dot(lay.Bm, lay.jm, c), band_dot(lay.dBm, lay.jm, c))
+
+
 def integrate(p, lay: Layout):
     """Node values (X, psi, dX/dt, dpsi/dt), each (G,), with X = psi = 0 at lay.t_ref."""
     ctx = ctx_of(p, lay)
     c = p["v"]
-    v0n, a0n, v0m, a0m = lay.Bn @ c, lay.dBn @ c, lay.Bm @ c, lay.dBm @ c
+    v0n, a0n, v0m, a0m = speed_basis_values(lay, c)
     h = lay.h
     if not _hook(lay, "speed"):
         vn, dpn = _rates(p, lay, ctx, v0n, a0n, None)
@@ -255,3 +286,65 @@ def segments(p: dict, lay: Layout):
     X, psi, vn, dpn = integrate(p, lay)
     psil = hermite(lay, _true_times(p, lay, lay.lug_t), psi, dpn)
     return stadium(p["sigma0"][lay.lug_i] + psil, ctx)[2]
+
+
+def integrated_basis_rows(lay: Layout, t, chunk: int = 4096):
+    """Rows of d X(t) / d c with X(grid[0]) = 0 for the samples t, by time chunks (numpy).
+
+    The same Simpson cumulation and Hermite interpolation as :func:`integrate` (base
+    model), without the dense (G, K) matrices: yields (sample indices, dense rows
+    (len, K)) per chunk of node intervals, memory chunk x K."""
+    grid = np.asarray(lay.grid)
+    h, G, K = lay.h, grid.shape[0], lay.n_coef
+    Bn, jn = np.asarray(lay.Bn), np.asarray(lay.jn)
+    Bm, jm = np.asarray(lay.Bm), np.asarray(lay.jm)
+    t = np.asarray(t, float)
+    u = (t - grid[0]) / h
+    i = np.clip(np.floor(u).astype(np.int64), 0, G - 2)
+    tau = (u - i)[:, None]
+    w = ((2 * tau ** 3 - 3 * tau ** 2 + 1), (tau ** 3 - 2 * tau ** 2 + tau) * h,
+         (-2 * tau ** 3 + 3 * tau ** 2), (tau ** 3 - tau ** 2) * h)
+    carry = np.zeros(K)
+    for c0 in range(0, G - 1, chunk):
+        c1 = min(c0 + chunk, G - 1)
+        n = c1 - c0
+        inc = np.zeros((n, K))
+        vn = np.zeros((n + 1, K))
+        r = np.arange(n)
+        for q in range(Bn.shape[1]):
+            np.add.at(inc, (r, jn[c0:c1] + q), h / 6 * Bn[c0:c1, q])
+            np.add.at(inc, (r, jm[c0:c1] + q), 4 * h / 6 * Bm[c0:c1, q])
+            np.add.at(inc, (r, jn[c0 + 1:c1 + 1] + q), h / 6 * Bn[c0 + 1:c1 + 1, q])
+            np.add.at(vn, (np.arange(n + 1), jn[c0:c1 + 1] + q), Bn[c0:c1 + 1, q])
+        Inode = carry + np.vstack([np.zeros((1, K)), np.cumsum(inc, 0)])
+        sel = np.flatnonzero((i >= c0) & (i < c1))
+        if len(sel):
+            li = i[sel] - c0
+            rows = (w[0][sel] * Inode[li] + w[1][sel] * vn[li] + w[2][sel] * Inode[li + 1]
+                    + w[3][sel] * vn[li + 1])
+            yield sel, rows
+        carry = Inode[-1]
+
+
+def fit_body_speed(lay: Layout, t, j, x, w):
+    """Speed-spline coefficients and body offsets cx minimising
+    sum w^2 (x - X(t) - cx_j)^2 (X(t_ref) = 0, base model with zero slip): normal
+    equations accumulated by time chunks, memory independent of the recording's length."""
+    K, nb = lay.n_coef, lay.n_body
+    t, j, x, w = (np.asarray(a) for a in (t, j, x, w))
+    ref = np.zeros(K)
+    for _, rows in integrated_basis_rows(lay, np.asarray([float(lay.t_ref)])):
+        ref = rows[0]
+    A = np.zeros((K + nb, K + nb))
+    b = np.zeros(K + nb)
+    for sel, rows in integrated_basis_rows(lay, t):
+        M = np.zeros((len(sel), K + nb))
+        M[:, :K] = rows - ref
+        M[np.arange(len(sel)), K + j[sel]] = 1.0
+        M *= w[sel, None]
+        A += M.T @ M
+        b += M.T @ (x[sel] * w[sel])
+    d = np.sqrt(np.maximum(np.diag(A), 0.0))
+    s = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 1.0)
+    sol = np.linalg.lstsq(A * np.outer(s, s), b * s, rcond=None)[0] * s
+    return sol[:K], sol[K:]

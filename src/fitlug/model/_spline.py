@@ -44,6 +44,66 @@ def design(t: np.ndarray, breaks: np.ndarray, deriv: int = 0, degree: int = DEGR
     return B[:, :n]
 
 
+def banded(t: np.ndarray, breaks: np.ndarray, deriv: int = 0, degree: int = DEGREE):
+    """The nonzero band of :func:`design`: (values (len(t), degree + 1), first column (len(t),)).
+
+    ``design(t)[r, first[r] + q] == values[r, q]``; memory and time linear in len(t) whatever
+    the number of knots (local Cox-de Boor recursion, derivative from the degree-1 lower basis).
+    """
+    t = np.clip(np.asarray(t, dtype=float), breaks[0], breaks[-1])
+    knots = full_knots(breaks, degree)
+    n = len(knots) - degree - 1
+    span = np.clip(np.searchsorted(knots, t, side="right") - 1, degree, n - 1)
+    order = degree - deriv
+    N = _local_basis(t, knots, span, order)  # functions span-order .. span
+    for p in range(order + 1, degree + 1):  # derivative recursion up to `degree`
+        # B'_{k,p} = p (B_{k,p-1} / (t_{k+p} - t_k) - B_{k+1,p-1} / (t_{k+p+1} - t_{k+1}))
+        k = span[:, None] - p + np.arange(p + 1)[None, :]  # functions span-p .. span
+        lo = np.concatenate([np.zeros((len(t), 1)), N], axis=1)  # B_{k,p-1}
+        hi = np.concatenate([N, np.zeros((len(t), 1))], axis=1)  # B_{k+1,p-1}
+        d1 = _inv(knots[k + p] - knots[k])
+        d2 = _inv(knots[k + p + 1] - knots[k + 1])
+        N = p * (lo * d1 - hi * d2)
+    return N, (span - degree).astype(np.int64)
+
+
+def _local_basis(t, knots, span, p):
+    """Nonzero B-splines of degree p at t (functions span-p .. span), (len(t), p + 1)."""
+    m = len(t)
+    N = np.zeros((m, p + 1))
+    N[:, 0] = 1.0
+    left = np.zeros((m, p + 1))
+    right = np.zeros((m, p + 1))
+    for j in range(1, p + 1):
+        left[:, j] = t - knots[span + 1 - j]
+        right[:, j] = knots[span + j] - t
+        saved = np.zeros(m)
+        for r in range(j):
+            den = right[:, r + 1] + left[:, j - r]
+            temp = N[:, r] * _inv(den)
+            N[:, r] = saved + right[:, r + 1] * temp
+            saved = left[:, j - r] * temp
+        N[:, j] = saved
+    return N
+
+
+def fit_banded(t: np.ndarray, y: np.ndarray, breaks: np.ndarray) -> np.ndarray:
+    """Least-squares spline coefficients of y(t), through banded normal equations
+    (the same solution as lstsq on :func:`design`, in memory linear in len(t))."""
+    from scipy.linalg import solveh_banded
+
+    vals, first = banded(t, breaks)
+    K = n_coefficients(breaks)
+    w = DEGREE + 1
+    ab = np.zeros((w, K))  # upper form: ab[w - 1 + i - j, j] = A[i, j], i <= j
+    rhs = np.zeros(K)
+    for a in range(w):
+        np.add.at(rhs, first + a, vals[:, a] * y)
+        for b in range(a, w):
+            np.add.at(ab[w - 1 - (b - a)], first + b, vals[:, a] * vals[:, b])
+    return solveh_banded(ab, rhs)
+
+
 def _inv(d: np.ndarray) -> np.ndarray:
     out = np.zeros_like(d)
     np.divide(1.0, d, out=out, where=d > 0)

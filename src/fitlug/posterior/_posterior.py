@@ -39,7 +39,8 @@ import numpy as np
 from .. import _jaxconfig  # noqa: F401
 from .._errors import FitError
 from ..model.effects import CATALOG
-from ..fit._lsq import jacobian, residuals
+from ..fit._lsq import (LARGE_ENTRIES, chunk_plan, chunkable, jacobian, normal_equations,
+                        residuals)
 from ._mcmc import Chain, autocorr_time, run_ensemble
 from ..fit._result import Estimate, FitResult, derived
 
@@ -171,6 +172,23 @@ def _exact_chi2(thetas, flat, idx, fixed, lay, obs, packing, Je, Minv):
     return jax.vmap(one)(thetas)
 
 
+@eqx.filter_jit
+def _normal(flat, fixed, lay, obs, packing, plan):
+    return normal_equations(flat, fixed, lay, obs, packing, plan)[0]
+
+
+@eqx.filter_jit
+def _exact_chi2_chunked(thetas, flat, idx, rest, fixed, lay, obs, packing, plan, Minv):
+    """:func:`_exact_chi2` with J_eta^T r from time chunks (no dense Jacobian)."""
+    def res_of(th):
+        return residuals(packing.unpack(flat.at[idx].set(th), fixed), lay, obs)
+
+    R = jax.vmap(res_of)(thetas)  # (m, N)
+    _, b, _ = normal_equations(flat, fixed, lay, obs, packing, plan, v=R, with_A=False)
+    b = b[:, rest]
+    return jnp.sum(R * R, axis=1) - jnp.einsum("mi,ij,mj->m", b, Minv, b)
+
+
 class _Marginal:
     """The linearised marginal of theta for one FitResult: Gaussian limit and exact."""
 
@@ -184,20 +202,37 @@ class _Marginal:
         self._args = (jnp.asarray(res.flat), jnp.asarray(self.idx),
                       {k: jnp.asarray(v) for k, v in res.params.items()
                        if k not in res.packing.names}, prob.lay, prob.obs, res.packing)
-        J = np.asarray(_jacobian(self._args[0], self._args[2], *self._args[3:]))
-        rest = np.setdiff1d(np.arange(J.shape[1]), self.idx)
+        self._plan = None
+        n_res = 2 * (prob.lay.lug_t.shape[0] + prob.lay.body_t.shape[0])
+        if (n_res * len(res.flat) > LARGE_ENTRIES
+                and chunkable(res.params, prob.lay, res.packing)):
+            # long recordings: everything below needs J only through J^T J (and J_eta^T r
+            # in exact_chi2), accumulated in time chunks; no dense (N x p) Jacobian
+            self._plan = chunk_plan(prob.lay)
+            JtJ = np.asarray(_normal(self._args[0], self._args[2], *self._args[3:],
+                                     self._plan))
+        else:
+            J = np.asarray(_jacobian(self._args[0], self._args[2], *self._args[3:]))
+            JtJ = None
+        n_par = len(res.flat)
+        rest = np.setdiff1d(np.arange(n_par), self.idx)
+        self._rest = rest
         self.n_marginalised = len(rest)
-        Je, Jt = J[:, rest], J[:, self.idx]
+        if JtJ is None:
+            Je, Jt = J[:, rest], J[:, self.idx]
+            Aee, Aet, Att = Je.T @ Je, Je.T @ Jt, Jt.T @ Jt
+        else:
+            Aee, Aet, Att = (JtJ[np.ix_(rest, rest)], JtJ[np.ix_(rest, self.idx)],
+                             JtJ[np.ix_(self.idx, self.idx)])
         # projection onto span(J_eta)^perp through the normal equations, with the same
         # column scaling and eigenvalue cut as the least-squares covariance (an SVD of the
-        # tall J costs ~100x more)
-        s = 1.0 / np.maximum(np.linalg.norm(Je, axis=0), 1e-300)
-        M = (Je * s).T @ (Je * s)
+        # tall J costs ~100x more); F = J_t^T P J_t, the Schur complement of J^T J
+        s = 1.0 / np.maximum(np.sqrt(np.maximum(np.diag(Aee), 0.0)), 1e-300)
+        M = Aee * np.outer(s, s)
         w, V = np.linalg.eigh(M)
         inv = np.where(w > 1e-12 * w.max(), 1.0 / np.where(w > 0, w, 1.0), 0.0)
         self.Minv = (V * inv) @ V.T * np.outer(s, s)  # (J_eta^T J_eta)^+
-        A = Jt - Je @ (self.Minv @ (Je.T @ Jt))
-        F = Jt.T @ A
+        F = Att - Aet.T @ (self.Minv @ Aet)
         self.F = 0.5 * (F + F.T)
         # s0 ~ 1e-6 and beta ~ 1e-8 in std: invert the correlation form
         d = 1.0 / np.sqrt(np.maximum(np.diag(self.F), 1e-300))
@@ -209,7 +244,8 @@ class _Marginal:
         self.cov = np.linalg.inv(Fs) * np.outer(d, d)
         self.cov = 0.5 * (self.cov + self.cov.T)
         self.chol = np.linalg.cholesky(self.cov)
-        self._Je, self._Minv = jnp.asarray(Je), jnp.asarray(self.Minv)
+        self._Je = None if JtJ is not None else jnp.asarray(Je)
+        self._Minv = jnp.asarray(self.Minv)
         self.chi2_hat = None
 
     def exact_chi2(self, thetas: np.ndarray) -> np.ndarray:
@@ -217,6 +253,12 @@ class _Marginal:
         thetas = np.atleast_2d(thetas)
         m, b = len(thetas), self.batch
         pad = np.concatenate([thetas, np.repeat(thetas[-1:], (-m) % b, 0)])
+        if self._plan is not None:
+            a = self._args
+            out = [np.asarray(_exact_chi2_chunked(
+                jnp.asarray(pad[i:i + b]), a[0], a[1], jnp.asarray(self._rest), a[2], a[3],
+                a[4], a[5], self._plan, self._Minv)) for i in range(0, len(pad), b)]
+            return np.concatenate(out)[:m]
         out = [np.asarray(_exact_chi2(jnp.asarray(pad[i:i + b]), *self._args[:1],
                                       self._args[1], *self._args[2:], self._Je, self._Minv))
                for i in range(0, len(pad), b)]

@@ -29,6 +29,9 @@ STATE_FILE = "state.npz"
 FINE_POINTS = 2000
 CURVE_OVERSAMPLE = 4
 MAX_SAMPLES = 40000
+#: points per lug marker of the model curves at most: a long recording's curves are drawn
+#: at a coarser step than CURVE_OVERSAMPLE per frame (memory and drawing time bounded)
+MAX_CURVE_POINTS = 20000
 
 
 def _raw_residuals(prob, p):
@@ -78,6 +81,7 @@ def state_arrays(res, posterior=None, explanation=None) -> tuple[dict, dict]:
 
     # the model's lug paths between frames, for smooth curves
     dt = np.median(np.diff(np.unique(a["lug_t"]))) / CURVE_OVERSAMPLE
+    dt = max(dt, (t_hi - t_lo) / MAX_CURVE_POINTS)
     ct = np.arange(t_lo, t_hi + dt / 2, dt)
     ci = np.repeat(np.arange(lay.n_lug), len(ct))
     ct = np.tile(ct, lay.n_lug)

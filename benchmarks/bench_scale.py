@@ -1,0 +1,259 @@
+"""Cost of long recordings: wall time and peak memory of every stage against the frames.
+
+For each size of the ladder (650, 2 000, 10 000, 30 000 and 100 000 frames of 14 markers:
+12 lug and 2 body markers; 650 frames at 100 fps like the reference, the others at 500 fps
+with the travel growing with the duration) every stage runs in a FRESH subprocess, whose
+peak resident memory (ru_maxrss: JAX's buffers included, which tracemalloc does not see)
+and wall time are reported:
+
+  simulate   `fit-lug simulate` of the recording (written to a temporary folder)
+  lsq        the least-squares fit (`fitlug.fit.fit`: start, fit, lug count, noise refit)
+  explain    the explanation of that fit (time of `fitlug.explain.explain` alone)
+  posterior  the posterior of the base fit (time of `sample_posterior` alone)
+  whole      the default run `fit-lug fit CSV` (fit, explanation, posterior, report)
+
+A stage's memory is the peak of its whole process (so explain's includes its fit). Then:
+the log-log slope of time against frames per stage (least squares over the sizes >= 2 000;
+target <= 1.1), the largest peak memory (target <= 2 GB), the warm whole run on the
+bundled 650-frame recording against the least-squares fit alone (target <= 10 s) and the
+cold first run of a new installation (FITLUG_CACHE_DIR set to an empty folder).
+
+    python benchmarks/bench_scale.py --quick            # 650 and 2 000 frames, no extras
+    python benchmarks/bench_scale.py                    # the full ladder (long: quiet machine)
+    python benchmarks/bench_scale.py --frames 2000 10000 --stages simulate lsq
+
+Stages of one size run one after another (each needs the simulated recording); sizes run
+in parallel with --workers N (separate processes; memory figures then share the machine).
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures as cf
+import json
+import multiprocessing
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+SRC = os.path.join(ROOT, "src")
+REFERENCE = os.path.join(ROOT, "data", "reference", "trajectories.csv")
+LADDER = (650, 2000, 10000, 30000, 100000)
+STAGES = ("simulate", "lsq", "explain", "posterior", "whole")
+GB = 1024.0 ** 3
+
+
+def scenario_for(frames: int) -> dict:
+    """Scenario fields of a recording of `frames` frames of 14 markers."""
+    fps = 100.0 if frames <= 650 else 500.0
+    duration = frames / fps
+    body = [[-60.0, 75.0], [60.0, 75.0]]
+    return {"duration_s": duration, "fps": fps, "travel_mm": 108.0 * duration,
+            "lug_markers": 12, "lug_spacing": 1, "body_markers": body}
+
+
+# --------------------------------------------------------------------------- workers
+def _worker(stage: str, folder: str, frames: int, budget: float) -> dict:
+    """Run one stage in this (fresh) process; returns its timings and peak memory."""
+    sys.path.insert(0, SRC)
+    t0 = time.perf_counter()
+    csv = os.path.join(folder, "trajectories.csv")
+    rig_path = os.path.join(folder, "rig.toml")
+    stage_s = None
+    if stage == "simulate":
+        from fitlug.cli import main
+
+        rc = main(["simulate", folder, "-q", "--scenario", json.dumps(scenario_for(frames))])
+        assert rc == 0, rc
+    elif stage == "whole":
+        from fitlug.cli import main
+
+        rc = main(["fit", csv, "--rig", rig_path, "--out", os.path.join(folder, "out"), "-q",
+                   "--mcmc-budget", str(budget)])
+        assert rc == 0, rc
+    else:
+        from fitlug.fit import fit
+        from fitlug.io import read_rig, read_trajectories
+
+        rig = read_rig(rig_path)
+        rec = read_trajectories(csv, rig=rig)
+        res = fit(rec, rig)
+        t1 = time.perf_counter()
+        if stage == "explain":
+            from fitlug.explain import explain
+
+            explain(res, seed=0)
+        elif stage == "posterior":
+            from fitlug.posterior import sample_posterior
+
+            sample_posterior(res, seed=0, time_budget_s=budget)
+        stage_s = time.perf_counter() - t1 if stage != "lsq" else None
+    total = time.perf_counter() - t0
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024.0  # Linux: KiB
+    return {"stage": stage, "frames": frames, "time_s": stage_s if stage_s is not None else total,
+            "process_s": total, "peak_bytes": peak}
+
+
+def run_stage(stage: str, folder: str, frames: int, budget: float, env=None,
+              timeout: float = 3600.0) -> dict:
+    """One stage in a fresh interpreter (never forked from a process with JAX loaded)."""
+    cmd = [sys.executable, os.path.abspath(__file__), "--worker", stage, folder, str(frames),
+           str(budget)]
+    e = dict(os.environ if env is None else env)
+    e["PYTHONPATH"] = SRC + os.pathsep + e.get("PYTHONPATH", "")
+    t0 = time.perf_counter()
+    try:
+        p = subprocess.run(cmd, capture_output=True, text=True, env=e, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return {"stage": stage, "frames": frames, "error": f"timeout {timeout:.0f} s"}
+    wall = time.perf_counter() - t0
+    for line in reversed(p.stdout.splitlines()):
+        if line.startswith("{"):
+            out = json.loads(line)
+            out["wall_s"] = wall
+            return out
+    tail = (p.stderr or p.stdout).strip().splitlines()[-1:] or ["no output"]
+    return {"stage": stage, "frames": frames, "error": f"rc {p.returncode}: {tail[0][:120]}"}
+
+
+def run_size(frames: int, stages, budget: float, keep: str | None) -> list:
+    folder = tempfile.mkdtemp(prefix=f"bench_scale_{frames}_", dir=keep)
+    out = []
+    try:
+        todo = list(stages)
+        if "simulate" not in todo:
+            todo.insert(0, "simulate")  # the recording is needed
+        for st in todo:
+            r = run_stage(st, folder, frames, budget)
+            r["measured"] = st in stages
+            out.append(r)
+            if st == "simulate" and "error" in r:
+                break
+    finally:
+        if keep is None:
+            shutil.rmtree(folder, ignore_errors=True)
+    return [r for r in out if r.pop("measured")]
+
+
+# --------------------------------------------------------------------------- extras
+def reference_runs(budget: float) -> dict:
+    """Warm whole run and least squares on the bundled recording; cold first whole run."""
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = os.path.join(tmp, "ref")
+        os.makedirs(folder)
+        for name in ("trajectories.csv", "rig.toml"):
+            shutil.copy(os.path.join(ROOT, "data", "reference", name), folder)
+        for st in ("lsq", "whole"):
+            run_stage(st, folder, 650, budget)  # fill the compile cache
+            out[st + "_warm"] = run_stage(st, folder, 650, budget)
+        env = dict(os.environ)
+        env["FITLUG_CACHE_DIR"] = os.path.join(tmp, "empty_cache")
+        out["whole_cold"] = run_stage("whole", folder, 650, budget, env=env)
+    return out
+
+
+def slope(frames, times) -> float:
+    f, t = np.asarray(frames, float), np.asarray(times, float)
+    ok = np.isfinite(t) & (t > 0)
+    if ok.sum() < 2:
+        return float("nan")
+    return float(np.polyfit(np.log(f[ok]), np.log(t[ok]), 1)[0])
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, nargs="+", default=None,
+                    help=f"sizes (default {' '.join(map(str, LADDER))})")
+    ap.add_argument("--stages", nargs="+", default=list(STAGES), choices=STAGES)
+    ap.add_argument("--quick", action="store_true",
+                    help="650 and 2 000 frames, posterior budget 10 s, no reference extras")
+    ap.add_argument("--no-extras", action="store_true",
+                    help="skip the warm/cold runs on the bundled recording")
+    ap.add_argument("--budget", type=float, default=60.0,
+                    help="posterior time budget, s (default 60, the CLI's)")
+    ap.add_argument("--workers", type=int, default=1, help="sizes run in parallel")
+    ap.add_argument("--keep", metavar="DIR", help="keep the simulated recordings under DIR")
+    ap.add_argument("--json", metavar="PATH", help="also write the raw figures as JSON")
+    a = ap.parse_args(argv)
+    sizes = a.frames or ([650, 2000] if a.quick else list(LADDER))
+    budget = 10.0 if a.quick and a.budget == 60.0 else a.budget
+    extras = not (a.quick or a.no_extras)
+
+    rows = []
+    if a.workers > 1:
+        ctx = multiprocessing.get_context("spawn")
+        with cf.ProcessPoolExecutor(a.workers, mp_context=ctx) as ex:
+            for res in ex.map(run_size, sizes, [a.stages] * len(sizes),
+                              [budget] * len(sizes), [a.keep] * len(sizes)):
+                rows += res
+    else:
+        for n in sizes:
+            res = run_size(n, a.stages, budget, a.keep)
+            rows += res
+            for r in res:
+                print(f"  {n:>7d} frames  {r['stage']:<9s} " + (
+                    r["error"] if "error" in r else
+                    f"{r['time_s']:8.2f} s  {r['peak_bytes'] / GB:6.2f} GB"), flush=True)
+
+    print()
+    print(f"{'frames':>8s}  " + "  ".join(f"{s:>18s}" for s in a.stages))
+    print(f"{'':>8s}  " + "  ".join(f"{'time s   peak GB':>18s}" for _ in a.stages))
+    table = {(r["frames"], r["stage"]): r for r in rows}
+    for n in sizes:
+        cells = []
+        for s in a.stages:
+            r = table.get((n, s))
+            if r is None or "error" in r:
+                cells.append(f"{'failed' if r else '-':>18s}")
+            else:
+                cells.append(f"{r['time_s']:9.2f}  {r['peak_bytes'] / GB:7.2f}")
+        print(f"{n:>8d}  " + "  ".join(cells))
+    print()
+    worst = 0.0
+    for s in a.stages:
+        pts = [(n, table[(n, s)]["time_s"]) for n in sizes
+               if (n, s) in table and "error" not in table[(n, s)]]
+        big = [(n, t) for n, t in pts if n >= 2000]
+        sl = slope(*zip(*big)) if len(big) >= 2 else float("nan")
+        mem = max((table[(n, s)]["peak_bytes"] for n in sizes
+                   if (n, s) in table and "error" not in table[(n, s)]), default=float("nan"))
+        worst = max(worst, mem) if np.isfinite(mem) else worst
+        print(f"  {s:<9s} log-log slope of time vs frames (>= 2000 frames): {sl:5.2f}  "
+              f"(target <= 1.1)   largest peak {mem / GB:5.2f} GB")
+    print(f"  largest peak memory of any stage: {worst / GB:.2f} GB (target <= 2 GB)")
+    for r in rows:
+        if "error" in r:
+            print(f"  FAILED {r['frames']} frames {r['stage']}: {r['error']}")
+
+    ext = {}
+    if extras:
+        ext = reference_runs(a.budget)
+        w, l_, c = ext["whole_warm"], ext["lsq_warm"], ext["whole_cold"]
+        print()
+
+        def fmt(r):
+            return r["error"] if "error" in r else f"{r['process_s']:6.2f} s"
+        print(f"  bundled 650-frame recording: whole default run warm {fmt(w)} (target <= 10 s); "
+              f"least squares alone warm {fmt(l_)}; whole run cold (empty compile cache) "
+              f"{fmt(c)}")
+    if a.json:
+        with open(a.json, "w", encoding="utf-8") as fh:
+            json.dump({"rows": rows, "extras": ext}, fh, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    if len(sys.argv) > 1 and sys.argv[1] == "--worker":
+        _, _, stage, folder, frames, budget = sys.argv
+        print(json.dumps(_worker(stage, folder, int(frames), float(budget))))
+    else:
+        sys.exit(main())
