@@ -220,9 +220,11 @@ def plot_before_after(st: dict):
             for row in (k, 2 + k):
                 axes[row, j].set_title(f"{name}: {axis} residual", fontsize=9, loc="left")
                 axes[row, j].xaxis.label.set_fontsize(8)
-                leg = axes[row, j].get_legend()
-                if leg is not None and (row, j) != (0, 1):
-                    leg.remove()
+                if (row, j) == (0, 0):
+                    handles, labels = axes[row, j].get_legend_handles_labels()
+                axes[row, j].get_legend().remove()
+    fig.legend(handles, labels, loc="outside upper center", ncol=5, frameon=False,
+               markerscale=6)
     for row in range(4):  # one scale per row: before and after compare directly
         lo = min(axes[row, 0].get_ylim()[0], axes[row, 1].get_ylim()[0])
         hi = max(axes[row, 0].get_ylim()[1], axes[row, 1].get_ylim()[1])

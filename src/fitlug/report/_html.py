@@ -182,9 +182,11 @@ def _verdict_box(fj) -> str:
         if b.get("value") is not None and s.get("value"):
             rel = (b["value"] - s["value"]) / s["value"]
             sig = F.sigma_apart(b["value"], s.get("std"), s["value"])
-            off = (f" Without it the base model's slip was {F.pm(b['value'], b.get('std'))}: "
-                   f"{F.sig(100 * rel, 2)} % and {sig.replace('above', 'off').replace('below', 'off')}"
-                   " from the corrected value.")
+            side = "below" if rel < 0 else "above"
+            nsig = F.sigma_apart(b["value"], s.get("std"), s["value"]).split(" σ")[0]
+            off = (f" Without {'it' if len(effs) == 1 else 'them'} the base model's slip was "
+                   f"{F.pm(b['value'], b.get('std'))}: {F.sig(abs(100 * rel), 2)} % {side} "
+                   f"the corrected value, {nsig} σ off.")
         return (f'<div class="verdict v-explained"><b>Explained</b> by {names} '
                 f'(χ²/dof {F.sig(d.get("chi2_per_dof_before"), 4)} → '
                 f'{F.sig(d.get("chi2_per_dof_after"), 4)}).{off} {meaning}</div>')
@@ -532,10 +534,14 @@ def _arviz_diagnostics(out_dir):
     path = os.path.join(out_dir, "posterior.nc")
     if not os.path.isfile(path):
         return None
+    import logging
     import warnings
 
+    log = logging.getLogger("arviz")
+    level = log.level
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
+        log.setLevel(logging.ERROR)  # a short chain is reported in the table, not on stderr
         try:
             import arviz as az
 
@@ -545,6 +551,8 @@ def _arviz_diagnostics(out_dir):
             chains = {k: np.asarray(post[k].values) for k in post.data_vars}
         except Exception:  # noqa: BLE001 - an unreadable file only loses this table
             return None
+        finally:
+            log.setLevel(level)
     return summ, chains
 
 

@@ -67,8 +67,7 @@ def plot_trajectories(st: dict, ax=None, mark_stall: bool = True):
 
         x0, x1, y0, y1 = box
         ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, ec="k", lw=0.8))
-        ax.annotate("stall (enlarged in 'The slip drawn')", (x1, y1), fontsize=8, ha="left",
-                    va="bottom")
+        ax.annotate("stall", (x1, y1), fontsize=8, ha="left", va="bottom")
     ax.plot([], [], "k.", ms=3, label="data")
     ax.plot([], [], "k-", lw=0.8, label="model")
     ax.set_xlabel("x (mm, ground frame)")
@@ -85,7 +84,7 @@ def trajectory_figsize(st: dict, width: float = 14.0) -> tuple:
     if not len(xs):
         return width, 4.0
     ratio = (np.ptp(ys) + 10.0) / max(np.ptp(xs) + 10.0, 1e-9)
-    return width, float(np.clip(width * ratio + 1.2, 3.2, 8.0))
+    return width, float(np.clip(width * ratio + 1.2, 2.2, 8.0))
 
 
 def stall_window(st: dict):
@@ -396,7 +395,7 @@ def plot_corner(samples, labels, fig=None, truths=None):
     if fig is None:
         import matplotlib.pyplot as plt
 
-        fig = plt.figure(figsize=(2.3 * k + 0.5, 2.3 * k + 0.5))
+        fig = plt.figure(figsize=(max(2.6 * k + 0.8, 5.0), max(2.6 * k + 0.8, 5.0)))
     from ._format import pm
 
     corner.corner(samples, labels=labels, fig=fig, quantiles=[0.025, 0.5, 0.975],
@@ -406,7 +405,7 @@ def plot_corner(samples, labels, fig=None, truths=None):
     diag = [fig.axes[i * (k + 1)] for i in range(k)]
     for i, a in enumerate(diag):  # titles: median ± 1 sigma, digits set by the error
         col = samples[:, i]
-        a.set_title(f"{labels[i]} = {pm(np.median(col), np.std(col))}", fontsize=9)
+        a.set_title(f"{labels[i]} =\n{pm(np.median(col), np.std(col))}", fontsize=9)
     for a in fig.axes:
         a.tick_params(labelsize=8)
         for axis in (a.xaxis, a.yaxis):  # offsets like "+1e-1" read badly on tiny spreads
