@@ -42,6 +42,7 @@ def folder(fitted, tmp_path_factory):
     write_json(d / "fit.json", fit_json(res, input_path="trajectories.csv",
                                         posterior=post.estimates, mcmc=post.mcmc_json()))
     save_state(d, res, posterior=post)
+    post.save(d / "posterior.nc")
     write_report(d)
     return d
 
