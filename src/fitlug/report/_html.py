@@ -314,6 +314,11 @@ def _estimates(fj, st) -> str:
                      _e(fj.get("noise_source", "")), ""])
     out = _table(["quantity", "unit", "value ± 1 σ", "interval", "from",
                   "least squares ± 1 σ"], rows)
+    if _sliding(fj):
+        out += ("<p class=small>Under lug_sliding, Δl′ is the elastic lug deflection at the "
+                "steady load, s<sub>el</sub>·L/(n−1) with the elastic slip s<sub>el</sub>; s₀ "
+                "is the law's total steady slip, larger by the sliding part (see the "
+                "headline), so Δl′ ≠ s₀·L/(n−1) here.</p>")
     d = fj.get("discrepancy") or {}
     for eff in d.get("effects") or []:
         out += _effect_table(eff)
