@@ -260,7 +260,11 @@ def _headline(fj, st) -> str:
                      + (", within the paper's rounding." if abs(s["value"] - ref) < 1e-5
                         else "."))
     mc = fj.get("mcmc")
-    if mc and not mc.get("converged"):
+    if not mc:
+        why = fj.get("mcmc_skipped") or "least squares only"
+        notes.append(f"Posterior not sampled ({_e(why)}): the errors are the least-squares "
+                     "(Jacobian) ones.")
+    elif not mc.get("converged"):
         notes.append(f'<span class="bad">The posterior chain did not converge: '
                      f'{_e(mc.get("message", ""))}</span>')
     return (f'<div class="headline"><table>{body}</table>'
