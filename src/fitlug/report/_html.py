@@ -138,25 +138,9 @@ def _widened(fj) -> str:
 
 
 def _located_sentence(d: dict) -> str:
-    """One plain sentence: where the unexplained mismatch is and what it looks like."""
-    loc = [p for p in d.get("located") or [] if (p.get("share_of_misfit") or 0) > 0]
-    if not loc:
-        det = d.get("detection_after") or d.get("detection_before") or {}
-        if det.get("line_hz"):
-            return (f"The residuals carry a common spectral line at "
-                    f"{F.sig(det['line_hz'], 3)} Hz ({_e(det.get('line_group', ''))}).")
-        return "The residuals are not white, but no single place carries the mismatch."
-    p = max(loc, key=lambda q: q.get("share_of_misfit") or 0)
-    tr = p.get("t_range_s") or [None, None]
-    where = (f"in {_e(p.get('axis'))} on the {_e(p.get('segment'))} "
-             f"during {_e(p.get('phase'))} ({F.sig(tr[0], 3)}–{F.sig(tr[1], 3)} s)")
-    freq = p.get("frequency_hz")
-    what = f", oscillating at {F.sig(freq, 3)} Hz" if freq else ""
-    mk = p.get("markers") or []
-    who = (f" for markers {_e(', '.join(mk[:6]))}" + (" …" if len(mk) > 6 else "")
-           if mk else "")
-    return (f"Most of the mismatch ({F.percent(p.get('share_of_misfit'))} of the structured "
-            f"misfit) is {where}{who}{what}.")
+    from ._discrepancy import located_sentence
+
+    return located_sentence(d)
 
 
 def _verdict_box(fj) -> str:
@@ -251,7 +235,12 @@ def _headline(fj, st) -> str:
              f"{_e(fj.get('uncertainty_method') or 'the fit')}; the same error is used "
              "everywhere on this page."]
     w = _widened(fj)
-    if w:
+    ls_std = ((st.get("meta", {}).get("least_squares") or {}).get("slip") or {}).get("std")
+    if w and s.get("std") and ls_std and s["std"] < 0.99 * ls_std:
+        notes.append(f'<span class="bad">Caution: the residuals hold an unexplained mismatch, '
+                     f"and this error ({_e(fj.get('uncertainty_method', ''))}) does not include "
+                     f"it; the least-squares error that does is ± {F.sig(ls_std, 2)}.</span>")
+    elif w:
         notes.append(f"The error was widened: {w}.")
     ref = fj.get("reference_paper_slip")
     if ref and is_reference_rig(st.get("meta", {})) and s.get("std"):
