@@ -139,15 +139,16 @@ def spectral_peaks(f, p, lug_hz=None, wheel_hz=None, n=4, factor=8.0):
     out = []
     for i in sorted(idx, key=lambda i: f[i]):
         name = ""
-        df = (f[1] - f[0]) * 1.5
+        df = (f[1] - f[0]) * 1.01
         for base, what in ((lug_hz, "lug passing"), (wheel_hz, "wheel revolution")):
             if base:
                 h = round(f[i] / base)
-                if h >= 1 and abs(f[i] - h * base) <= df:
+                if 1 <= h <= 2 and abs(f[i] - h * base) <= df:
                     name = what if h == 1 else f"{h}× {what}"
                     break
         if not name:
-            name = "below 1 Hz: the motion profile" if f[i] < 1.0 else "not a rig frequency"
+            name = ("below 1 Hz: the motion profile" if f[i] < 1.0
+                    else "not a rig frequency: a disturbance outside the catalog?")
         out.append((float(f[i]), float(p[i]), name))
     return out
 
@@ -429,7 +430,8 @@ def discrepancy_section(fit_json: dict, state=None) -> str:
                                    "White is no bias; coloured stripes are structure. " + note))
         mb, ma = d.get("misfit_before") or {}, d.get("misfit_after") or {}
         if mb.get("breakdown"):
-            plots.append(_fig_html(plot_breakdown(mb["breakdown"], ma.get("breakdown")),
+            after = ma.get("breakdown") if effects else None  # nothing added: no repeat
+            plots.append(_fig_html(plot_breakdown(mb["breakdown"], after),
                                    "structured misfit by segment, phase, axis and role",
                                    "Structured misfit (χ² of lag-1 products) per path "
                                    "segment, motion phase, axis and role, before and after, on "
