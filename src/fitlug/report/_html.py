@@ -182,22 +182,30 @@ def _verdict_box(fj) -> str:
             'treat the slip as a measurement with an unmodelled systematic.</div>')
 
 
+def _given(x) -> str:
+    """A rig input as it was given (no digits added): 127, 18.36, 10."""
+    try:
+        return f"{float(x):g}"
+    except (TypeError, ValueError):
+        return "–"
+
+
 def _rig_line(fj, st) -> str:
     rig = fj.get("rig") or {}
     meta = st.get("meta", {})
     parts = [f"n = {_e(rig.get('lugs_in_contact', meta.get('n_contact')))} lugs in contact",
-             f"L = {F.sig(rig.get('load_bearing_length_mm', meta.get('L_mm')), 4)} mm",
-             f"lug pitch {F.sig(rig.get('lug_pitch_mm'), 4)} mm"]
+             f"L = {_given(rig.get('load_bearing_length_mm', meta.get('L_mm')))} mm",
+             f"lug pitch {_given(rig.get('lug_pitch_mm'))} mm"]
     m = rig.get("mass_kg")
-    parts.append(f"mass {F.sig(m, 4)} kg" if m is not None else "mass not given")
+    parts.append(f"mass {_given(m)} kg" if m is not None else "mass not given")
     dp = rig.get("drawbar_pull_N")
     if dp is not None:
-        parts.append(f"drawbar pull {F.sig(dp, 3)} N")
+        parts.append(f"drawbar pull {_given(dp)} N")
     ground = rig.get("ground")
     g = rig.get("ground_name") or (ground.get("name") if isinstance(ground, dict) else ground)
     if g:
         parts.append(f"ground: {_e(g)}")
-    return "Rig: " + ", ".join(parts) + "."
+    return "Rig (as given): " + ", ".join(parts) + "."
 
 
 def _headline(fj, st) -> str:
