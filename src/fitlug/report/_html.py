@@ -344,12 +344,16 @@ def _effect_table(eff) -> str:
 def _slip_section(fj, st) -> str:
     out = []
     fig, ax = _fig(FIG_W, 3.4)
-    info = _plots.plot_slip_time(st, fj, ax=ax[0, 0])
+    _plots.plot_slip_time(st, fj, ax=ax[0, 0])
+    _, _, lo, hi = _plots.slip_band(st)
+    half = float(np.nanmedian(hi - lo)) / 2
     out.append(figure_html(
         fig, "steady slip s(t) over the recording with its 1 sigma band",
         "The model's slip s(t) = s₀ + β·a(t) over the recording (line) with its 1 σ band "
         "(shaded; from the posterior samples of s₀ and β, else the least-squares errors); "
-        "the dashed line is the steady slip s₀. Look for the slip rising while the robot "
+        f"the dashed line is the steady slip s₀. The band is ± {F.sig(half, 2)} at cruise"
+        + (", too narrow to see at this scale. " if half < 0.01 * np.ptp(st["fine_s"]) else ". ")
+        + "Look for the slip rising while the robot "
         "accelerates and falling while it brakes; at rest the slip is undefined (grey)."
         + (" Under lug_sliding the law is nonlinear." if _sliding(fj) else "")))
     fig, ax = _fig(FIG_W, 4.2)
