@@ -65,7 +65,7 @@ def run(args) -> int:
         doc["mcmc_skipped"] = "--no-mcmc: uncertainties are least-squares (Jacobian) errors"
     if args.no_explain:
         doc["discrepancy_skipped"] = "--no-explain"
-    _display_keys(doc)
+    _display_keys(doc, args)
     os.makedirs(out, exist_ok=True)
     write_json(os.path.join(out, "fit.json"), doc)
     report = None
@@ -81,13 +81,30 @@ def run(args) -> int:
     return 0
 
 
-def _display_keys(doc) -> None:
+def _command_line(args) -> str:
+    """The fit's command line, rebuilt from the parsed options (not sys.argv, which is the
+    caller's when fitlug.cli.main is called from Python)."""
+    import shlex
+
+    parts = ["fit-lug", args.csv]
+    for opt, key in (("--rig", "rig"), ("--out", "out")):
+        if getattr(args, key, None):
+            parts += [opt, str(getattr(args, key))]
+    if getattr(args, "seed", 0):
+        parts += ["--seed", str(args.seed)]
+    if getattr(args, "mcmc_budget", 60.0) != 60.0:
+        parts += ["--mcmc-budget", f"{args.mcmc_budget:g}"]
+    for flag in ("no_mcmc", "no_explain", "no_report"):
+        if getattr(args, flag, False):
+            parts.append("--" + flag.replace("_", "-"))
+    return " ".join(shlex.quote(p) for p in parts)
+
+
+def _display_keys(doc, args) -> None:
     """Display-only keys for the report's header: the command line and the date (UTC)."""
     import datetime
-    import shlex
-    import sys
 
-    doc.setdefault("command", "fit-lug " + " ".join(shlex.quote(a) for a in sys.argv[1:]))
+    doc.setdefault("command", _command_line(args))
     doc.setdefault("date_utc", datetime.datetime.now(datetime.timezone.utc)
                    .strftime("%Y-%m-%d %H:%M UTC"))
 
