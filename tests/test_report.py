@@ -263,3 +263,24 @@ def test_intervals_name_their_level_and_never_collapse():
     assert fmt.sig(-7.2765e7, 3) == "-7.28 × 10⁷" and "e+" not in fmt.sig(1e9)
     assert fmt.sigma_apart(0.0771578, 2.06e-6, 0.07716) == "1.1 σ below"
     assert fmt.pm(0.0771578, 2.06e-6, ascii=True) == "0.0771578 +/- 0.0000021"
+
+
+def test_terminal_summary_digits_and_verdict(capsys):
+    """The terminal prints the headline's numbers with the same digits, effect parameters
+    and the slip before the explanation (from a fit.json dict; no fit needed)."""
+    from types import SimpleNamespace
+
+    from fitlug.cli._fit import _summary
+
+    ref = os.path.join(os.path.dirname(__file__), "..", "fits", "reference", "fit.json")
+    doc = json.load(open(ref, encoding="utf-8"))
+    doc["discrepancy"] = dict(doc["discrepancy"], verdict="explained", effects=[
+        {"id": "belt_sag", "params": {"sag_d": 0.4997}, "params_std": {"sag_d": 0.00033}}],
+        slip_before={"value": 0.0770047, "std": 2.1e-6})
+    _summary(SimpleNamespace(quiet=False), doc, "out", "out/report.html", 1.0)
+    out = capsys.readouterr().out
+    s = doc["slip"]
+    assert fmt.pm(s["value"], s["std"]) in out and "95 %: " in out
+    assert "belt_sag: sag_d = 0.49970 ± 0.00033" in out
+    assert "slip without them 0.0770047 ± 0.0000021" in out and "σ below" in out
+    assert "e-0" not in out  # no "2.1e-06"
