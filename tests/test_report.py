@@ -282,5 +282,5 @@ def test_terminal_summary_digits_and_verdict(capsys):
     s = doc["slip"]
     assert fmt.pm(s["value"], s["std"]) in out and "95 %: " in out
     assert "belt_sag: sag_d = 0.49970 ± 0.00033" in out
-    assert "slip without them 0.0770047 ± 0.0000021" in out and "σ below" in out
+    assert "slip without it 0.0770047 ± 0.0000021" in out and "σ below" in out
     assert "e-0" not in out  # no "2.1e-06"

@@ -146,7 +146,7 @@ def _summary(args, doc, out, report, seconds):
             lines.append(f"    {e['id']}: {ps}")
         b, s = d.get("slip_before") or {}, doc.get("slip") or {}
         if eff and b.get("value") is not None and s.get("value"):
-            lines.append(f"    slip without them {pm(b['value'], b.get('std'))}: "
+            lines.append(f"    slip without {'it' if len(eff) == 1 else 'them'} {pm(b['value'], b.get('std'))}: "
                          f"{sig(100 * (b['value'] - s['value']) / s['value'], 2)} %, "
                          f"{sigma_apart(b['value'], s.get('std'), s['value'])} the final value")
         if d.get("verdict") == "unexplained":
