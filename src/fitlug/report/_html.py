@@ -42,7 +42,7 @@ figure{margin:1em 0}figure img{max-width:100%;height:auto;display:block}
 figcaption{font-size:.88em;color:#444;margin-top:.3em}
 .headline{background:#f0f6ff;border-left:5px solid #08519c;padding:.7em 1.1em;margin:.8em 0}
 .headline table{font-size:1em;border:none}.headline td{border:none;padding:.1em .8em .1em 0}
-.headline .big{font-size:1.35em;font-weight:600}
+.headline .big{font-size:1.35em;font-weight:600;white-space:nowrap}
 .verdict{padding:.6em 1em;margin:.6em 0;border-left:5px solid}
 .v-none{background:#ebfbee;border-color:#2b8a3e}.v-explained{background:#fff9db;border-color:#f08c00}
 .v-unexplained{background:#ffe3e3;border-color:#c92a2a}
@@ -211,6 +211,7 @@ def _rig_line(fj, st) -> str:
 def _headline(fj, st) -> str:
     s = fj.get("slip") or {}
     rows = []
+    cmp_value, cmp_std, cmp_what = s.get("value"), s.get("std"), "this fit is"
     if _sliding(fj):
         dl = fj.get("delta_l_mm") or {}
         rig = fj.get("rig") or {}
@@ -221,6 +222,8 @@ def _headline(fj, st) -> str:
             rows.append(["total slip s₀ (elastic + sliding)",
                          f'<span class="big">{_pm(s)}</span>',
                          "the track's steady slip under the sliding law: what the robot loses"])
+            cmp_value, cmp_std = s_el, s_el_sd
+            cmp_what = "the paper measured the elastic slip; this fit's elastic slip is"
             rows.append(["elastic slip Δl′(n−1)/L", F.pm(s_el, s_el_sd),
                          "lug shear alone, the paper's mechanism"])
             rows.append(["sliding part", F.sig(s["value"] - s_el, 3) if s.get("value") else "–",
@@ -251,10 +254,10 @@ def _headline(fj, st) -> str:
     elif w:
         notes.append(f"The error was widened: {w}.")
     ref = fj.get("reference_paper_slip")
-    if ref and is_reference_rig(st.get("meta", {})) and s.get("std"):
-        notes.append(f"Reference paper: s = {F.num(ref, 4)} (quoted to 4 digits); this "
-                     f"fit is {F.sigma_apart(s['value'], s['std'], ref)} it"
-                     + (", within the paper's rounding." if abs(s["value"] - ref) < 1e-5
+    if ref and is_reference_rig(st.get("meta", {})) and cmp_std:
+        notes.append(f"Reference paper: s = {F.num(ref, 4)} (quoted to 4 digits); {cmp_what} "
+                     f"{F.sigma_apart(cmp_value, cmp_std, ref)} it"
+                     + (", within the paper's rounding." if abs(cmp_value - ref) < 1e-5
                         else "."))
     mc = fj.get("mcmc")
     if not mc:
