@@ -14,13 +14,17 @@ from fitlug.fit import fit
 from fitlug.posterior import sample_posterior
 from fitlug.io import write_json
 from fitlug.report import fit_json, load_state, save_state, write_report
-from fitlug.report import _plots
+from fitlug.report import _format as fmt, _plots
 from fitlug.sim import REFERENCE_SLIP, Scenario, rig_of, simulate
 
 # the reference rig (n = 8, L = 127 mm), a short recording
 SC = Scenario(duration_s=3.0, travel_mm=300, rest_s=0.3, ramp_s=0.8, lug_markers=6)
-SECTIONS = ("summary", "estimates", "trajectories", "kinematics", "residuals", "posterior",
-            "convergence")
+SECTIONS = ("summary", "estimates", "slip", "trajectories", "kinematics", "residuals",
+            "least-squares", "posterior", "convergence")
+
+# a figure whose text matplotlib cannot lay out is a defect, not a warning
+pytestmark = [pytest.mark.filterwarnings("error:.*layout.*:UserWarning"),
+              pytest.mark.filterwarnings("error:.*constrained_layout.*")]
 
 
 @pytest.fixture(scope="module")
@@ -38,6 +42,7 @@ def folder(fitted, tmp_path_factory):
     write_json(d / "fit.json", fit_json(res, input_path="trajectories.csv",
                                         posterior=post.estimates, mcmc=post.mcmc_json()))
     save_state(d, res, posterior=post)
+    post.save(d / "posterior.nc")
     write_report(d)
     return d
 
@@ -58,10 +63,15 @@ def test_report_is_self_contained_with_every_section(folder):
     imgs = _images(page)
     alts = " ".join(a for a, _ in imgs)
     for what in ("trajectories", "stall", "displacement and velocity", "residuals",
-                 "corner", "slippage posterior"):
+                 "corner", "slippage posterior", "slip s(t)", "slip against traction force",
+                 "per marker", "correlation matrix"):
         assert what in alts, what
     for _, b64 in imgs:
         assert base64.b64decode(b64)[:8] == b"\x89PNG\r\n\x1a\n"
+    # every figure has a caption and the page a table of contents linking every section
+    assert page.count("<figcaption>") == len(imgs)
+    for sid in SECTIONS[1:]:
+        assert f'<a href="#{sid}">' in page, sid
     assert [p.name for p in folder.iterdir() if p.name.startswith(".")] == []
 
 
@@ -69,15 +79,21 @@ def test_report_shows_estimates_and_diagnostics(folder, fitted):
     res, post, _ = fitted
     page = (folder / "report.html").read_text(encoding="utf-8")
     s = post.estimates["slip"]
-    assert f"{s.value:.6g}" in page
+    # one error everywhere, digits set by it: the headline and the estimates table agree
+    pm = fmt.pm(s.value, s.std)
+    head = page[:page.index('<nav class="toc"')]
+    assert pm in head and page.count(pm) >= 2
     m = post.mcmc_json()
-    assert "converged" in page and f"{m['acceptance']:.3g}" in page
-    assert "autocorrelation time" in page and "linearisation check" in page
-    for label in ("lug shear stiffness k", "rolling resistance C_rr", "lug deflection",
+    assert "converged" in page and fmt.sig(m["acceptance"], 3) in page
+    assert "R-hat" in page and "MCSE" in page and "linearisation check" in page
+    assert "BIC = χ² + k ln N" in page and "solver steps" in page
+    assert "Track slip of trajectories" in page or "<title>" in page
+    for label in ("lug shear stiffness k", "rolling resistance C<sub>rr</sub>", "lug deflection",
                   "wheel pitch radius R", "noise, lug markers"):
         assert label in page
-    # the reference rig: the paper's value is marked
-    assert f"reference paper {REFERENCE_SLIP:g}" in page or str(REFERENCE_SLIP) in page
+    # the reference rig: the paper's value is marked, with the distance in sigma
+    assert f"Reference paper: s = {REFERENCE_SLIP:g}" in page
+    assert fmt.sigma_apart(s.value, s.std, REFERENCE_SLIP) in page
 
 
 def test_state_holds_what_the_report_draws(folder, fitted):
@@ -113,7 +129,7 @@ def test_least_squares_only_and_discrepancy_hook(fitted, tmp_path):
     save_state(tmp_path, res)
     page = open(write_report(tmp_path), encoding="utf-8").read()
     assert "Posterior not sampled" in page and "--no-mcmc" in page
-    assert "No posterior samples" in page and "discrepancy" not in page.lower()
+    assert "No posterior samples" in page and 'id="discrepancy"' not in page
     doc["discrepancy"] = {"verdict": "explained", "located": [], "effects": [
         {"id": "lug_ripple", "params": {"ripple_a": 0.001}, "delta_bic": -120.0,
          "chi2_per_dof_before": 3.2, "chi2_per_dof_after": 1.01}],
@@ -127,13 +143,20 @@ def test_residuals_before_an_explanation_are_drawn(fitted, tmp_path):
     from types import SimpleNamespace
 
     res, post, _ = fitted
-    write_json(tmp_path / "fit.json", fit_json(res, posterior=post.estimates,
-                                               mcmc=post.mcmc_json()))
+    doc = fit_json(res, posterior=post.estimates, mcmc=post.mcmc_json())
+    write_json(tmp_path / "fit.json", doc)
     save_state(tmp_path, res, posterior=post, explanation=SimpleNamespace(base=res))
     st = load_state(tmp_path)
     np.testing.assert_array_equal(st["base_lug_res_y"], st["lug_res_y"])
     page = open(write_report(tmp_path), encoding="utf-8").read()
-    assert "residuals before the effects were added" in page
+    # nothing was added: no "before" figure repeating the residuals
+    assert "residuals before the effects were added" not in page
+    doc["discrepancy"] = {"verdict": "explained", "located": [], "effects": [
+        {"id": "lug_ripple", "params": {"ripple_a": 0.001}, "delta_bic": -120.0}],
+        "slip_before": None, "slip_after": None}
+    write_json(tmp_path / "fit.json", doc)
+    page = open(write_report(tmp_path), encoding="utf-8").read()
+    assert "residuals before the effects were added and after" in page
 
 
 def test_missing_files_are_named(tmp_path):
@@ -154,7 +177,10 @@ def test_plot_functions_take_an_ax(folder):
     names = st["meta"]["post_names"]
     calls = [
         lambda ax: _plots.plot_trajectories(st, ax=ax),
-        lambda ax: _plots.plot_stall(st, ax=ax),
+        lambda ax: _plots.plot_stall(st, ax=ax) and ax,
+        lambda ax: _plots.plot_slip_time(st, ax=ax),
+        lambda ax: _plots.plot_slip_force(st, ax=ax),
+        lambda ax: _plots.plot_correlation(st["lsq_corr"], st["meta"]["corr_names"], ax=ax),
         lambda ax: _plots.plot_displacement(st, ax=ax),
         lambda ax: _plots.plot_velocity(st, ax=ax),
         lambda ax: _plots.plot_residuals_time(st, "y", ax=ax),
@@ -188,3 +214,73 @@ def test_stall_window_is_a_bottom_run_contact(folder):
     v_marker = abs(np.polyfit(st["lug_t"][sel], x, 1)[0])
     v_body = np.interp(0.5 * (t0 + t1), st["fine_t"], st["fine_v"])
     assert v_marker < 0.2 * v_body
+
+
+def test_stall_creep_is_the_slip_times_the_run(folder, fitted):
+    """On the ground a lug marker creeps rearward by s D over one contact (MODEL.md: it
+    moves at -s v_t for D / v_t); the simulator's truth, not the fit, sets s."""
+    _, _, truth = fitted
+    st = load_state(folder)
+    cr = _plots.creep(st)
+    assert cr is not None and cr["measured_mm"] > 0
+    D = st["meta"]["least_squares"]["D_mm"]["value"]
+    s_true = truth["slip"] if isinstance(truth, dict) else truth.slip
+    # the contact is seen at a frame rate: up to one frame's travel short at each end
+    assert cr["measured_mm"] == pytest.approx(s_true * D, rel=0.1)
+
+
+def test_slip_from_the_lugs_matches_the_truth(folder, fitted):
+    """The slip measured straight from the bottom-run markers (s = -u / (v - u)), at cruise,
+    agrees with the simulated steady slip: the point cloud of the slip-force plot is data."""
+    _, _, truth = fitted
+    st = load_state(folder)
+    t, s = _plots.slip_from_lugs(st)
+    a = np.interp(t, st["fine_t"], np.gradient(st["fine_v"], st["fine_t"]))
+    cruise = np.abs(a) < 0.05 * np.max(np.abs(a))
+    s_true = truth["slip"] if isinstance(truth, dict) else truth.slip
+    assert cruise.sum() >= 20
+    assert np.median(s[cruise]) == pytest.approx(s_true, abs=0.01)
+
+
+@pytest.mark.parametrize("value,std,text", [
+    (0.07715779138891603, 2.061656403006902e-06, "0.0771578 ± 0.0000021"),
+    (1.3998627866274764, 3.740433759741182e-05, "1.399863 ± 0.000037"),
+    (0.1, 0.02, "0.100 ± 0.020"),
+    (1234.5, 0.0996, "1234.50 ± 0.10"),      # the error rounds up a digit
+    (3.74e-7, 1.2e-9, "(3.740 ± 0.012) × 10⁻⁷"),
+    (5.0, None, "5.00000"),
+])
+def test_value_with_error(value, std, text):
+    assert fmt.pm(value, std) == text
+
+
+def test_intervals_name_their_level_and_never_collapse():
+    assert fmt.interval(1.399790152963036, 1.3999355144013452, 3.74e-5) == \
+        "95 %: 1.399790 … 1.399936"
+    # the ends differ in the 7th digit only: more digits, never "1.4 … 1.4"
+    lo, hi = fmt.interval(1.4, 1.4000001, 1e-3, 68).split(": ")[1].split(" … ")
+    assert lo != hi and fmt.interval(1, 2, level=68).startswith("68 %: ")
+    assert fmt.sig(-7.2765e7, 3) == "-7.28 × 10⁷" and "e+" not in fmt.sig(1e9)
+    assert fmt.sigma_apart(0.0771578, 2.06e-6, 0.07716) == "1.1 σ below"
+    assert fmt.pm(0.0771578, 2.06e-6, ascii=True) == "0.0771578 +/- 0.0000021"
+
+
+def test_terminal_summary_digits_and_verdict(capsys):
+    """The terminal prints the headline's numbers with the same digits, effect parameters
+    and the slip before the explanation (from a fit.json dict; no fit needed)."""
+    from types import SimpleNamespace
+
+    from fitlug.cli._fit import _summary
+
+    ref = os.path.join(os.path.dirname(__file__), "..", "fits", "reference", "fit.json")
+    doc = json.load(open(ref, encoding="utf-8"))
+    doc["discrepancy"] = dict(doc["discrepancy"], verdict="explained", effects=[
+        {"id": "belt_sag", "params": {"sag_d": 0.4997}, "params_std": {"sag_d": 0.00033}}],
+        slip_before={"value": 0.0770047, "std": 2.1e-6})
+    _summary(SimpleNamespace(quiet=False), doc, "out", "out/report.html", 1.0)
+    out = capsys.readouterr().out
+    s = doc["slip"]
+    assert fmt.pm(s["value"], s["std"]) in out and "95 %: " in out
+    assert "belt_sag: sag_d = 0.49970 ± 0.00033" in out
+    assert "slip without it 0.0770047 ± 0.0000021" in out and "σ below" in out
+    assert "e-0" not in out  # no "2.1e-06"

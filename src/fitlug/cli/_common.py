@@ -14,7 +14,23 @@ def progress_enabled(args) -> bool:
 def say(args, *lines: str) -> None:
     if not getattr(args, "quiet", False):
         for line in lines:
-            print(line)
+            print(line, flush=True)
+
+
+def stage(args, name: str, detail: str = "") -> None:
+    """One line as a stage starts (reading, fitting, explaining, sampling, report), so a
+    long compile or fit never leaves the terminal silent."""
+    if not getattr(args, "quiet", False):
+        print(f"[{name}] {detail}".rstrip(), flush=True)
+
+
+def progress_bar(total=None, desc: str = "", unit: str = "it", enabled: bool = True):
+    """A tqdm bar on stderr that ends cleanly: it stays on screen at its final count
+    (leave=True) and is disabled off a terminal."""
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=True,
+                disable=not (enabled and sys.stderr.isatty()), dynamic_ncols=True)
 
 
 def recording_name(csv_path: str) -> str:

@@ -6,7 +6,7 @@ import argparse
 import os
 import time
 
-from ._common import check_out_folder, progress_enabled, recording_name, say
+from ._common import check_out_folder, progress_enabled, recording_name, say, stage
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -27,23 +27,29 @@ def run(args) -> int:
     from ..io import find_rig, read_rig, read_trajectories, write_json
 
     t_start = time.perf_counter()
+    stage(args, "reading", args.csv)
     rig = read_rig(args.rig) if args.rig else find_rig(args.csv)
     rec = read_trajectories(args.csv, rig=rig)
     out = args.out or os.path.join("fits", recording_name(args.csv))
     check_out_folder(out, "--out" if args.out else "output folder")
     prog = progress_enabled(args)
 
+    stage(args, "fitting", f"{len(rec.markers)} markers; the first run compiles the model "
+                           "(tens of seconds)")
     from ..fit import fit
 
     res = fit(rec, rig)
     final, expl = res, None
     if not args.no_explain:
+        stage(args, "explaining", f"base fit chi2/dof {res.chi2_per_dof:.3f}; looking for "
+                                  "left-out physics")
         from ..explain import explain
 
         expl = explain(res, seed=args.seed, progress=prog)
         final = expl.final
     post = None
     if not args.no_mcmc:
+        stage(args, "sampling", f"posterior (emcee), budget {args.mcmc_budget:g} s")
         from ..posterior import sample_posterior
 
         post = sample_posterior(final, seed=args.seed, progress=prog,
@@ -60,12 +66,14 @@ def run(args) -> int:
         doc["mcmc_skipped"] = "--no-mcmc: uncertainties are least-squares (Jacobian) errors"
     if args.no_explain:
         doc["discrepancy_skipped"] = "--no-explain"
+    _display_keys(doc, args)
     os.makedirs(out, exist_ok=True)
     write_json(os.path.join(out, "fit.json"), doc)
     report = None
     if post is not None:
         post.save(os.path.join(out, "posterior.nc"))
     if not args.no_report:
+        stage(args, "report", os.path.join(out, "report.html"))
         from ..report import save_state, write_report
 
         save_state(out, final, posterior=post, explanation=expl)
@@ -74,25 +82,81 @@ def run(args) -> int:
     return 0
 
 
-def _fmt(est, digits=4):
-    if not est:
-        return "not identifiable (needs [vehicle] mass_kg in rig.toml)"
-    return f"{est['value']:.{digits}g} ± {est['std']:.2g}  (95 %: {est['ci95'][0]:.{digits}g} … {est['ci95'][1]:.{digits}g})"
+def _command_line(args) -> str:
+    """The fit's command line, rebuilt from the parsed options (not sys.argv, which is the
+    caller's when fitlug.cli.main is called from Python)."""
+    import shlex
+
+    parts = ["fit-lug", args.csv]
+    for opt, key in (("--rig", "rig"), ("--out", "out")):
+        if getattr(args, key, None):
+            parts += [opt, str(getattr(args, key))]
+    if getattr(args, "seed", 0):
+        parts += ["--seed", str(args.seed)]
+    if getattr(args, "mcmc_budget", 60.0) != 60.0:
+        parts += ["--mcmc-budget", f"{args.mcmc_budget:g}"]
+    for flag in ("no_mcmc", "no_explain", "no_report"):
+        if getattr(args, flag, False):
+            parts.append("--" + flag.replace("_", "-"))
+    return " ".join(shlex.quote(p) for p in parts)
+
+
+def _display_keys(doc, args) -> None:
+    """Display-only keys for the report's header: the command line and the date (UTC)."""
+    import datetime
+
+    doc.setdefault("command", _command_line(args))
+    doc.setdefault("date_utc", datetime.datetime.now(datetime.timezone.utc)
+                   .strftime("%Y-%m-%d %H:%M UTC"))
+
+
+def _fmt(est, unit=""):
+    from ..report._format import interval, pm
+
+    if not est or est.get("value") is None:
+        return "not identifiable"
+    ci = est.get("ci95") or [None, None]
+    u = f" {unit}" if unit else ""
+    return (f"{pm(est['value'], est.get('std'))}{u}   ({interval(ci[0], ci[1], est.get('std'))})")
 
 
 def _summary(args, doc, out, report, seconds):
+    from ..report._format import pm, sig, sigma_apart
+
+    stiff = doc["stiffness_N_per_mm"]
+    why = (doc.get("not_identifiable") or {}).get("stiffness_N_per_mm") or \
+        "needs [vehicle] mass_kg in rig.toml"
     lines = [
-        f"fitlug: {doc['input']}",
+        f"fitlug: {doc['input']}   (± is 1 sigma: {doc.get('uncertainty_method', '')})",
         f"  slip s0            {_fmt(doc['slip'])}",
-        f"  lug deflection Δl' {_fmt(doc['delta_l_mm'])} mm",
-        f"  lug stiffness k    {_fmt(doc['stiffness_N_per_mm'])}" + (" N/mm" if doc["stiffness_N_per_mm"] else ""),
+        f"  lug deflection Δl' {_fmt(doc['delta_l_mm'], 'mm')}",
+        f"  lug stiffness k    " + (_fmt(stiff, "N/mm") if stiff else f"not identifiable ({why})"),
         f"  rolling resistance {_fmt(doc['rolling_resistance'])}",
-        f"  chi2/dof           {doc['chi2_per_dof']:.3f}   (noise: body {doc['noise_mm']['body']:.4f} mm, lug {doc['noise_mm']['lug']:.4f} mm)",
+        f"  chi2/dof           {doc['chi2_per_dof']:.3f}   (noise: body "
+        f"{1000 * doc['noise_mm']['body']:.2f} µm, lug {1000 * doc['noise_mm']['lug']:.2f} µm)",
     ]
     d = doc.get("discrepancy")
     if d:
-        eff = ", ".join(e["id"] for e in d.get("effects", [])) or "-"
-        lines.append(f"  left-out physics   {d['verdict']}" + (f": {eff}" if d.get("effects") else ""))
+        eff = d.get("effects") or []
+        lines.append(f"  left-out physics   {d['verdict']}"
+                     + (": " + ", ".join(e["id"] for e in eff) if eff else ""))
+        for e in eff:
+            std = e.get("params_std") or {}
+            ps = ", ".join(f"{k} = " + (pm(v, std.get(k)) if v is not None else "n/a")
+                           for k, v in (e.get("params") or {}).items())
+            lines.append(f"    {e['id']}: {ps}")
+        b, s = d.get("slip_before") or {}, doc.get("slip") or {}
+        if eff and b.get("value") is not None and s.get("value"):
+            lines.append(f"    slip without {'it' if len(eff) == 1 else 'them'} {pm(b['value'], b.get('std'))}: "
+                         f"{sig(100 * (b['value'] - s['value']) / s['value'], 2)} %, "
+                         f"{sigma_apart(b['value'], s.get('std'), s['value'])} the final value")
+        if d.get("verdict") == "unexplained":
+            from ..report._discrepancy import located_sentence
+
+            import html
+
+            lines.append("    " + html.unescape(located_sentence(d)))
+            lines.append("    the slip's error bar includes this mismatch")
     m = doc.get("mcmc")
     if m:
         lines.append(f"  posterior          {m.get('walkers')} walkers × {m.get('steps')} steps, "

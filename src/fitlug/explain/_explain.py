@@ -153,7 +153,8 @@ def _bar(progress, total, desc):
         return None
     from tqdm import tqdm
 
-    return tqdm(total=total, desc=desc, file=sys.stderr, leave=False)
+    return tqdm(total=total, desc=desc, file=sys.stderr, leave=True, unit="effect",
+                dynamic_ncols=True)
 
 
 def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA) -> Explanation:
@@ -257,6 +258,8 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
         if det_cur.consistent:
             break
     if bar:
+        bar.total = bar.n  # ends at what was done ("2/2"), not at the cap ("1/4")
+        bar.refresh()
         bar.close()
     timing["search"] = time.perf_counter() - t_start - timing["detect_locate"]
 

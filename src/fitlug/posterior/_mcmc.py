@@ -154,4 +154,5 @@ def _progress_bar(progress: bool):
     from tqdm.auto import tqdm
 
     on = bool(progress) and sys.stderr.isatty()
-    return tqdm(desc="posterior", unit="step", file=sys.stderr, disable=not on, leave=False)
+    return tqdm(desc="posterior", unit="step", file=sys.stderr, disable=not on, leave=True,
+                dynamic_ncols=True)

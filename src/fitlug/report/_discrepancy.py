@@ -1,22 +1,26 @@
 """The report's "What the model left out" section (HTML, plots as base64 PNG).
 
 Everything it shows comes from fit.json's `discrepancy` block (written by
-fitlug.explain.Explanation.to_json): the verdict, the located mismatch, each named
-effect, the improvement and the slip before and after, plus the binned residual maps
-and spectra of the base and the final model. `state` (the report's saved state) is
-accepted for symmetry with the other sections and not needed.
+fitlug.explain.Explanation.to_json) and, for the residuals before and after the named
+effects, from the report's saved state (`base_*` arrays). It opens with one plain sentence,
+then: the slip before and after (the final row carries the headline's error), the named
+effects, whiteness tests before and after, where the mismatch sits (shares of the
+structured misfit apart from spectral lines), residuals before/after over time and along
+the belt coordinate, the binned residual maps, the misfit breakdown on a log scale, the
+spectrum with its peaks named, and every candidate with the reason it was or was not fitted.
 """
 
 from __future__ import annotations
 
-import base64
 import html
-import io
 import math
 
-_CSS = ("<style>.fl-disc table{border-collapse:collapse;margin:.5em 0}"
-        ".fl-disc td,.fl-disc th{border:1px solid #ccc;padding:2px 8px;text-align:left;"
-        "font-size:90%}.fl-disc img{max-width:100%}</style>")
+import numpy as np
+
+from . import _format as F
+
+MAX_FITS_PER_ROUND = 4  # fitlug.explain._explain.MAX_FITS_PER_ROUND (read at run time)
+SHARED_SCALE_MAX_RATIO = 30.0  # before/after maps share a colour scale below this ratio
 
 
 def _e(x) -> str:
@@ -24,205 +28,426 @@ def _e(x) -> str:
 
 
 def _num(x, digits=4) -> str:
-    if x is None:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
         return "–"
     if isinstance(x, (int, float)):
-        if not math.isfinite(x):
-            return "–"
-        return f"{x:.{digits}g}"
+        return F.sig(x, digits)
     return _e(x)
 
 
+def _fig_html(fig, alt, caption):
+    from ._html import figure_html
+
+    return figure_html(fig, alt, caption)
+
+
+def _new(w, h, rows=1, cols=1, **kw):
+    from ._plots import new_figure
+
+    return new_figure(w, h, rows, cols, **kw)
+
+
+def located_sentence(d: dict) -> str:
+    """One plain sentence: where the mismatch is and what it looks like."""
+    shares = [p for p in d.get("located") or [] if not p.get("test")]
+    lines = [p for p in d.get("located") or [] if p.get("test") == "spectral line"]
+    if not shares and not lines:
+        det = d.get("detection_after") or d.get("detection_before") or {}
+        if det.get("line_hz") and (det.get("line_p") or 1) < 0.05:
+            return (f"The residuals carry a common spectral line at "
+                    f"{F.sig(det['line_hz'], 3)} Hz ({_e(det.get('line_group', ''))}).")
+        return "The residuals are not white, but no single place carries the mismatch."
+    parts = []
+    if shares:
+        p = max(shares, key=lambda q: q.get("share_of_misfit") or 0)
+        tr = p.get("t_range_s") or [None, None]
+        seg = str(p.get("segment", "")).replace("_", " ")
+        phase = p.get("phase")
+        when = ("over the whole recording" if phase in (None, "all")
+                else f"while {_e(phase)}")
+        parts.append(f"Most of the structured misfit ({F.percent(p.get('share_of_misfit'))}) "
+                     f"is in the {_e(p.get('axis'))} residuals of markers on the "
+                     f"{_e(seg)} {when} ({F.sig(tr[0], 3)}–{F.sig(tr[1], 3)} s)")
+        if p.get("frequency_hz"):
+            parts[-1] += f", varying at about {F.sig(p['frequency_hz'], 2)} Hz"
+    if lines:
+        q = lines[0]
+        parts.append(f"a spectral line stands out at {F.sig(q.get('frequency_hz'), 3)} Hz "
+                     f"in {_e(q.get('axis', ''))} ({_e(q.get('segment', ''))})"
+                     if q.get("frequency_hz") else "a spectral line stands out")
+    return "; ".join(parts) + "."
+
+
 def _slip(d) -> str:
-    if not d:
+    if not d or d.get("value") is None:
         return "–"
     ci = d.get("ci95") or [None, None]
-    return f"{_num(d['value'], 6)} ± {_num(d['std'], 2)} (95 %: {_num(ci[0], 6)} … {_num(ci[1], 6)})"
+    return (f"{F.pm(d['value'], d.get('std'))} "
+            f"<span class=small>({F.interval(ci[0], ci[1], d.get('std'), 95)})</span>")
 
 
-def _png(fig) -> str:
-    import matplotlib.pyplot as plt
+# ----- plots -------------------------------------------------------------------------------
 
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
-    plt.close(fig)
-    return ('<img alt="plot" src="data:image/png;base64,'
-            + base64.b64encode(buf.getvalue()).decode("ascii") + '">')
+def _map_array(m):
+    return np.array([[np.nan if v is None else v for v in row]
+                     for row in m["mean_residual_sigma"]], float)
 
 
 def plot_maps(maps: dict):
-    """Residual maps (series x time, mean residual in sigma) before and after, side by side.
+    """Residual maps (series x time, mean residual in σ per bin) before and after.
 
-    Each map has its own colour scale: after a good explanation the remaining residuals
-    are hundreds of times smaller than before and would be invisible on a shared one.
+    One colour scale for both unless the after map is SHARED_SCALE_MAX_RATIO times
+    weaker; returns (fig, shared).
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
     keys = [k for k in ("before", "after") if maps.get(k)]
-    fig, axes = plt.subplots(1, len(keys), figsize=(6.5 * len(keys), 4.5), squeeze=False)
+    arrs = {k: _map_array(maps[k]) for k in keys}
+    vmax = {k: max(float(np.nanpercentile(np.abs(a), 99)) if np.isfinite(a).any() else 1.0,
+                   1.0) for k, a in arrs.items()}
+    shared = len(keys) < 2 or vmax[keys[0]] / vmax[keys[-1]] < SHARED_SCALE_MAX_RATIO
+    if shared:
+        top = max(vmax.values())
+        vmax = {k: top for k in keys}
+    nser = max(len(maps[k]["series"]) for k in keys)
+    fig, axes = _new(9.0, min(2.0 + 0.14 * nser, 9.0), 1, len(keys))
     for ax_, k in zip(axes[0], keys):
         m = maps[k]
-        a = np.array([[np.nan if v is None else v for v in row]
-                      for row in m["mean_residual_sigma"]], float)
-        vmax = float(np.nanpercentile(np.abs(a), 99)) if np.isfinite(a).any() else 1.0
-        vmax = max(vmax, 1.0)  # noise alone gives ~0.3 sigma per 0.1 s bin
         t = m["t_edges_s"]
-        im = ax_.imshow(a, aspect="auto", cmap="RdBu_r", vmin=-vmax, vmax=vmax,
+        im = ax_.imshow(arrs[k], aspect="auto", cmap="RdBu_r", vmin=-vmax[k], vmax=vmax[k],
                         extent=[t[0], t[-1], len(m["series"]) - 0.5, -0.5],
                         interpolation="nearest")
-        ax_.set_yticks(range(len(m["series"])))
-        ax_.set_yticklabels(m["series"], fontsize=7)
-        ax_.set_xlabel("time (s)")
-        ax_.set_title(f"residuals {k} (mean per 0.1 s, sigma)", fontsize=10)
-        fig.colorbar(im, ax=ax_, shrink=0.8)
-    fig.tight_layout()
-    return fig
+        step = max(1, len(m["series"]) // 30)
+        ax_.set_yticks(range(0, len(m["series"]), step))
+        ax_.set_yticklabels(m["series"][::step], fontsize=7)
+        ax_.set_xlabel("t (s)")
+        ax_.set_title(f"{k}: mean residual per bin (σ)"
+                      + ("" if shared else f", own scale ±{F.sig(vmax[k], 2)}"), fontsize=9)
+        if not shared or k == keys[-1]:
+            fig.colorbar(im, ax=ax_, shrink=0.8, label="σ")
+    return fig, shared
+
+
+def spectral_peaks(f, p, lug_hz=None, wheel_hz=None, n=4, factor=8.0):
+    """The n strongest local maxima above `factor` × the median power, each named by its
+    relation to the lug-passing and wheel-revolution frequencies: [(f, p, name)]."""
+    f, p = np.asarray(f, float), np.asarray(p, float)
+    if len(p) < 3:
+        return []
+    med = np.median(p)
+    idx = [i for i in range(1, len(p) - 1)
+           if p[i] >= p[i - 1] and p[i] >= p[i + 1] and p[i] > factor * med]
+    idx = sorted(idx, key=lambda i: -p[i])[:n]
+    out = []
+    for i in sorted(idx, key=lambda i: f[i]):
+        name = ""
+        df = (f[1] - f[0]) * 1.01
+        for base, what in ((lug_hz, "lug passing"), (wheel_hz, "wheel revolution")):
+            if base:
+                h = round(f[i] / base)
+                if 1 <= h <= 2 and abs(f[i] - h * base) <= df:
+                    name = what if h == 1 else f"{h}× {what}"
+                    break
+        if not name:
+            name = ("below 1 Hz: the motion profile" if f[i] < 1.0
+                    else "not a rig frequency: a disturbance outside the catalog?")
+        out.append((float(f[i]), float(p[i]), name))
+    return out
 
 
 def plot_spectra(spectra: dict):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(8, 3.2))
-    for k, style in (("before", "-"), ("after", "-")):
+    fig, axes = _new(9.0, 3.6)
+    ax = axes[0, 0]
+    s0 = spectra.get("before") or spectra.get("after") or {}
+    for k, col in (("before", "#d95f02"), ("after", "#1b9e77")):
         s = spectra.get(k)
         if s and s.get("f_hz"):
-            ax.semilogy(s["f_hz"], s["power"], style, lw=1, label=k)
-    s = spectra.get("before") or spectra.get("after") or {}
+            ax.semilogy(s["f_hz"], s["power"], "-", lw=1, color=col, label=k)
     for key, lab, c in (("lug_passing_hz", "lug passing", "C3"),
                         ("wheel_revolution_hz", "wheel revolution", "C2")):
-        f = s.get(key)
+        f = s0.get(key)
         if f:
             ax.axvline(f, color=c, ls="--", lw=0.8, label=f"{lab} {f:.2f} Hz")
+    peaks = []
+    for k in ("before", "after"):
+        s = spectra.get(k)
+        if s and s.get("f_hz"):
+            for fpk, ppk, name in spectral_peaks(s["f_hz"], s["power"], s0.get("lug_passing_hz"),
+                                                 s0.get("wheel_revolution_hz")):
+                ax.annotate(f"{fpk:.2f} Hz", (fpk, ppk), textcoords="offset points",
+                            xytext=(3, 4), fontsize=8)
+                peaks.append((k, fpk, ppk, name))
     ax.set_xlabel("frequency (Hz)")
-    ax.set_ylabel("residual power (sigma^2)")
-    ax.set_xlim(0, min(50.0, max(s.get("f_hz") or [50.0])))
-    ax.legend(fontsize=8)
-    return fig
+    ax.set_ylabel("residual power (σ²)")
+    ax.set_xlim(0, min(50.0, max(s0.get("f_hz") or [50.0])))
+    ax.legend(frameon=False, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    return fig, peaks
 
 
 def plot_breakdown(before: dict, after: dict | None):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    dims = ["segment", "phase", "axis", "role"]
-    fig, axes = plt.subplots(1, len(dims), figsize=(12, 2.8))
-    for ax, dim in zip(axes, dims):
+    """Structured misfit (χ²) per dimension before and after, on a log axis so that a
+    misfit hundreds of times smaller stays visible; values ≤ 1 are drawn at 1."""
+    dims = [d for d in ("segment", "phase", "axis", "role") if (before or {}).get(d)]
+    fig, axes = _new(9.0, 3.4, 1, max(len(dims), 1), sharey=True)
+    for ax, dim in zip(axes[0], dims):
         b = (before or {}).get(dim, {})
         a = (after or {}).get(dim, {}) if after else {}
         names = list(b)
-        x = range(len(names))
-        ax.bar([i - 0.2 for i in x], [b[n]["misfit_chi2"] for n in names], 0.4, label="before")
+        x = np.arange(len(names))
+        clip = lambda v: max(float(v or 0.0), 1.0)  # noqa: E731
+        ax.bar(x - 0.2, [clip(b[n]["misfit_chi2"]) for n in names], 0.4, label="before",
+               color="#d95f02")
         if a:
-            ax.bar([i + 0.2 for i in x], [a.get(n, {}).get("misfit_chi2", 0.0) for n in names],
-                   0.4, label="after")
-        ax.set_xticks(list(x))
-        ax.set_xticklabels(names, rotation=30, fontsize=7)
-        ax.set_title(f"misfit by {dim}", fontsize=9)
-        ax.axhline(0, color="k", lw=0.5)
-    axes[0].set_ylabel("structured misfit (chi^2)")
-    axes[0].legend(fontsize=7)
+            ax.bar(x + 0.2, [clip(a.get(n, {}).get("misfit_chi2")) for n in names], 0.4,
+                   label="after", color="#1b9e77")
+        ax.set_yscale("log")
+        ax.set_xticks(x, [str(n).replace("_", " ") for n in names], rotation=35, ha="right",
+                      fontsize=8)
+        ax.set_title(f"by {dim}", fontsize=9)
+    axes[0, 0].set_ylabel("structured misfit (χ², log)")
+    axes[0, 0].legend(frameon=False, fontsize=8)
     return fig
+
+
+def plot_before_after(st: dict):
+    """Lug and body residuals before (base model) and after (named effects): over time
+    and along the belt coordinate, both axes, on shared y scales per row."""
+    from . import _plots
+
+    fig, axes = _new(9.0, 9.5, 4, 2)
+    P = st.get("meta", {}).get("belt_length_mm")
+    for j, (prefix, name) in enumerate((("base_", "before"), ("", "after"))):
+        for k, axis in enumerate(("x", "y")):
+            _plots.plot_residuals_time(st, axis, ax=axes[k, j], prefix=prefix)
+            _plots.plot_residuals_path(st, axis, ax=axes[2 + k, j], prefix=prefix, P=P)
+            for row in (k, 2 + k):
+                axes[row, j].set_title(f"{name}: {axis} residual", fontsize=9, loc="left")
+                axes[row, j].xaxis.label.set_fontsize(8)
+                if (row, j) == (0, 0):
+                    handles, labels = axes[row, j].get_legend_handles_labels()
+                axes[row, j].get_legend().remove()
+    fig.legend(handles, labels, loc="outside upper center", ncol=5, frameon=False,
+               markerscale=6)
+    for row in range(4):  # one scale per row: before and after compare directly
+        lo = min(axes[row, 0].get_ylim()[0], axes[row, 1].get_ylim()[0])
+        hi = max(axes[row, 0].get_ylim()[1], axes[row, 1].get_ylim()[1])
+        for j in range(2):
+            axes[row, j].set_ylim(lo, hi)
+    return fig
+
+
+# ----- tables -------------------------------------------------------------------------------
+
+def _whiteness(d) -> str:
+    b, a = d.get("detection_before") or {}, d.get("detection_after") or {}
+    if not b:
+        return ""
+
+    def cells(x):
+        if not x:
+            return ["–"] * 5
+        return [f"{F.sig(x.get('chi2_per_dof'), 4)} (z = {F.sig(x.get('chi2_z'), 2)})",
+                f"Q = {F.sig(x.get('ljung_box_q'), 3)} on {x.get('ljung_box_dof', '–')} dof, "
+                f"p = {F.sig(x.get('ljung_box_p'), 2)}",
+                f"p = {F.sig(x.get('periodogram_p'), 2)} (worst {_e(x.get('periodogram_series', ''))})",
+                f"{F.sig(x.get('line_hz'), 3)} Hz in {_e(x.get('line_group', ''))}, "
+                f"p = {F.sig(x.get('line_p'), 2)}",
+                '<span class="ok">white</span>' if x.get("consistent")
+                else '<span class="bad">not white</span>']
+
+    head = ["", "χ²/dof", "Ljung–Box", "cumulative periodogram", "strongest common line",
+            "verdict"]
+    rows = [["base model"] + cells(b), ["final model"] + cells(a)]
+    h = "".join(f"<th>{c}</th>" for c in head)
+    body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in r) + "</tr>" for r in rows)
+    alpha = b.get("alpha", 0.05)
+    return (f"<h3>Whiteness tests, before and after</h3><div class=scroll><table><tr>{h}</tr>"
+            f"{body}</table></div><p class=small>Each test at α/4 "
+            f"(α = {F.sig(alpha, 2)} in all): p below {F.sig(alpha / 4, 2)} fails. "
+            f"χ²/dof of white noise is 1 ± {F.sig(b.get('chi2_spread'), 2)}.</p>")
+
+
+def _candidate_reason(c, rd, threshold, limit) -> str:
+    if c["id"] == rd.get("accepted"):
+        return "added (best ΔBIC of the round)"
+    if c.get("rejected_because"):
+        return c["rejected_because"]
+    lin = c.get("delta_bic_linear")
+    if c.get("delta_bic") is None:
+        if lin is not None and lin >= threshold:
+            return (f"not fitted: its one-step ΔBIC {F.sig(lin, 3)} is not below "
+                    f"{F.sig(threshold, 2)}")
+        return (f"not fitted: only the {limit} most promising candidates are fitted per "
+                "round, and another was added")
+    return "fitted, beaten by the added effect"
+
+
+def _candidates(d) -> str:
+    rounds = d.get("candidates") or []
+    if not rounds:
+        return ""
+    crit = d.get("criterion") or {}
+    thr = crit.get("delta_bic_threshold", -10.0)
+    try:
+        from ..explain._explain import MAX_FITS_PER_ROUND as limit
+    except ImportError:  # pragma: no cover - the report does not need the explain stage
+        limit = MAX_FITS_PER_ROUND
+    out = ["<h3>Candidates tried</h3><div class=scroll><table><tr><th>round</th><th>effect</th>"
+           "<th>ΔBIC (one step)</th><th>ΔBIC (fitted)</th><th>excess χ² removed</th>"
+           "<th>outcome</th></tr>"]
+    for rd in rounds:
+        for c in rd.get("tried", []):
+            share = c.get("misfit_removed_share")
+            out.append(f"<tr><td>{rd['round']}</td><td>{_e(c['id'])}</td>"
+                       f"<td>{F.sig(c.get('delta_bic_linear'), 3)}</td>"
+                       f"<td>{F.sig(c.get('delta_bic'), 3)}</td>"
+                       f"<td>{'' if share is None else F.percent(share)}</td>"
+                       f"<td>{_e(_candidate_reason(c, rd, thr, limit))}</td></tr>")
+    out.append("</table></div>")
+    out.append(f"<p class=small>An effect is added when ΔBIC = Δχ² + Δk ln N &lt; "
+               f"{F.sig(thr, 2)} and, when the misfit is strong, it removes at least "
+               f"{F.percent(crit.get('min_share_of_strong_excess_chi2_removed', 0.3))} of the "
+               "excess χ². The one-step ΔBIC is a single Gauss–Newton step from the current "
+               "fit, used to rank the candidates.</p>")
+    return "".join(out)
+
+
+def _located(d) -> str:
+    loc = d.get("located") or []
+    shares = [p for p in loc if not p.get("test")]
+    lines = [p for p in loc if p.get("test")]
+    out = []
+    if shares:
+        out.append("<h3>Where the mismatch is</h3><p class=small>Shares of the structured "
+                   "misfit (the sum of lag-1 residual products; zero on average for white "
+                   "noise), one row per significant (axis, path segment) cell; they add to at "
+                   "most 100 %.</p><div class=scroll><table><tr><th>axis</th><th>segment</th>"
+                   "<th>phase</th><th>dominant frequency</th><th>time (s)</th><th>share</th>"
+                   "<th>markers</th></tr>")
+        for p in shares:
+            tr = p.get("t_range_s") or [None, None]
+            out.append(f"<tr><td>{_e(p.get('axis'))}</td>"
+                       f"<td>{_e(str(p.get('segment')).replace('_', ' '))}</td>"
+                       f"<td>{_e(p.get('phase'))}</td>"
+                       f"<td>{F.sig(p.get('frequency_hz'), 2)} Hz</td>"
+                       f"<td>{F.sig(tr[0], 3)}–{F.sig(tr[1], 3)}</td>"
+                       f"<td>{F.percent(p.get('share_of_misfit'))}</td>"
+                       f"<td>{_e(', '.join(p.get('markers', [])))}</td></tr>")
+        out.append("</table></div>")
+    if lines:
+        out.append("<p>Separate tests (not shares):</p><ul>")
+        for p in lines:
+            out.append(f"<li>{_e(p.get('test'))}: {_e(p.get('axis', ''))} "
+                       f"{_e(str(p.get('segment', '')).replace('_', ' '))}"
+                       + (f" at {F.sig(p.get('frequency_hz'), 3)} Hz"
+                          if p.get("frequency_hz") else "")
+                       + f", p = {F.sig(p.get('p_value'), 2)}; it concentrates "
+                       f"{F.percent(p.get('share_of_misfit'))} of that group's misfit.</li>")
+        out.append("</ul>")
+    sysm = d.get("systematics")
+    if sysm:
+        out.append(f"<p>Below the tracker-systematics floor: a structured misfit of "
+                   f"{F.sig(sysm.get('amplitude_um'), 2)} µm "
+                   f"({F.percent(sysm.get('share_of_misfit'))} of the misfit; effect on the "
+                   f"slip {F.sig(sysm.get('slip_effect'), 2)}). {_e(sysm.get('note', ''))}</p>")
+    return "".join(out)
 
 
 def discrepancy_section(fit_json: dict, state=None) -> str:
     """HTML of "What the model left out" from a fit.json dict (empty string if absent)."""
-    d = (fit_json or {}).get("discrepancy")
+    fj = fit_json or {}
+    d = fj.get("discrepancy")
+    head = '<section id="discrepancy"><h2>What the model left out</h2>'
     if not d:
-        skipped = (fit_json or {}).get("discrepancy_skipped")
+        skipped = fj.get("discrepancy_skipped")
         if skipped:
-            return (f'<section id="discrepancy" class="fl-disc"><h2>What the model left out</h2>'
-                    f"<p>Not examined ({_e(skipped)}).</p></section>")
+            return f"{head}<p>Not examined ({_e(skipped)}).</p></section>"
         return ""
-    out = ['<section id="discrepancy" class="fl-disc">', _CSS, "<h2>What the model left out</h2>"]
+    out = [head]
     v = d.get("verdict")
     det = d.get("detection_before") or {}
+    effects = d.get("effects") or []
     if v == "none":
-        out.append("<p><b>Nothing significant.</b> The base model's residuals are consistent "
-                   f"with the measurement noise (chi²/dof {_num(det.get('chi2_per_dof'))}, "
-                   f"expected 1 ± {_num(det.get('chi2_spread'), 2)}; Ljung–Box p = "
-                   f"{_num(det.get('ljung_box_p'), 2)}; cumulative periodogram p = "
-                   f"{_num(det.get('periodogram_p'), 2)}).</p>")
+        out.append("<p><b>Nothing.</b> The base model's residuals are consistent with the "
+                   f"measurement noise (χ²/dof {_num(det.get('chi2_per_dof'))}, expected 1 ± "
+                   f"{_num(det.get('chi2_spread'), 2)}); nothing was added.</p>")
     elif v == "explained":
-        names = ", ".join(e["id"] for e in d.get("effects", []))
-        out.append(f"<p><b>Explained</b> by {_e(names)}: chi²/dof "
-                   f"{_num(d.get('chi2_per_dof_before'))} → {_num(d.get('chi2_per_dof_after'))}."
+        names = ", ".join(e["id"] for e in effects)
+        out.append(f"<p><b>The base model missed {_e(names)}.</b> {located_sentence(d)} "
+                   f"Adding {'it' if len(effects) == 1 else 'them'} brings χ²/dof from "
+                   f"{_num(d.get('chi2_per_dof_before'))} to {_num(d.get('chi2_per_dof_after'))}."
                    "</p>")
     else:
-        out.append("<p><b>Unexplained.</b> The residuals are not consistent with the noise and "
-                   "no (further) catalog effect earns its place. The slip's error bar is "
-                   f"widened accordingly ({_e(d.get('slip_after_uncertainty', ''))}).</p>")
-    out.append("<table><tr><th></th><th>slip</th><th>chi²/dof</th></tr>"
+        out.append(f'<div class="verdict v-unexplained"><b>Unexplained.</b> '
+                   f"{located_sentence(d)} No catalog effect earns its place, so the slip's "
+                   "error bar includes the mismatch "
+                   f"({_e(d.get('slip_after_uncertainty', '') or fj.get('uncertainty_method', ''))}).</div>")
+    final = fj.get("slip") or d.get("slip_after")
+    out.append("<div class=scroll><table><tr><th></th><th>slip ± 1 σ</th><th>χ²/dof</th></tr>"
                f"<tr><td>base model</td><td>{_slip(d.get('slip_before'))}</td>"
                f"<td>{_num(d.get('chi2_per_dof_before'))}</td></tr>"
-               f"<tr><td>final model</td><td>{_slip(d.get('slip_after'))}</td>"
-               f"<td>{_num(d.get('chi2_per_dof_after'))}</td></tr></table>")
-    if d.get("effects"):
-        out.append("<h3>Named effects</h3><table><tr><th>effect</th><th>parameters</th>"
-                   "<th>ΔBIC</th><th>chi²/dof before → after</th><th>meaning</th></tr>")
-        for e in d["effects"]:
+               f"<tr><td>final model (the headline)</td><td>{_slip(final)}</td>"
+               f"<td>{_num(d.get('chi2_per_dof_after'))}</td></tr></table></div>")
+    if effects:
+        out.append("<h3>Named effects</h3><div class=scroll><table><tr><th>effect</th>"
+                   "<th>parameters ± 1 σ</th><th>ΔBIC</th><th>χ²/dof before → after</th>"
+                   "<th>what it is</th></tr>")
+        for e in effects:
             std = e.get("params_std") or {}
-            params = ", ".join(f"{_e(k)} = {_num(x)}" + (f" ± {_num(std[k], 2)}" if std.get(k)
-                                                        else "")
-                               for k, x in (e.get("params") or {}).items())
+            ni = e.get("not_identifiable") or {}
+            params = "<br>".join(
+                f"{_e(k)} = " + (F.pm(x, std.get(k)) if x is not None
+                                 else f"not identifiable ({_e(ni.get(k, ''))})")
+                for k, x in (e.get("params") or {}).items())
             out.append(f"<tr><td>{_e(e['id'])}</td><td>{params}</td>"
-                       f"<td>{_num(e.get('delta_bic'), 5)}</td>"
+                       f"<td>{F.sig(e.get('delta_bic'), 3)}</td>"
                        f"<td>{_num(e.get('chi2_per_dof_before'))} → "
                        f"{_num(e.get('chi2_per_dof_after'))}</td>"
                        f"<td>{_e(e.get('meaning', ''))}</td></tr>")
-        out.append("</table>")
-    if d.get("located"):
-        out.append("<h3>Located mismatch</h3><table><tr><th>markers</th><th>axis</th>"
-                   "<th>segment</th><th>phase</th><th>frequency (Hz)</th><th>time (s)</th>"
-                   "<th>share</th></tr>")
-        for p in d["located"]:
-            tr = p.get("t_range_s") or [None, None]
-            out.append(f"<tr><td>{_e(', '.join(p.get('markers', [])))}</td>"
-                       f"<td>{_e(p.get('axis'))}</td><td>{_e(p.get('segment'))}</td>"
-                       f"<td>{_e(p.get('phase'))}</td><td>{_num(p.get('frequency_hz'), 3)}</td>"
-                       f"<td>{_num(tr[0], 3)} – {_num(tr[1], 3)}</td>"
-                       f"<td>{100 * (p.get('share_of_misfit') or 0):.0f} %</td></tr>")
-        out.append("</table>")
+        out.append("</table></div>")
+    out.append(_whiteness(d))
+    out.append(_located(d))
     plots = []
     try:
+        st = state or {}
+        if effects and "base_lug_res_x" in st:
+            cap = ("Residuals before (left: base model) and after (right: with "
+                   + ", ".join(_e(e["id"]) for e in effects)
+                   + ") over time and along the belt coordinate u (position on the belt "
+                   "loop: sag shows on the top run, sinkage on the bottom run); each row has "
+                   "one y scale for both.")
+            if len(effects) > 1:
+                cap += " With several effects, 'before' is the base model, 'after' all of them."
+            plots.append(_fig_html(plot_before_after(st),
+                                   "residuals before the effects were added and after",
+                                   cap))
         if d.get("maps"):
-            plots.append(_png(plot_maps(d["maps"])))
+            fig, shared = plot_maps(d["maps"])
+            note = ("Both maps share one colour scale." if shared else
+                    "The two maps have different colour scales (the after map is far weaker "
+                    "and would be invisible on the before scale): read the numbers on "
+                    "each colour bar.")
+            plots.append(_fig_html(fig, "binned residual maps before and after",
+                                   "Mean residual (σ) per marker-axis series and 0.1 s bin. "
+                                   "White is no bias; coloured stripes are structure. " + note))
         mb, ma = d.get("misfit_before") or {}, d.get("misfit_after") or {}
         if mb.get("breakdown"):
-            plots.append(_png(plot_breakdown(mb["breakdown"], ma.get("breakdown"))))
+            after = ma.get("breakdown") if effects else None  # nothing added: no repeat
+            plots.append(_fig_html(plot_breakdown(mb["breakdown"], after),
+                                   "structured misfit by segment, phase, axis and role",
+                                   "Structured misfit (χ² of lag-1 products) per path "
+                                   "segment, motion phase, axis and role, before and after, on "
+                                   "a log scale (values at or below 1, i.e. noise, drawn at 1)."))
         if d.get("spectra"):
-            plots.append(_png(plot_spectra(d["spectra"])))
-    except Exception as exc:  # a plot must never sink the report
+            fig, peaks = plot_spectra(d["spectra"])
+            names = "; ".join(f"{k}: {fpk:.2f} Hz ({name})" for k, fpk, _, name in peaks)
+            plots.append(_fig_html(fig, "residual power spectrum before and after",
+                                   "Power spectrum of the residuals (σ², log) before and after, "
+                                   "with the lug-passing and wheel-revolution frequencies. "
+                                   + (f"Peaks: {names}." if names else
+                                      "No peak stands 8 times above the median.")))
+    except Exception as exc:  # noqa: BLE001 - a plot must never sink the report
         plots.append(f"<p>(plots unavailable: {_e(exc)})</p>")
     if plots:
         out.append("<h3>Residuals before and after</h3>" + "".join(plots))
-    rounds = d.get("candidates") or []
-    if rounds:
-        out.append("<h3>Candidates tried</h3><table><tr><th>round</th><th>effect</th>"
-                   "<th>ΔBIC (one step)</th><th>ΔBIC (fitted)</th><th>misfit removed</th>"
-                   "<th>verdict</th></tr>")
-        for rd in rounds:
-            for c in rd.get("tried", []):
-                if c.get("delta_bic") is None and c["id"] != rd.get("accepted"):
-                    verdict = "not fitted (no score)"
-                elif c["id"] == rd.get("accepted"):
-                    verdict = "added"
-                else:
-                    verdict = c.get("rejected_because") or "not the best"
-                share = c.get("misfit_removed_share")
-                out.append(f"<tr><td>{rd['round']}</td><td>{_e(c['id'])}</td>"
-                           f"<td>{_num(c.get('delta_bic_linear'), 5)}</td>"
-                           f"<td>{_num(c.get('delta_bic'), 5)}</td>"
-                           f"<td>{'' if share is None else f'{100 * share:.0f} %'}</td>"
-                           f"<td>{_e(verdict)}</td></tr>")
-        out.append("</table>")
+    out.append(_candidates(d))
     out.append("</section>")
     return "\n".join(out)

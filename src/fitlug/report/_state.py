@@ -12,7 +12,9 @@ The file holds plain numpy arrays (no pickles) plus one JSON string `meta`. Keys
 - body_X_data: body reference position from each body sample (x - c_x), mm;
 - post_samples (n, k) and post_names in meta, when a posterior is given; post_chain
   (draws, walkers) of the first sampled parameter, for a trace plot;
-- base_lug_res_x/y, base_body_res_x/y: residuals before the explanation's effects.
+- base_lug_res_x/y, base_body_res_x/y: residuals before the explanation's effects;
+- lsq_corr (k, k) with corr_names in meta: correlation of the least-squares fit's scalar
+  parameters (physical and effect ones).
 """
 
 from __future__ import annotations
@@ -95,6 +97,9 @@ def state_arrays(res, posterior=None, explanation=None) -> tuple[dict, dict]:
             "L_mm": float(lay.L), "noise_mm": {k: float(v) for k, v in prob.noise.items()},
             "mass_kg": prob.rig.mass_kg, "chi2_per_dof": float(res.chi2_per_dof),
             "least_squares": {k: e.as_dict() for k, e in res.quantities.items()}}
+    corr = _scalar_correlation(res)
+    if corr is not None:
+        meta["corr_names"], a["lsq_corr"] = corr
 
     if posterior is not None:
         names = [k for k in posterior.samples]
@@ -116,6 +121,23 @@ def state_arrays(res, posterior=None, explanation=None) -> tuple[dict, dict]:
             meta["base_effects"] = list(base.effects)
             meta["base_chi2_per_dof"] = float(base.chi2_per_dof)
     return a, meta
+
+
+def _scalar_correlation(res):
+    """(names, correlation) of the least-squares fit's scalar parameters (physical and
+    effect ones; per-marker and spline parameters left out), or None."""
+    try:
+        sl = res.packing.slices()
+        cov = np.asarray(res.cov, float)
+    except (AttributeError, TypeError, ValueError):
+        return None
+    names = [k for k, s in sl.items() if s.stop - s.start == 1]
+    if len(names) < 2 or cov.ndim != 2:
+        return None
+    idx = [sl[k].start for k in names]
+    C = cov[np.ix_(idx, idx)]
+    d = np.sqrt(np.clip(np.diag(C), 1e-300, None))
+    return names, C / np.outer(d, d)
 
 
 def save_state(out_dir, res, posterior=None, explanation=None) -> str:
