@@ -75,14 +75,16 @@ def body_reference(rec, body_ids, t_ref=0.0):
 
 
 def _line_at(t, x, t_end, t_at, span=0.2):
-    """Straight line through the samples within `span` s of t_end, evaluated at t_at."""
+    """A parabola (a line if too few samples) through the samples within `span` s of
+    t_end, evaluated at t_at: the motion extrapolated into a gap."""
     sel = np.abs(t - t_end) <= span
     if sel.sum() < 3:
         sel = np.argsort(np.abs(t - t_end))[:3]
     tt, xx = t[sel], x[sel]
     if len(tt) < 2 or np.ptp(tt) == 0:
         return float(np.mean(xx))
-    c = np.polyfit(tt - t_end, xx, 1)
+    deg = 2 if len(tt) >= 6 and np.ptp(tt) >= 0.08 else 1
+    c = np.polyfit(tt - t_end, xx, deg)
     return float(np.polyval(c, t_at - t_end))
 
 
