@@ -19,7 +19,7 @@ So the knots are adaptive, tied to those frequencies:
 The ramps are found from the body markers' smoothed acceleration, measured on each body
 marker's own track (never on a chained average, where a marker entering or leaving the
 picture makes a step), after isolated gross errors are set aside (a sample far from the
-median of its 5 neighbours), and only where the smoothing window is covered on both
+cubic through its 4 neighbours), and only where the smoothing window is covered on both
 sides: a track's ends and gaps are not ramps. Spans where no body marker measures the
 acceleration (all out of the picture or hidden) get the ramp spacing when the speed
 differs across them or a ramp touches them, else the cruise spacing.
@@ -49,14 +49,28 @@ def _smooth_derivs(t: np.ndarray, X: np.ndarray, window_s: float):
 
 
 def _clean(t: np.ndarray, x: np.ndarray):
-    """The track without isolated gross errors (far from the median of 5 neighbours)."""
-    if len(x) < 7:
+    """The track without isolated gross errors: samples far from the cubic through their
+    four neighbours (x_k vs (-x_k-2 + 4 x_k-1 + 4 x_k+1 - x_k+2) / 6, exact for any cubic
+    motion), flagged at the local peak of that misfit, > 8 robust sigmas."""
+    n = len(x)
+    if n < 9:
         return t, x
-    w = np.lib.stride_tricks.sliding_window_view(np.pad(x, 2, mode="edge"), 5)
-    r = x - np.median(w, axis=1)
-    mad = 1.4826 * np.median(np.abs(r - np.median(r)))
-    keep = np.abs(r) <= max(10 * mad, 1e-9)
-    return t[keep], x[keep]
+    r = np.full(n, np.nan)
+    r[2:-2] = x[2:-2] - (-x[:-4] + 4 * x[1:-3] + 4 * x[3:-1] - x[4:]) / 6
+    dt = np.diff(t)
+    step = np.median(dt)
+    even = np.full(n, False)  # the five samples are consecutive, evenly spaced frames
+    d = np.abs(dt - step) < 0.25 * step
+    even[2:-2] = d[:-3] & d[1:-2] & d[2:-1] & d[3:]
+    r[~even] = np.nan
+    ok = np.isfinite(r)
+    if ok.sum() < 5:
+        return t, x
+    sig = 1.4826 * np.median(np.abs(r[ok] - np.median(r[ok])))
+    a = np.where(ok, np.abs(r), 0.0)
+    peak = np.r_[False, (a[1:-1] >= a[:-2]) & (a[1:-1] >= a[2:]), False]
+    bad = peak & (a > max(8 * sig, 1e-9))
+    return t[~bad], x[~bad]
 
 
 def _track_derivs(t: np.ndarray, x: np.ndarray, window_s: float):
