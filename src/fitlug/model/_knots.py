@@ -16,7 +16,9 @@ So the knots are adaptive, tied to those frequencies:
   independent smoothstep-ramp recording needs <= 0.07 s to fit at chi2/dof = 1 (0.1 s
   left 1-2 % excess). Belt-locked ripple can hide inside these short windows, but not
   in the cruise, which is where the explanation stage looks for it.
-The ramps are found from the body markers' smoothed acceleration, measured on each body
+The ramps are found from the body markers' smoothed acceleration averaged over one wheel
+period (a ramp's acceleration lasts, a runout's or a ripple's averages out: the body's
+own speed modulation must not buy itself dense knots), measured on each body
 marker's own track (never on a chained average, where a marker entering or leaving the
 picture makes a step), after isolated gross errors are set aside (a sample far from the
 cubic through its 4 neighbours), and only where the smoothing window is covered on both
@@ -92,6 +94,25 @@ def _track_derivs(t: np.ndarray, x: np.ndarray, window_s: float):
     return t, v, a
 
 
+def _period_mean(t: np.ndarray, a: np.ndarray, window_s: float) -> np.ndarray:
+    """Moving mean of a (NaN-free part) over window_s; NaN where under 70 % covered."""
+    out = np.full(len(t), np.nan)
+    ok = np.isfinite(a)
+    if ok.sum() < 2:
+        return out
+    tv, av = t[ok], a[ok]
+    c = np.r_[0.0, np.cumsum(av)]
+    lo = np.searchsorted(tv, tv - window_s / 2)
+    hi = np.searchsorted(tv, tv + window_s / 2, side="right")
+    step = np.median(np.diff(tv))
+    n_exp = window_s / step
+    good = ((hi - lo) >= 0.7 * n_exp) & (tv - tv[lo] >= 0.35 * window_s) \
+        & (tv[hi - 1] - tv >= 0.35 * window_s)
+    m = (c[hi] - c[lo]) / np.maximum(hi - lo, 1)
+    out[np.flatnonzero(ok)[good]] = m[good]
+    return out
+
+
 def place_knots(t: np.ndarray, X: np.ndarray, *, t_lo: float, t_hi: float, R: float,
                 pitch: float, slip: float = 0.0, coarse_s: float | None = None,
                 fine_s: float | None = None, tracks=None) -> np.ndarray:
@@ -108,18 +129,24 @@ def place_knots(t: np.ndarray, X: np.ndarray, *, t_lo: float, t_hi: float, R: fl
     if tracks is None:
         tracks = [(t, X)]
     parts = [_track_derivs(tt, xx, 0.2) for tt, xx in tracks]
+    vall = np.concatenate([p[1] for p in parts])
+    v_max = float(np.nanmax(np.abs(vall))) if np.isfinite(vall).any() else 0.0
+    if not np.isfinite(vall).any() and len(t) > 1:
+        v_max = float(np.ptp(X) / max(np.ptp(t), 1e-9))
+    vt = max(v_max / max(1.0 - slip, 0.5), 1.0)
+    period = 2 * np.pi * R / vt
+    if coarse_s is None:
+        coarse_s = float(np.clip(period, 0.4, 2.0))
+    # a ramp's acceleration lasts; a wheel runout's or lug ripple's averages out over one
+    # wheel period: ramps are found on the acceleration averaged over a wheel period
+    parts = [(tt, vv, _period_mean(tt, aa, float(np.clip(period, 0.2, 2.0))))
+             for tt, vv, aa in parts]
     ta = np.concatenate([p[0] for p in parts])
     va = np.concatenate([p[1] for p in parts])
     aa = np.concatenate([p[2] for p in parts])
-    ok = np.isfinite(aa)
+    ok = np.isfinite(aa) & np.isfinite(va)
     order = np.argsort(ta[ok], kind="stable")
     tk, vk, ak = ta[ok][order], va[ok][order], aa[ok][order]
-    v_max = float(np.max(np.abs(vk))) if len(vk) else 0.0
-    if len(vk) == 0 and len(t) > 1:
-        v_max = float(np.ptp(X) / max(np.ptp(t), 1e-9))
-    vt = max(v_max / max(1.0 - slip, 0.5), 1.0)
-    if coarse_s is None:
-        coarse_s = float(np.clip(2 * np.pi * R / vt, 0.4, 2.0))
     if fine_s is None:
         fine_s = float(np.clip(0.45 * pitch / vt, 0.035, 0.07))
     # windows where the acceleration changes: |a| above 5% of its peak (and above noise)
