@@ -107,14 +107,12 @@ def realistic(rec: Recording, *, seed: int = 0, fov_mm: float | None = FOV_MM,
             last = kk
         # misses inside a fragment: NaN rows (a frame seen empty); longer gaps: no rows
         fr = frag_of_row[rows]
-        has = np.flatnonzero(fr >= 0)
         prev = np.maximum.accumulate(np.where(fr >= 0, np.arange(len(rows)), -1))
         nxt = np.minimum.accumulate(np.where(fr >= 0, np.arange(len(rows)),
                                              len(rows))[::-1])[::-1]
         inner = (fr < 0) & (prev >= 0) & (nxt < len(rows))
         inner[inner] = fr[prev[inner]] == fr[np.minimum(nxt[inner], len(rows) - 1)]
         frag_of_row[rows[inner]] = fr[prev[inner]]
-        del has
     if rename:
         numbers = rng.choice(np.arange(1, 20 * max(len(frags), 1)), len(frags), replace=False)
         names = [f"trk{int(k)}" for k in numbers]

@@ -94,10 +94,9 @@ def _bridge(tk, Xk, t, x):
         a, b = tk[-1], t[0]
     elif t[-1] <= tk[0]:
         a, b = t[-1], tk[0]
-    else:  # the track sits inside a hole of the known X: nearest known on each side
-        i = np.searchsorted(tk, t[0])
-        a, b = tk[max(i - 1, 0)], t[0]
-        return float(x[0] - np.interp(t[0], tk, Xk))
+    else:  # the track sits inside a hole of the known X: bridge from the side before
+        before = tk < t[0]
+        return _bridge(tk[before], Xk[before], t, x)
     tm = 0.5 * (a + b)
     return _line_at(t, x, t[0] if t[0] >= tk[-1] else t[-1], tm) - \
         _line_at(tk, Xk, tk[-1] if t[0] >= tk[-1] else tk[0], tm)
