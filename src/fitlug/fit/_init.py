@@ -96,6 +96,8 @@ def _bridge(tk, Xk, t, x):
         a, b = t[-1], tk[0]
     else:  # the track sits inside a hole of the known X: bridge from the side before
         before = tk < t[0]
+        if before.sum() < 2:
+            return float(x[0] - np.interp(t[0], tk, Xk))
         return _bridge(tk[before], Xk[before], t, x)
     tm = 0.5 * (a + b)
     return _line_at(t, x, t[0] if t[0] >= tk[-1] else t[-1], tm) - \
