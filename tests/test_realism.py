@@ -156,3 +156,16 @@ def test_other_rig_250fps_time_offset_wide_export(tmp_path):
     res = fit(back, rig2)
     assert res.converged
     assert abs(_z(res, truth)) < 3, (res.slip.value, res.slip.std, truth["slip"])
+
+
+def test_one_sample_fragment_is_left_out():
+    rec, rig, _ = isim.make(4, **TRAVEL)
+    out, _ = realistic(rec, seed=4, glitches=False)
+    body = [m for m, r in enumerate(out.roles) if r == "body"]
+    keep = np.ones(out.n_samples, bool)
+    rows = np.flatnonzero((out.marker_index == body[0]) & np.isfinite(out.x))
+    keep[rows[1:]] = False  # a body fragment seen once
+    one = out.with_(t=out.t[keep], marker_index=out.marker_index[keep], x=out.x[keep],
+                    y=out.y[keep])
+    prob = build_problem(one, rig)
+    assert out.markers[body[0]] not in [prob.rec.markers[m] for m in prob.body_ids]

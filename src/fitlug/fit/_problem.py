@@ -182,8 +182,12 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
 
 
 def _ids(rec):
-    return ([m for m, r in enumerate(rec.roles) if r == "body"],
-            [m for m, r in enumerate(rec.roles) if r == "lug"])
+    """(body, lug) marker indices, without tracker fragments of a single valid sample
+    (they measure nothing a fit could use; a marker never found stays, and is refused)."""
+    valid = np.isfinite(rec.x) & np.isfinite(rec.y)
+    n = np.bincount(rec.marker_index[valid], minlength=rec.n_markers)
+    return ([m for m, r in enumerate(rec.roles) if r == "body" and n[m] != 1],
+            [m for m, r in enumerate(rec.roles) if r == "lug" and n[m] != 1])
 
 
 def _first_time(rec, valid, fps):
