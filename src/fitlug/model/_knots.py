@@ -16,9 +16,10 @@ So the knots are adaptive, tied to those frequencies:
   independent smoothstep-ramp recording needs <= 0.07 s to fit at chi2/dof = 1 (0.1 s
   left 1-2 % excess). Belt-locked ripple can hide inside these short windows, but not
   in the cruise, which is where the explanation stage looks for it.
-The ramps are found from the body markers' smoothed acceleration averaged over one wheel
-period (a ramp's acceleration lasts, a runout's or a ripple's averages out: the body's
-own speed modulation must not buy itself dense knots), measured on each body
+The ramps are found where the body markers' smoothed acceleration is large both locally
+and averaged over one wheel period (a ramp's acceleration lasts, a runout's or a
+ripple's averages out: the body's own speed modulation must not buy itself dense
+knots), measured on each body
 marker's own track (never on a chained average, where a marker entering or leaving the
 picture makes a step), after isolated gross errors are set aside (a sample far from the
 cubic through its 4 neighbours), and only where the smoothing window is covered on both
@@ -139,20 +140,31 @@ def place_knots(t: np.ndarray, X: np.ndarray, *, t_lo: float, t_hi: float, R: fl
         coarse_s = float(np.clip(period, 0.4, 2.0))
     # a ramp's acceleration lasts; a wheel runout's or lug ripple's averages out over one
     # wheel period: ramps are found on the acceleration averaged over a wheel period
-    parts = [(tt, vv, _period_mean(tt, aa, float(np.clip(period, 0.2, 2.0))))
-             for tt, vv, aa in parts]
+    means = [_period_mean(tt, aa, float(np.clip(period, 0.2, 2.0))) for tt, _, aa in parts]
     ta = np.concatenate([p[0] for p in parts])
     va = np.concatenate([p[1] for p in parts])
     aa = np.concatenate([p[2] for p in parts])
+    am = np.concatenate(means)
     ok = np.isfinite(aa) & np.isfinite(va)
     order = np.argsort(ta[ok], kind="stable")
-    tk, vk, ak = ta[ok][order], va[ok][order], aa[ok][order]
+    tk, vk, ak, amk = ta[ok][order], va[ok][order], aa[ok][order], am[ok][order]
+    # where a track's period mean is not covered, another track's at the same time
+    have = np.isfinite(amk)
+    if have.any():
+        th, ah = tk[have], amk[have]
+        j = np.clip(np.searchsorted(th, tk), 1, max(len(th) - 1, 1))
+        j0 = np.where(np.abs(th[j - 1] - tk) <= np.abs(th[np.minimum(j, len(th) - 1)] - tk),
+                      j - 1, np.minimum(j, len(th) - 1))
+        near = np.abs(th[j0] - tk) <= 0.05
+        amk = np.where(have, amk, np.where(near, ah[j0], np.nan))
     if fine_s is None:
         fine_s = float(np.clip(0.45 * pitch / vt, 0.035, 0.07))
     # windows where the acceleration changes: |a| above 5% of its peak (and above noise)
     amax = float(np.max(np.abs(ak))) if len(ak) else 0.0
     thr = max(0.05 * amax, 5.0)
-    active = np.abs(ak) > thr
+    # a ramp: the acceleration is large now and over the surrounding wheel period (where
+    # no track covers a whole period, the local value decides)
+    active = (np.abs(ak) > thr) & ~(np.abs(amk) <= thr)
     margin = max(0.15, 2 * fine_s)
     spans = [[tk[k] - margin, tk[k] + margin] for k in np.flatnonzero(active)]
     # spans no body marker measures: ramp spacing if the speed changes across or a ramp
