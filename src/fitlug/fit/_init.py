@@ -65,13 +65,43 @@ def body_reference(rec, body_ids, t_ref=0.0):
         X_known = np.where(seen, acc / np.maximum(cnt, 1), np.nan)
         if best_n > 0:
             cx[best] = float(np.median((x - X_known[idx])[seen[idx]]))
-        else:  # no overlap at all: bridge with the known X extrapolated flat
+        else:  # no overlap at all: bridge the gap with both sides' local velocity
             k = np.flatnonzero(seen)
-            cx[best] = float(x[0] - np.interp(t[0], tu[k], X_known[k]))
+            cx[best] = _bridge(tu[k], X_known[k], t, x)
         pending.remove(best)
     X = acc / np.maximum(cnt, 1)
     cy = np.array([float(np.median(y)) for _, _, y in tracks])
     return tu, X, cx, cy
+
+
+def _line_at(t, x, t_end, t_at, span=0.2):
+    """A parabola (a line if too few samples) through the samples within `span` s of
+    t_end, evaluated at t_at: the motion extrapolated into a gap."""
+    sel = np.abs(t - t_end) <= span
+    if sel.sum() < 3:
+        sel = np.argsort(np.abs(t - t_end))[:3]
+    tt, xx = t[sel], x[sel]
+    if len(tt) < 2 or np.ptp(tt) == 0:
+        return float(np.mean(xx))
+    deg = 2 if len(tt) >= 6 and np.ptp(tt) >= 0.08 else 1
+    c = np.polyfit(tt - t_end, xx, deg)
+    return float(np.polyval(c, t_at - t_end))
+
+
+def _bridge(tk, Xk, t, x):
+    """Offset c of a track (t, x) seen while X is not known: X and x - c meet mid-gap."""
+    if t[0] >= tk[-1]:
+        a, b = tk[-1], t[0]
+    elif t[-1] <= tk[0]:
+        a, b = t[-1], tk[0]
+    else:  # the track sits inside a hole of the known X: bridge from the side before
+        before = tk < t[0]
+        if before.sum() < 2:
+            return float(x[0] - np.interp(t[0], tk, Xk))
+        return _bridge(tk[before], Xk[before], t, x)
+    tm = 0.5 * (a + b)
+    return _line_at(t, x, t[0] if t[0] >= tk[-1] else t[-1], tm) - \
+        _line_at(tk, Xk, tk[-1] if t[0] >= tk[-1] else tk[0], tm)
 
 
 def _project(px, py, R, D, e):

@@ -11,7 +11,7 @@ from .._errors import InputError
 from ..model import belt_length, make_layout, param_names, place_knots
 from ..model._model import BASE_SCALARS, default_params
 from ..model.effects import CATALOG
-from . import _init
+from . import _fragments, _init
 from ._checks import check_recording
 from ._noise import estimate_noise
 
@@ -72,8 +72,7 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
     """
     rec = check_recording(rec, rig)  # plausibility: empty markers, no motion, units (_checks)
     path = rec.path
-    body_ids = [m for m, r in enumerate(rec.roles) if r == "body"]
-    lug_ids = [m for m, r in enumerate(rec.roles) if r == "lug"]
+    body_ids, lug_ids = _ids(rec)
     if not body_ids:
         raise InputError(path, "no body markers (role 'body'): the body position X(t) "
                                "cannot be measured")
@@ -86,11 +85,38 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
                                f"at least {MIN_FRAMES} are needed")
     fps = _fps(rec, frames)
 
-    tX, X, cx, cy = _init.body_reference(rec, body_ids, t_ref=_first_time(rec, valid, fps))
+    t_first = _first_time(rec, valid, fps)
+    tX, X, cx, cy = _init.body_reference(rec, body_ids, t_ref=t_first)
+    # tracker fragments of one body marker: same offsets, spans that do not overlap
+    groups = _fragments.body_groups(body_ids, _fragments.spans_of(rec, body_ids), cx, cy)
+    rec, joined = _fragments.apply_groups(rec, groups)
+    for j in joined:
+        j["reason"] = ("body-marker fragments with the same offsets (c_x, c_y) to within "
+                       "3 mm, seen at different times")
+    if joined:
+        body_ids, lug_ids = _ids(rec)
+        tX, X, cx, cy = _init.body_reference(rec, body_ids, t_ref=t_first)
     geom, rel = _init.lug_geometry(rec, lug_ids, tX, X)
     P = float(belt_length(geom["R"], geom["D"]))
     s, sigma0 = _init.slip_and_phases(rel, geom, tX, X, P)
     N = _init.infer_n_belt(P, rig.lug_pitch_mm, sigma0)
+    # tracker fragments of one lug marker: belt coordinates equal modulo P (a whole
+    # number of pitches apart is another lug), spans that do not overlap
+    groups = _fragments.lug_groups(lug_ids, _fragments.spans_of(rec, lug_ids), sigma0, P,
+                                   P / N)
+    rec, joined_l = _fragments.apply_groups(rec, groups)
+    for j in joined_l:
+        j["reason"] = (f"lug-marker fragments whose belt coordinates agree modulo the belt "
+                       f"length ({P:.1f} mm) to within 0.3 lug pitch, seen at different times")
+    if joined_l:
+        body_ids, lug_ids = _ids(rec)
+        tX, X, cx, cy = _init.body_reference(rec, body_ids, t_ref=t_first)
+        geom, rel = _init.lug_geometry(rec, lug_ids, tX, X)
+        P = float(belt_length(geom["R"], geom["D"]))
+        s, sigma0 = _init.slip_and_phases(rel, geom, tX, X, P)
+        N = _init.infer_n_belt(P, rig.lug_pitch_mm, sigma0)
+    joined = joined + joined_l
+    valid = np.isfinite(rec.x) & np.isfinite(rec.y)
 
     t_all = rec.t[valid]
     # MODEL.md's gauge: X(0) = 0, sigma_i0 at t = 0; a recording that starts later than
@@ -98,7 +124,10 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
     t_ref = 0.0 if float(t_all.min()) <= 1.0 / fps + 1e-9 else float(t_all.min())
     t_lo = min(t_ref, float(t_all.min())) - 3.0 / fps
     t_hi = float(t_all.max()) + 3.0 / fps
-    breaks = place_knots(tX, X, t_lo=t_lo, t_hi=t_hi, R=geom["R"], pitch=P / N, slip=s)
+    tracks = [(rec.t[sel], rec.x[sel]) for sel in
+              (valid & (rec.marker_index == m) for m in body_ids)]
+    breaks = place_knots(tX, X, t_lo=t_lo, t_hi=t_hi, R=geom["R"], pitch=P / N, slip=s,
+                         tracks=tracks)
 
     lug_rows = _rows(rec, lug_ids)
     body_rows = _rows(rec, body_ids)
@@ -147,10 +176,20 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
     if valid_count <= n_par:
         raise InputError(path, f"fewer valid samples ({valid_count} coordinates) than "
                                f"parameters ({n_par})")
-    info = {"fps": fps, "n_belt": N, "breaks": breaks, "geometry0": geom, "slip0": s}
+    info = {"fps": fps, "n_belt": N, "breaks": breaks, "geometry0": geom, "slip0": s,
+            "joined": joined, "markers": _fragments.coverage(rec, joined)}
     return Problem(rec=rec, rig=rig, lay=lay, obs=obs, lug_ids=lug_ids, body_ids=body_ids,
                    lug_rows=lug_rows, body_rows=body_rows, noise=noise, noise_source=src,
                    p0=p0, init_info=info)
+
+
+def _ids(rec):
+    """(body, lug) marker indices, without tracker fragments of a single valid sample
+    (they measure nothing a fit could use; a marker never found stays, and is refused)."""
+    valid = np.isfinite(rec.x) & np.isfinite(rec.y)
+    n = np.bincount(rec.marker_index[valid], minlength=rec.n_markers)
+    return ([m for m, r in enumerate(rec.roles) if r == "body" and n[m] != 1],
+            [m for m, r in enumerate(rec.roles) if r == "lug" and n[m] != 1])
 
 
 def _first_time(rec, valid, fps):

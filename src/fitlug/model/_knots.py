@@ -16,7 +16,16 @@ So the knots are adaptive, tied to those frequencies:
   independent smoothstep-ramp recording needs <= 0.07 s to fit at chi2/dof = 1 (0.1 s
   left 1-2 % excess). Belt-locked ripple can hide inside these short windows, but not
   in the cruise, which is where the explanation stage looks for it.
-The ramps are found from the body markers' smoothed acceleration.
+The ramps are found where the body markers' smoothed acceleration is large both locally
+and averaged over one wheel period (a ramp's acceleration lasts, a runout's or a
+ripple's averages out: the body's own speed modulation must not buy itself dense
+knots), measured on each body
+marker's own track (never on a chained average, where a marker entering or leaving the
+picture makes a step), after isolated gross errors are set aside (a sample far from the
+cubic through its 4 neighbours), and only where the smoothing window is covered on both
+sides: a track's ends and gaps are not ramps. Spans where no body marker measures the
+acceleration (all out of the picture or hidden) get the ramp spacing when the speed
+differs across them or a ramp touches them, else the cruise spacing.
 """
 
 from __future__ import annotations
@@ -42,34 +51,137 @@ def _smooth_derivs(t: np.ndarray, X: np.ndarray, window_s: float):
     return v, a
 
 
+def _clean(t: np.ndarray, x: np.ndarray):
+    """The track without isolated gross errors: samples far from the cubic through their
+    four neighbours (x_k vs (-x_k-2 + 4 x_k-1 + 4 x_k+1 - x_k+2) / 6, exact for any cubic
+    motion), flagged at the local peak of that misfit, > 8 robust sigmas."""
+    n = len(x)
+    if n < 9:
+        return t, x
+    r = np.full(n, np.nan)
+    r[2:-2] = x[2:-2] - (-x[:-4] + 4 * x[1:-3] + 4 * x[3:-1] - x[4:]) / 6
+    dt = np.diff(t)
+    step = np.median(dt)
+    even = np.full(n, False)  # the five samples are consecutive, evenly spaced frames
+    d = np.abs(dt - step) < 0.25 * step
+    even[2:-2] = d[:-3] & d[1:-2] & d[2:-1] & d[3:]
+    r[~even] = np.nan
+    ok = np.isfinite(r)
+    if ok.sum() < 5:
+        return t, x
+    sig = 1.4826 * np.median(np.abs(r[ok] - np.median(r[ok])))
+    a = np.where(ok, np.abs(r), 0.0)
+    peak = np.r_[False, (a[1:-1] >= a[:-2]) & (a[1:-1] >= a[2:]), False]
+    bad = peak & (a > max(8 * sig, 1e-9))
+    return t[~bad], x[~bad]
+
+
+def _track_derivs(t: np.ndarray, x: np.ndarray, window_s: float):
+    """(v, a) of one track where its smoothing window is covered on both sides, else NaN."""
+    t, x = _clean(np.asarray(t, float), np.asarray(x, float))
+    if len(t) < 4:
+        return t, np.full(len(t), np.nan), np.full(len(t), np.nan)
+    v, a = _smooth_derivs(t, x, window_s)
+    half = window_s / 2
+    lo = np.searchsorted(t, t - half)
+    hi = np.searchsorted(t, t + half, side="right") - 1
+    dt = np.diff(t)
+    big = np.r_[np.flatnonzero(dt > 0.25 * window_s), len(t)]
+    # covered: samples reach 70 % of the half window each side, no gap > window/4 inside
+    nxt_gap = big[np.searchsorted(big, lo)]  # first big gap at or after the window start
+    ok = (t - t[lo] >= 0.7 * half) & (t[hi] - t >= 0.7 * half) & (nxt_gap >= hi)
+    v[~ok] = np.nan
+    a[~ok] = np.nan
+    return t, v, a
+
+
+def _period_mean(t: np.ndarray, a: np.ndarray, window_s: float) -> np.ndarray:
+    """Moving mean of a (NaN-free part) over window_s; NaN where under 70 % covered."""
+    out = np.full(len(t), np.nan)
+    ok = np.isfinite(a)
+    if ok.sum() < 2:
+        return out
+    tv, av = t[ok], a[ok]
+    c = np.r_[0.0, np.cumsum(av)]
+    lo = np.searchsorted(tv, tv - window_s / 2)
+    hi = np.searchsorted(tv, tv + window_s / 2, side="right")
+    step = np.median(np.diff(tv))
+    n_exp = window_s / step
+    good = ((hi - lo) >= 0.7 * n_exp) & (tv - tv[lo] >= 0.35 * window_s) \
+        & (tv[hi - 1] - tv >= 0.35 * window_s)
+    m = (c[hi] - c[lo]) / np.maximum(hi - lo, 1)
+    out[np.flatnonzero(ok)[good]] = m[good]
+    return out
+
+
 def place_knots(t: np.ndarray, X: np.ndarray, *, t_lo: float, t_hi: float, R: float,
                 pitch: float, slip: float = 0.0, coarse_s: float | None = None,
-                fine_s: float | None = None) -> np.ndarray:
+                fine_s: float | None = None, tracks=None) -> np.ndarray:
     """Break points of the speed spline over [t_lo, t_hi].
 
     t, X: body reference position samples (s, mm), sorted by t (NaN-free).
+    tracks: optional list of (t, x) of each body marker (each sorted by t); when given,
+        velocity and acceleration come from each track separately (markers that enter,
+        leave or are hidden then make no artefacts).
     R, pitch: wheel pitch radius and lug pitch, mm; slip: rough slip (for belt speed).
     """
     t = np.asarray(t, float)
     X = np.asarray(X, float)
-    v, a = _smooth_derivs(t, X, 0.2)
-    ok = np.isfinite(a)
-    v_max = np.nanmax(np.abs(v)) if ok.any() else 0.0
+    if tracks is None:
+        tracks = [(t, X)]
+    parts = [_track_derivs(tt, xx, 0.2) for tt, xx in tracks]
+    vall = np.concatenate([p[1] for p in parts])
+    v_max = float(np.nanmax(np.abs(vall))) if np.isfinite(vall).any() else 0.0
+    if not np.isfinite(vall).any() and len(t) > 1:
+        v_max = float(np.ptp(X) / max(np.ptp(t), 1e-9))
     vt = max(v_max / max(1.0 - slip, 0.5), 1.0)
+    period = 2 * np.pi * R / vt
     if coarse_s is None:
-        coarse_s = float(np.clip(2 * np.pi * R / vt, 0.4, 2.0))
+        coarse_s = float(np.clip(period, 0.4, 2.0))
+    # a ramp's acceleration lasts; a wheel runout's or lug ripple's averages out over one
+    # wheel period: ramps are found on the acceleration averaged over a wheel period
+    means = [_period_mean(tt, aa, float(np.clip(period, 0.2, 2.0))) for tt, _, aa in parts]
+    ta = np.concatenate([p[0] for p in parts])
+    va = np.concatenate([p[1] for p in parts])
+    aa = np.concatenate([p[2] for p in parts])
+    am = np.concatenate(means)
+    ok = np.isfinite(aa) & np.isfinite(va)
+    order = np.argsort(ta[ok], kind="stable")
+    tk, vk, ak, amk = ta[ok][order], va[ok][order], aa[ok][order], am[ok][order]
+    # where a track's period mean is not covered, another track's at the same time
+    have = np.isfinite(amk)
+    if have.any():
+        th, ah = tk[have], amk[have]
+        j = np.clip(np.searchsorted(th, tk), 1, max(len(th) - 1, 1))
+        j0 = np.where(np.abs(th[j - 1] - tk) <= np.abs(th[np.minimum(j, len(th) - 1)] - tk),
+                      j - 1, np.minimum(j, len(th) - 1))
+        near = np.abs(th[j0] - tk) <= 0.05
+        amk = np.where(have, amk, np.where(near, ah[j0], np.nan))
     if fine_s is None:
         fine_s = float(np.clip(0.45 * pitch / vt, 0.035, 0.07))
     # windows where the acceleration changes: |a| above 5% of its peak (and above noise)
-    amax = np.nanmax(np.abs(a[ok])) if ok.any() else 0.0
+    amax = float(np.max(np.abs(ak))) if len(ak) else 0.0
     thr = max(0.05 * amax, 5.0)
-    active = ok & (np.abs(a) > thr)
+    # a ramp: the acceleration is large now and over the surrounding wheel period (where
+    # no track covers a whole period, the local value decides)
+    active = (np.abs(ak) > thr) & ~(np.abs(amk) <= thr)
     margin = max(0.15, 2 * fine_s)
+    spans = [[tk[k] - margin, tk[k] + margin] for k in np.flatnonzero(active)]
+    # spans no body marker measures: ramp spacing if the speed changes across or a ramp
+    # touches them
+    edges = np.r_[t_lo, tk, t_hi]
+    vedge = np.r_[vk[:1] if len(vk) else [0.0], vk, vk[-1:] if len(vk) else [0.0]]
+    aedge = np.r_[False, active, False]
+    for k in np.flatnonzero(np.diff(edges) > 0.1):
+        a_, b_ = edges[k], edges[k + 1]
+        if len(vk) == 0 or abs(vedge[k + 1] - vedge[k]) > 0.05 * max(v_max, 1.0) \
+                or aedge[k] or aedge[k + 1]:
+            spans.append([a_ - margin if aedge[k] else a_, b_ + margin if aedge[k + 1] else b_])
+    spans.sort()
     windows = []
-    for k in np.flatnonzero(active):
-        lo_, hi_ = t[k] - margin, t[k] + margin
+    for lo_, hi_ in spans:
         if windows and lo_ <= windows[-1][1]:
-            windows[-1][1] = hi_
+            windows[-1][1] = max(windows[-1][1], hi_)
         else:
             windows.append([lo_, hi_])
     pts = [t_lo]

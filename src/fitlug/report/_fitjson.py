@@ -55,6 +55,9 @@ def fit_json(res, *, input_path: str | None = None, mcmc=None, discrepancy=None,
                 "lugs_in_contact": rig.lugs_in_contact, "lug_pitch_mm": rig.lug_pitch_mm,
                 "mass_kg": rig.mass_kg},
         "reference_paper_slip": REFERENCE_SLIP,
+        # fitted markers with their coverage, and tracker fragments fitted as one marker
+        "markers": list(prob.init_info.get("markers", [])),
+        "joined": list(prob.init_info.get("joined", [])),
     }
     if mcmc is not None:
         out["mcmc"] = mcmc

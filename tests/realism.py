@@ -1,0 +1,188 @@
+"""What a real tracker does to a clean recording: the project's own realism transform.
+
+`realistic(rec, seed=...)` takes a Recording (from `tests/independent_sim.py` or
+`fitlug.sim`) and returns what a camera and a tracker would have delivered:
+
+- field of view: a window of `fov_mm` (637 mm: 1632 px x 0.3905 mm/px) in ground x,
+  centred on the recording's x range unless `fov_center_mm` is given; samples outside
+  it are not seen (markers, body markers included, enter and leave the picture);
+- misses: each sample lost with probability `miss` (1 %);
+- occlusions: per marker, events at `occlusion_rate` per second, each hiding 5-30 frames;
+- glitches (`glitches=True`): a fraction 0.1-0.2 % of the valid samples moved by
+  0.5-1 mm in a random direction (the list is returned in `info["glitches"]`);
+- split ids: after a gap longer than `split_gap_frames` frames the tracker re-acquires
+  the marker under a new id ('trk17', numbers drawn at random: no pattern); every
+  fragment gets such a new id, the first included, so names say nothing.
+
+Everything random comes from `seed`. `info["fragments"]` maps each new id to its
+original marker and role; `write_realistic(dir, rec, rig, wide=True)` writes the wide
+export form (DATA.md: time_s, <id>_x_mm, <id>_y_mm) and a rig.toml that lists the roles.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+
+import numpy as np
+
+from fitlug.io import Recording, write_rig, write_trajectories
+from fitlug.io._atomic import write_text_atomic
+
+FOV_MM = 637.0  # 1632 px x 0.3905 mm/px
+
+
+def _fps(rec):
+    try:
+        return float(rec.meta.get("fps"))
+    except (TypeError, ValueError):
+        d = np.diff(np.unique(rec.t))
+        return 1.0 / float(np.median(d))
+
+
+def realistic(rec: Recording, *, seed: int = 0, fov_mm: float | None = FOV_MM,
+              fov_center_mm: float | None = None, miss: float = 0.01,
+              occlusion_rate: float = 0.1, occlusion_frames=(5, 30), glitches: bool = True,
+              glitch_fraction=(0.001, 0.002), glitch_mm=(0.5, 1.0),
+              split_gap_frames: int | None = 10, rename: bool = True):
+    """(Recording, info): `rec` as a real camera + tracker would deliver it.
+
+    Gaps of one frame (misses) stay as NaN rows; longer gaps and the time outside the
+    field of view have no rows. info: {"fragments": {new_id: (orig_id, role, t0, t1)},
+    "glitches": [(new_id, t, dx, dy)], "fov": (lo, hi)}.
+    """
+    rng = np.random.default_rng(seed)
+    fps = _fps(rec)
+    frames_all = np.unique(rec.t)
+    valid = np.isfinite(rec.x) & np.isfinite(rec.y)
+    if fov_mm is not None:
+        if fov_center_mm is None:
+            xv = rec.x[valid]
+            fov_center_mm = 0.5 * (float(xv.min()) + float(xv.max()))
+        lo, hi = fov_center_mm - fov_mm / 2, fov_center_mm + fov_mm / 2
+    else:
+        lo, hi = -np.inf, np.inf
+    x = rec.x.copy()
+    y = rec.y.copy()
+    seen = valid & (x >= lo) & (x <= hi)
+    seen &= rng.random(len(x)) >= miss
+    duration = float(frames_all[-1] - frames_all[0])
+    for m in range(rec.n_markers):
+        rows = np.flatnonzero(rec.marker_index == m)
+        rows = rows[np.argsort(rec.t[rows], kind="stable")]
+        n_ev = rng.poisson(occlusion_rate * duration)
+        for _ in range(n_ev):
+            k0 = int(rng.integers(0, len(rows)))
+            ln = int(rng.integers(occlusion_frames[0], occlusion_frames[1] + 1))
+            seen[rows[k0:k0 + ln]] = False
+    glitch_list = []
+    if glitches:
+        cand = np.flatnonzero(seen)
+        frac = rng.uniform(*glitch_fraction)
+        ng = max(1, int(round(frac * len(cand))))
+        pick = rng.choice(cand, ng, replace=False)
+        size = rng.uniform(*glitch_mm, ng)
+        ang = rng.uniform(0, 2 * np.pi, ng)
+        dx, dy = size * np.cos(ang), size * np.sin(ang)
+        x[pick] += dx
+        y[pick] += dy
+        glitch_list = list(zip(pick.tolist(), dx.tolist(), dy.tolist()))
+    # fragments: a new id after a gap longer than split_gap_frames
+    frag_of_row = np.full(len(x), -1)
+    frags = []  # (orig marker index, role)
+    for m in range(rec.n_markers):
+        rows = np.flatnonzero(rec.marker_index == m)
+        rows = rows[np.argsort(rec.t[rows], kind="stable")]
+        k = np.flatnonzero(seen[rows])
+        if len(k) == 0:
+            continue
+        cur = None
+        last = None
+        for kk in k:
+            gap = (rec.t[rows[kk]] - rec.t[rows[last]]) * fps - 1 if last is not None else 0
+            if cur is None or (split_gap_frames is not None and gap > split_gap_frames + 0.5):
+                frags.append((m, rec.roles[m]))
+                cur = len(frags) - 1
+            frag_of_row[rows[kk]] = cur
+            last = kk
+        # misses inside a fragment: NaN rows (a frame seen empty); longer gaps: no rows
+        fr = frag_of_row[rows]
+        prev = np.maximum.accumulate(np.where(fr >= 0, np.arange(len(rows)), -1))
+        nxt = np.minimum.accumulate(np.where(fr >= 0, np.arange(len(rows)),
+                                             len(rows))[::-1])[::-1]
+        inner = (fr < 0) & (prev >= 0) & (nxt < len(rows))
+        inner[inner] = fr[prev[inner]] == fr[np.minimum(nxt[inner], len(rows) - 1)]
+        frag_of_row[rows[inner]] = fr[prev[inner]]
+    if rename:
+        numbers = rng.choice(np.arange(1, 20 * max(len(frags), 1)), len(frags), replace=False)
+        names = [f"trk{int(k)}" for k in numbers]
+    else:
+        count = {}
+        names = []
+        for m, _ in frags:
+            c = count.get(m, 0)
+            count[m] = c + 1
+            names.append(rec.markers[m] if c == 0 else f"{rec.markers[m]}.{c}")
+    keep = np.flatnonzero(frag_of_row >= 0)
+    order = np.lexsort((rec.t[keep], frag_of_row[keep]))
+    keep = keep[order]
+    fi = frag_of_row[keep]
+    xo = np.where(seen[keep], x[keep], np.nan)
+    yo = np.where(seen[keep], y[keep], np.nan)
+    extra = {}
+    for f in ("frame", "x_px", "y_px", "quality"):
+        v = getattr(rec, f)
+        if v is not None:
+            extra[f] = v[keep]
+    if rec.sigma is not None:
+        extra["sigma"] = rec.sigma[keep]
+    out = Recording(markers=tuple(names), roles=tuple(r for _, r in frags), t=rec.t[keep],
+                    marker_index=fi.astype(np.int64), x=xo, y=yo, meta=dict(rec.meta),
+                    **extra)
+    info = {"fragments": {}, "glitches": [], "fov": (lo, hi)}
+    for j, (m, role) in enumerate(frags):
+        tj = rec.t[keep][(fi == j) & np.isfinite(xo)]
+        info["fragments"][names[j]] = (rec.markers[m], role, float(tj.min()), float(tj.max()))
+    for r, dx, dy in glitch_list:
+        info["glitches"].append((names[frag_of_row[r]], float(rec.t[r]), dx, dy))
+    return out, info
+
+
+def shift_time(rec: Recording, offset_s: float) -> Recording:
+    """The same recording with every time stamp moved by offset_s (a camera's clock)."""
+    return dataclasses.replace(rec, t=rec.t + offset_s)
+
+
+def write_wide(path, rec: Recording) -> None:
+    """The wide export of motion-analysis programs: time_s, <id>_x_mm, <id>_y_mm, ..."""
+    times = np.unique(rec.t)
+    cols = [np.array([repr(float(t)) for t in times])]
+    header = ["time_s"]
+    idx = np.searchsorted(times, rec.t)
+    for m, name in enumerate(rec.markers):
+        for arr, ax in ((rec.x, "x"), (rec.y, "y")):
+            col = np.full(len(times), np.nan)
+            sel = rec.marker_index == m
+            col[idx[sel]] = arr[sel]
+            cols.append(np.array(["" if not np.isfinite(v) else repr(float(v)) for v in col]))
+            header.append(f"{name}_{ax}_mm")
+    lines = [f"# {k}: {v}" for k, v in rec.meta.items()]
+    lines.append(",".join(header))
+    for row in zip(*cols):
+        lines.append(",".join(row))
+    write_text_atomic(path, "\n".join(lines) + "\n")
+
+
+def write_realistic(out_dir, rec: Recording, rig, *, wide: bool = True) -> str:
+    """Write trajectories.csv (wide export form if `wide`) and rig.toml (with the roles)."""
+    os.makedirs(out_dir, exist_ok=True)
+    body = tuple(m for m, r in zip(rec.markers, rec.roles) if r == "body")
+    lug = tuple(m for m, r in zip(rec.markers, rec.roles) if r == "lug")
+    write_rig(os.path.join(out_dir, "rig.toml"),
+              dataclasses.replace(rig, body_markers=body, lug_markers=lug))
+    path = os.path.join(out_dir, "trajectories.csv")
+    if wide:
+        write_wide(path, rec)
+    else:
+        write_trajectories(path, rec)
+    return path
