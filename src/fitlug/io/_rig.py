@@ -35,6 +35,19 @@ def _lug_count(value) -> int:
     return int(value)
 
 
+def _pull(value) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) \
+            or not math.isfinite(value) or value < 0:
+        raise _Bad(f"must be a number >= 0 (newtons), got {value!r}")
+    return float(value)
+
+
+def _ground(value) -> str:
+    if not isinstance(value, str) or not value.strip():
+        raise _Bad(f"must be a non-empty string, got {value!r}")
+    return value.strip()
+
+
 def _names(value) -> tuple[str, ...]:
     if not isinstance(value, (list, tuple)) or \
             not all(isinstance(v, str) and v.strip() for v in value):
@@ -51,11 +64,13 @@ _FIELDS = (
     ("track", "lugs_in_contact", "lugs_in_contact", _lug_count),
     ("track", "lug_pitch_mm", "lug_pitch_mm", _positive),
     ("vehicle", "mass_kg", "mass_kg", _positive),
+    ("vehicle", "drawbar_pull_N", "drawbar_pull_N", _pull),
+    ("ground", "name", "ground", _ground),
     ("markers", "body", "body_markers", _names),
     ("markers", "lug", "lug_markers", _names),
     ("camera", "fps", "fps", _positive),
 )
-_TABLES = ("track", "vehicle", "markers", "camera")
+_TABLES = ("track", "vehicle", "ground", "markers", "camera")
 
 
 @dataclass(frozen=True)
@@ -67,6 +82,9 @@ class Rig:
         lugs_in_contact: n, lugs in contact with the ground (integer >= 2).
         lug_pitch_mm: p, lug pitch, mm, or None (then fitted).
         mass_kg: mass carried by this track, kg, or None (stiffness then not identifiable).
+        drawbar_pull_N: F_d, a known horizontal load the track pulls, N (>= 0; default 0).
+        ground: the ground's name ([ground] name), or None; recordings of one campaign on
+            one ground share C_rr (and F_max).
         body_markers, lug_markers: marker ids by role, for wide-form trajectory files.
         fps: camera frame rate, 1/s ([camera] fps), or None.
         extra: every other table/key of rig.toml, kept as read ({table: {key: value}}).
@@ -80,6 +98,8 @@ class Rig:
     lugs_in_contact: int = 8
     lug_pitch_mm: float | None = None
     mass_kg: float | None = None
+    drawbar_pull_N: float = 0.0
+    ground: str | None = None
     body_markers: tuple[str, ...] = ()
     lug_markers: tuple[str, ...] = ()
     fps: float | None = None
@@ -224,7 +244,7 @@ def write_rig(path: str | os.PathLike, rig: Rig) -> None:
     tables: dict[str, dict] = {table: {} for table in _TABLES}
     for table, key, attr, _ in _FIELDS:
         value = getattr(rig, attr)
-        if value is not None and value != ():
+        if value is not None and value != () and not (attr == "drawbar_pull_N" and value == 0):
             tables[table][key] = list(value) if isinstance(value, tuple) else value
     top: dict = {}
     for name, content in rig.extra.items():
