@@ -201,8 +201,8 @@ def fit_law(points, law: str = "linear", start=None) -> LawFit:
             continue
         try:
             sol = optimize.least_squares(res, s, bounds=(lo, np.inf), method="trf",
-                                         x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12,
-                                         max_nfev=2000)
+                                         x_scale="jac", xtol=1e-11, ftol=1e-11, gtol=1e-11,
+                                         max_nfev=500)
         except ValueError:
             continue
         if not np.all(np.isfinite(sol.fun)) or not d.valid(sol.x)[0]:
@@ -221,25 +221,45 @@ def fit_law(points, law: str = "linear", start=None) -> LawFit:
 
 
 def fit_with_flags(points, law: str, alpha: float = FLAG_ALPHA):
-    """Fit, then flag and drop the worst recording while its p < alpha / N; returns
-    (fit on the kept points, kept mask, p-values of every point against the final law)."""
+    """Fit, then flag and drop the worst recording while its leave-one-out p < alpha / N
+    (its point against the law fitted to the other kept recordings); returns (fit on the
+    kept points, kept mask, p-value of every point: leave-one-out for the kept ones,
+    against the final law for the flagged ones)."""
     keep = np.ones(len(points), bool)
     N = len(points)
     while True:
-        kept = [p for p, k in zip(points, keep) if k]
-        f = fit_law(kept, law)
-        p_all = point_pvalues(f, points)
-        p_kept = np.where(keep, p_all, np.inf)
-        worst = int(np.argmin(p_kept))
-        if p_kept[worst] < alpha / N and keep.sum() > f.n_params // 2 + 2:
+        kept_idx = np.flatnonzero(keep)
+        f = fit_law([points[i] for i in kept_idx], law)
+        c_all = point_chi2(f, points)
+        c_loo = c_all.copy()
+        for i in kept_idx:
+            others = [points[j] for j in kept_idx if j != i]
+            if len(others) < 2 or points[i].ground not in {q.ground for q in others}:
+                continue  # the only recording of its ground: tested in-sample
+            try:
+                fi = fit_law(others, law, start=f.theta)
+            except ValueError:
+                continue
+            c_loo[i] = point_chi2(fi, [points[i]])[0]
+        grounds_kept = [points[j].ground for j in kept_idx]
+        alone = np.array([grounds_kept.count(p.ground) <= 1 for p in points])
+        # the last recording of a ground is not flagged: its C_rr would be its own
+        c_kept = np.where(keep & ~alone, c_loo, -np.inf)
+        worst = int(np.argmax(c_kept))  # chi-square, not p: p underflows to 0
+        if stats.chi2.sf(c_kept[worst], 2) < alpha / N and keep.sum() > 2:
             keep[worst] = False
             continue
-        return f, keep, p_all
+        return f, keep, stats.chi2.sf(np.where(keep, c_loo, c_all), 2)
 
 
 def point_pvalues(f: LawFit, points) -> np.ndarray:
-    """p-value of every point (kept or not) against the law `f`: chi-square with 2 dof of
-    its (slip, slope) against the prediction, with the law's own uncertainty added."""
+    """p-value of every point (kept or not) against the law `f` (see `point_chi2`)."""
+    return stats.chi2.sf(point_chi2(f, points), 2)
+
+
+def point_chi2(f: LawFit, points) -> np.ndarray:
+    """Chi-square (2 dof) of every point's (slip, slope) against the law `f`'s
+    prediction, with the law's own uncertainty added to the point's covariance."""
     d = _Design(points, f.law)
     # the fitted law's parameters mapped onto these points' grounds
     th = _remap(f, d)
@@ -250,7 +270,7 @@ def point_pvalues(f: LawFit, points) -> np.ndarray:
     for i, p in enumerate(points):
         r = d.y[i] - pred[0, i]
         S = p.cov + C[2 * i:2 * i + 2, 2 * i:2 * i + 2]
-        out[i] = stats.chi2.sf(float(r @ np.linalg.solve(S, r)), 2)
+        out[i] = float(r @ np.linalg.solve(S, r))
     return out
 
 
@@ -295,10 +315,14 @@ def _jac(fun, th, rel=1e-6):
 
 # -- posterior --------------------------------------------------------------------------
 
-def sample_law(f: LawFit, *, seed: int = 0, walkers: int = 32, time_budget_s: float = 120.0,
-               target_ess: float = 2000.0):
+def sample_law(f: LawFit, *, seed: int = 0, walkers: int = 32, time_budget_s: float = 600.0,
+               target_ess: float = 2000.0, max_steps: int = 30000):
     """emcee posterior of the law's parameters (flat priors: k > 0, 1/F_max >= 0,
-    F < F_max at every kept recording); a Chain (fitlug.posterior._mcmc)."""
+    F < F_max at every kept recording); a Chain (fitlug.posterior._mcmc).
+
+    Stops on convergence (ESS >= target_ess, chain >= 50 autocorrelation times) or at
+    max_steps: the same seed gives the same numbers on any machine; the time budget is
+    only a safety net."""
     from ..posterior._mcmc import run_ensemble
 
     d = f.design
@@ -325,7 +349,8 @@ def sample_law(f: LawFit, *, seed: int = 0, walkers: int = 32, time_budget_s: fl
         p0.extend(cand[ok])
     p0 = np.array(p0[:walkers])
     return run_ensemble(log_prob, p0, names=d.names, seed=int(rng.integers(2 ** 31)),
-                        time_budget_s=time_budget_s, target_ess=target_ess)
+                        time_budget_s=time_budget_s, target_ess=target_ess,
+                        max_steps=max_steps)
 
 
 def curve(law: str, theta_samples: np.ndarray, names, ground: str, F: np.ndarray, nL: float):

@@ -368,7 +368,7 @@ def campaign(recordings, *, out: str | None = None, scheduler: str | None = None
              workers: int = 1, seed: int = 0, explain: bool = True, mcmc: bool = True,
              report: bool = True, resume: bool = True, mcmc_budget: float = 60.0,
              progress: bool = False, write: bool = True, alpha: float = _model.FLAG_ALPHA,
-             campaign_budget_s: float = 120.0) -> CampaignResult:
+             campaign_budget_s: float = 600.0) -> CampaignResult:
     """Fit a campaign: every recording in full, then the track's shared slip law.
 
     Args:
@@ -410,7 +410,7 @@ def campaign(recordings, *, out: str | None = None, scheduler: str | None = None
 
 
 def fit_points(outcomes, *, seed: int = 0, alpha: float = _model.FLAG_ALPHA,
-               budget_s: float = 120.0) -> CampaignResult:
+               budget_s: float = 600.0) -> CampaignResult:
     """The campaign model on recordings whose points are known (outcomes with `point`
     dicts, or plain point dicts): law choice, flags, posterior, curves."""
     outs = []
@@ -470,19 +470,20 @@ def fit_points(outcomes, *, seed: int = 0, alpha: float = _model.FLAG_ALPHA,
 
 
 def choose_law(points, alpha: float = _model.FLAG_ALPHA):
-    """Flags under the sliding law (the more general), then the law by BIC on the kept
-    recordings; the linear law's own flags when it is the answer."""
+    """Flags under each law; the kept set is that of the law that keeps more recordings
+    (a curved law flags many recordings under the linear one; a stray recording is flagged
+    under both); then the law by BIC on that set, and its own flags."""
+    fl, keep_l, p_l = _model.fit_with_flags(points, "linear", alpha)
     fj, keep_j, p_j = _model.fit_with_flags(points, "janosi_hanamoto", alpha)
-    kept = [p for p, k in zip(points, keep_j) if k]
+    keep = keep_j if keep_j.sum() > keep_l.sum() else keep_l
+    kept = [p for p, k in zip(points, keep) if k]
     fl_same = _model.fit_law(kept, "linear")
-    dbic = fj.bic - fl_same.bic
+    fj_same = _model.fit_law(kept, "janosi_hanamoto")
+    dbic = fj_same.bic - fl_same.bic
     if dbic < _model.DELTA_BIC_NAMED:
         return "janosi_hanamoto", fj, keep_j, p_j, {"linear": fl_same, "janosi_hanamoto": fj}, \
             dbic
-    fl, keep_l, p_l = _model.fit_with_flags(points, "linear", alpha)
-    kept = [p for p, k in zip(points, keep_l) if k]
-    fj2 = _model.fit_law(kept, "janosi_hanamoto")
-    return "linear", fl, keep_l, p_l, {"linear": fl, "janosi_hanamoto": fj2}, fj2.bic - fl.bic
+    return "linear", fl, keep_l, p_l, {"linear": fl, "janosi_hanamoto": fj_same}, dbic
 
 
 def _estimate(x) -> dict:
