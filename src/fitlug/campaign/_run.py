@@ -8,6 +8,7 @@ recordings' points; campaign.json and campaign.html are written into OUT.
 
 from __future__ import annotations
 
+import contextlib
 import glob
 import hashlib
 import logging
@@ -359,9 +360,12 @@ def _run_dask(jobs, *, scheduler, workers, progress):
                 bar.update(1)
         return results
     finally:
-        client.close()
+        # the results are in hand: a slow worker shutdown must not lose them
+        with contextlib.suppress(Exception):
+            client.close(timeout=30)
         if cluster is not None:
-            cluster.close()
+            with contextlib.suppress(Exception):
+                cluster.close(timeout=30)
 
 
 def campaign(recordings, *, out: str | None = None, scheduler: str | None = None,
@@ -497,11 +501,17 @@ def _flag_reason(o, fit, samples, names, d, alpha, N) -> str:
     p = o.point
     k_med = float(np.median(samples[:, names.index("k")]))
     k_own = 2.0 * o.mass_kg / (1000.0 * p["slope"] * d.nL)
+    own = ""
+    c = p.get("chi2_per_dof")
+    if c is not None and c > 3:
+        own = (f"; its own fit is poor (chi2/dof {c:.3g} under "
+               f"{', '.join(p.get('effects') or []) or 'the base model'}): a misfit the "
+               "explanation left in that recording biases its point")
     return (f"pull {o.drawbar_pull_N:g} N, mass {o.mass_kg:g} kg, ground {o.ground}: its point "
-            f"(slip {p['slip']:.4g}, ds/da {p['slope']:.3g} per mm/s^2, alone k = {k_own:.3g} "
-            f"N/mm against the campaign's {k_med:.3g}) disagrees with the shared law: "
-            f"p = {o.p_value:.2g} < {alpha:g}/{N} -- another track, a wrong rig (mass, pull, "
-            "n, L) or another ground")
+            f"(slip {p['slip']:.4g}, ds/da {p['slope']:.3g} per mm/s^2; read with the linear "
+            f"law alone k = {k_own:.3g} N/mm, the campaign's {k_med:.3g}) disagrees with the "
+            f"shared law: p = {o.p_value:.2g} < {alpha:g}/{N} -- another track, a wrong rig "
+            f"(mass, pull, n, L) or another ground{own}")
 
 
 def _curves(law, samples, names, ok, keep, nL) -> dict:
