@@ -167,7 +167,9 @@ def test_dask_two_workers_same_numbers(tiny_campaign, tmp_path):
                                    [b.point["slip"], b.point["slope"]], rtol=1e-9)
         np.testing.assert_allclose(a.point["cov"], b.point["cov"], rtol=1e-6)
     assert two.stiffness == pytest.approx(one.stiffness, rel=1e-9)
-    assert two.rolling_resistance == pytest.approx(one.rolling_resistance, rel=1e-9)
+    for key in ("value", "std"):
+        assert two.rolling_resistance["concrete"][key] == pytest.approx(
+            one.rolling_resistance["concrete"][key], rel=1e-9)
 
 
 def test_failing_recording_does_not_stop_campaign(tiny_campaign, tmp_path):
