@@ -129,15 +129,19 @@ def _hermite(tq, tg, y, dy):
 def make(seed=0, *, fps=120.0, duration=5.0, v_max=120.0, t_acc=(0.4, 1.6), t_dec=(3.4, 4.6),
          m=6.0, k=0.3, C_rr=0.08, n=8, L=127.0, R=30.0, pitch=20.0, N=20, e=2.5,
          x_off=3.0, y_off=4.0, n_lug=8, body=((-50.0, 70.0), (45.0, 72.0)),
-         noise_lug=0.0065, noise_body=0.0041, effects=None):
+         noise_lug=0.0065, noise_body=0.0041, effects=None, F_d=0.0, ground=None):
     """A recording (Recording, Rig, truth dict) from the contract's equations.
+
+    F_d: drawbar pull (N), added to the traction load F = m (a/1000 + C_rr g) + F_d.
+    ground: the rig's [ground] name.
 
     effects: {effect_id: {param: value}} with the ids and parameter names of `EFFECTS`.
     """
     rec, rig, truth, _ = make_detailed(
         seed, fps=fps, duration=duration, v_max=v_max, t_acc=t_acc, t_dec=t_dec, m=m, k=k,
         C_rr=C_rr, n=n, L=L, R=R, pitch=pitch, N=N, e=e, x_off=x_off, y_off=y_off,
-        n_lug=n_lug, body=body, noise_lug=noise_lug, noise_body=noise_body, effects=effects)
+        n_lug=n_lug, body=body, noise_lug=noise_lug, noise_body=noise_body, effects=effects,
+        F_d=F_d, ground=ground)
     return rec, rig, truth
 
 
@@ -145,7 +149,7 @@ def make_detailed(seed=0, *, fps=120.0, duration=5.0, v_max=120.0, t_acc=(0.4, 1
                   t_dec=(3.4, 4.6), m=6.0, k=0.3, C_rr=0.08, n=8, L=127.0, R=30.0, pitch=20.0,
                   N=20, e=2.5, x_off=3.0, y_off=4.0, n_lug=8,
                   body=((-50.0, 70.0), (45.0, 72.0)), noise_lug=0.0065, noise_body=0.0041,
-                  effects=None):
+                  effects=None, F_d=0.0, ground=None):
     """As `make`, plus a dict of noise-free series at the frame stamps for tests.
 
     series: t (stamps, one per frame), tau (true times), X, psi, v (the possibly modulated
@@ -199,7 +203,7 @@ def make_detailed(seed=0, *, fps=120.0, duration=5.0, v_max=120.0, t_acc=(0.4, 1
         h = 1e-5
         tt = np.arange(0, t_end + h / 2, h)
         v, a = profile(tt)
-        F = m * (a / 1000.0 + C_rr * G)
+        F = m * (a / 1000.0 + C_rr * G) + F_d
         s = 2 * F / (k * n * L)
         if sK is not None:
             s = slip_law(s)
@@ -225,7 +229,7 @@ def make_detailed(seed=0, *, fps=120.0, duration=5.0, v_max=120.0, t_acc=(0.4, 1
             w = vv
             for _ in range(4):  # ψ' enters a only through v_b·M'·ψ': fast fixed point
                 aa = ab * mr * mw + vb * dM * w
-                ss = slip_law(2 * m * (aa / 1000.0 + C_rr * G) / (k * n * L))
+                ss = slip_law(2 * (m * (aa / 1000.0 + C_rr * G) + F_d) / (k * n * L))
                 w = vv / (1 - ss)
             return vv, w, aa, ss
 
@@ -312,14 +316,16 @@ def make_detailed(seed=0, *, fps=120.0, duration=5.0, v_max=120.0, t_acc=(0.4, 1
     rec = Recording(markers=markers, roles=roles, t=np.concatenate(ts),
                     marker_index=np.concatenate(mi).astype(np.int64), x=np.concatenate(xs),
                     y=np.concatenate(ys), meta={"fps": str(fps)})
-    s_lin0 = 2 * m * C_rr * G / (k * n * L)
+    s_lin0 = 2 * (m * C_rr * G + F_d) / (k * n * L)
     s0 = float(slip_law(s_lin0)) if sK is not None else s_lin0
     truth = {"slip": s0, "delta_l_mm": s_lin0 * L / (n - 1), "stiffness_N_per_mm": k,
              "rolling_resistance": C_rr, "R_mm": R, "D_mm": D, "e_mm": e, "pitch_mm": pitch,
-             "effects": copy.deepcopy(eff)}
+             "effects": copy.deepcopy(eff), "drawbar_pull_N": F_d,
+             "traction_N": m * C_rr * G + F_d}
     if sK is not None:
         truth["slip_linear"] = s_lin0
-    rig = Rig(load_bearing_length_mm=L, lugs_in_contact=n, lug_pitch_mm=pitch, mass_kg=m)
+    rig = Rig(load_bearing_length_mm=L, lugs_in_contact=n, lug_pitch_mm=pitch, mass_kg=m,
+              drawbar_pull_N=F_d, ground=ground)
     series = {"t": t, "tau": tau, "X": Xs, "psi": psis, "v": vs, "vt": vts, "s": ss,
               "sigma0": sigma0, "P": P, "D": D}
     return rec, rig, truth, series

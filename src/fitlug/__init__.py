@@ -24,6 +24,7 @@ _LAZY = {
     "explain": "explain",
     "fit_json": "report", "write_report": "report",
     "CATALOG": "model",
+    "campaign": "campaign", "CampaignResult": "campaign",
 }
 
 

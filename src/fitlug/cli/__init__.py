@@ -21,6 +21,7 @@ SUBCOMMANDS = {
     "report": ("_report", "rebuild report.html from a fit folder"),
     "track": ("_track", "track the markers in a video, frame folder or .cine file"),
     "calibrate": ("_calibrate", "calibrate the camera from board images -> calib.json"),
+    "campaign": ("_campaign", "fit a campaign of recordings: the track's traction-slip law"),
     "noise": ("_noise", "measurement noise per marker type from a stationary recording"),
 }
 

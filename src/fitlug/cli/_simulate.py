@@ -73,7 +73,20 @@ def _effects_help() -> str:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.epilog = _effects_help()
-    p.add_argument("out", metavar="DIR", help="folder for trajectories.csv, rig.toml, truth.json")
+    p.add_argument("out", metavar="DIR", nargs="?",
+                   help="folder for trajectories.csv, rig.toml, truth.json")
+    p.add_argument("--campaign", metavar="DIR",
+                   help="write a simulated campaign (MODEL.md §4) into DIR instead: one "
+                        "folder per recording at several drawbar pulls, masses and grounds, "
+                        "and DIR/truth.json of the law")
+    p.add_argument("--law", choices=("linear", "janosi_hanamoto"), default="linear",
+                   help="with --campaign: the track's slip law (default linear)")
+    p.add_argument("--runs", type=int, default=8, help="with --campaign: recordings (default 8)")
+    p.add_argument("--k", type=float, default=0.25,
+                   help="with --campaign: lug stiffness k, N/mm (default 0.25)")
+    p.add_argument("--grounds", default="concrete,sand",
+                   help="with --campaign: comma-separated ground names (default "
+                        "concrete,sand; C_rr 0.06 / 0.15 / 0.10..., F_max 50 / 45 / 55 N)")
     p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
     p.add_argument("--effect", action="append", default=[], metavar="ID:P=V[,P=V...]",
                    help="add a catalog effect with its parameters, e.g. "
@@ -146,9 +159,32 @@ def _check_options(args) -> None:
 _OPTION_OF = {"slip": "--slip", "duration_s": "--duration", "fps": "--fps"}
 
 
+def _run_campaign(args) -> int:
+    from .._errors import InputError
+    from ..sim._campaign import default_runs, simulate_campaign
+
+    names = [g.strip() for g in args.grounds.split(",") if g.strip()]
+    if not names or args.runs < 2:
+        raise InputError(None, "--campaign needs at least one ground and --runs >= 2")
+    crr = [0.06, 0.15, 0.10, 0.20]
+    fmax = [50.0, 45.0, 55.0, 40.0]
+    grounds = {g: {"C_rr": crr[i % 4], "F_max": fmax[i % 4]} for i, g in enumerate(names)}
+    runs = default_runs(args.runs, grounds=tuple(names))
+    truth = simulate_campaign(args.campaign, runs=runs, k=args.k, grounds=grounds,
+                              law=args.law, seed=args.seed)
+    say(args, f"wrote {len(runs)} recordings into {args.campaign} ({args.law} law, "
+              f"k = {truth['stiffness_N_per_mm']:g} N/mm) and {args.campaign}/truth.json")
+    return 0
+
+
 def run(args) -> int:
     from .._errors import InputError
     from ..sim import Scenario, scenario_from_json, write_simulation
+
+    if args.campaign:
+        return _run_campaign(args)
+    if not args.out:
+        raise InputError(None, "fit-lug simulate: give DIR (or --campaign DIR)")
 
     _check_options(args)
     sc = Scenario()

@@ -72,7 +72,8 @@ def _polish(prob, p: dict, free: list) -> FitResult:
     params = {**{k: np.asarray(v) for k, v in packing.unpack(jnp.asarray(flat), {}).items()},
               **fixed_np}
     params = {k: params[k] for k in p}  # the dict order of the problem's parameters
-    q = compute_quantities(params, packing, flat, cov, lay, prob.rig.mass_kg, fixed_np)
+    q = compute_quantities(params, packing, flat, cov, lay, prob.rig.mass_kg, fixed_np,
+                           prob.rig.drawbar_pull_N)
     return FitResult(problem=prob, params=params, packing=packing, flat=np.asarray(flat),
                      cov=cov, residuals=r, chi2=chi2, dof=prob.n_valid - len(flat),
                      converged=bool(converged), steps=steps, quantities=q)

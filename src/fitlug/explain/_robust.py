@@ -58,7 +58,8 @@ def robust_result(res, geo: Geometry):
     for name, C in covs.items():
         if C is not None:
             qs[name] = compute_quantities(res.params, res.packing, res.flat, C, prob.lay,
-                                          prob.rig.mass_kg, fixed_np)
+                                          prob.rig.mass_kg, fixed_np,
+                                          prob.rig.drawbar_pull_N)
     out = {}
     for k, est in res.quantities.items():
         best = max(qs, key=lambda n: (qs[n][k].std or 0.0))

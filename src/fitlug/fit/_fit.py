@@ -37,7 +37,7 @@ def fit_problem(prob: Problem, p_start: dict | None = None, *, free=None, max_st
     cov = covariance(out.J) if out.J is not None else covariance_normal(out.normal)
     fixed = {k: v for k, v in out.params.items() if k not in out.packing.names}
     q = compute_quantities(out.params, out.packing, out.flat, cov, prob.lay, prob.rig.mass_kg,
-                           fixed)
+                           fixed, prob.rig.drawbar_pull_N)
     res = FitResult(problem=prob, params={k: np.asarray(v) for k, v in out.params.items()},
                     packing=out.packing, flat=out.flat, cov=cov, residuals=out.r, chi2=chi2,
                     dof=n_data - len(out.flat), converged=out.converged, steps=out.steps,

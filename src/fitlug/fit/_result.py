@@ -42,20 +42,31 @@ def _f(x):
     return x if np.isfinite(x) else None
 
 
-def derived(p: dict, lay, mass_kg) -> dict:
-    """Physical quantities of one parameter set (JAX scalars), see MODEL.md §2."""
+def derived(p: dict, lay, mass_kg, drawbar_N: float = 0.0) -> dict:
+    """Physical quantities of one parameter set (JAX scalars), see MODEL.md §2.
+
+    With a drawbar pull F_d the steady traction is m C_rr g + F_d, so s0 / (1000 g beta)
+    = C_rr + F_d / (m g): C_rr then needs the mass (left out without one); k / m does not
+    depend on F_d.
+    """
     n, L = lay.n_contact, lay.L
     P = belt_length(p["R"], p["D"])
+    crr_plus = p["s0"] / (1000.0 * G * p["beta"])  # C_rr + F_d / (m g)
     out = {
         "slip": steady_slip(p, lay),
         "delta_l_mm": p["s0"] * L / (n - 1),
-        "rolling_resistance": p["s0"] / (1000.0 * G * p["beta"]),
         "k_over_m": 2.0 / (1000.0 * p["beta"] * n * L),
         "R_mm": p["R"], "D_mm": p["D"], "e_mm": p["e"], "pitch_mm": P / lay.n_belt,
         "s0_linear": p["s0"], "beta": p["beta"],
     }
+    if not drawbar_N:
+        out["rolling_resistance"] = crr_plus
+    elif mass_kg is not None:
+        out["rolling_resistance"] = crr_plus - drawbar_N / (mass_kg * G)
     if mass_kg is not None:
         out["stiffness_N_per_mm"] = mass_kg * out["k_over_m"]
+        # steady traction F0 = m C_rr g + F_d = m s0 / (1000 beta)  (N)
+        out["traction_N"] = mass_kg * p["s0"] / (1000.0 * p["beta"])
     return out
 
 
@@ -136,10 +147,11 @@ class FitResult:
                 for k, g in grads.items()}
 
 
-def compute_quantities(res_params, packing, flat, cov, lay, mass_kg, fixed) -> dict:
+def compute_quantities(res_params, packing, flat, cov, lay, mass_kg, fixed,
+                       drawbar_N: float = 0.0) -> dict:
     """Each derived quantity with its delta-method standard error."""
     def f(fl):
-        return derived(packing.unpack(fl, fixed), lay, mass_kg)
+        return derived(packing.unpack(fl, fixed), lay, mass_kg, drawbar_N)
 
     vals = f(jnp.asarray(flat))
     jac = jax.jacfwd(f)(jnp.asarray(flat))

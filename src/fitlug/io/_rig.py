@@ -57,6 +57,19 @@ def _lug_count(value) -> int:
     return int(value)
 
 
+def _pull(value) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) \
+            or not math.isfinite(value) or value < 0:
+        raise _Bad(f"must be a number >= 0 (newtons), got {value!r}")
+    return float(value)
+
+
+def _ground(value) -> str:
+    if not isinstance(value, str) or not value.strip():
+        raise _Bad(f"must be a non-empty string, got {value!r}")
+    return value.strip()
+
+
 def _names(value) -> tuple[str, ...]:
     if not isinstance(value, (list, tuple)) or \
             not all(isinstance(v, str) and v.strip() for v in value):
@@ -73,11 +86,13 @@ _FIELDS = (
     ("track", "lugs_in_contact", "lugs_in_contact", _lug_count),
     ("track", "lug_pitch_mm", "lug_pitch_mm", _within(0.1, 1e4, "mm")),
     ("vehicle", "mass_kg", "mass_kg", _within(1e-3, 1e6, "kg")),
+    ("vehicle", "drawbar_pull_N", "drawbar_pull_N", _pull),
+    ("ground", "name", "ground", _ground),
     ("markers", "body", "body_markers", _names),
     ("markers", "lug", "lug_markers", _names),
     ("camera", "fps", "fps", _within(0.01, 1e8, "frames/s")),
 )
-_TABLES = ("track", "vehicle", "markers", "camera")
+_TABLES = ("track", "vehicle", "ground", "markers", "camera")
 
 
 @dataclass(frozen=True)
@@ -90,6 +105,9 @@ class Rig:
         lug_pitch_mm: p, lug pitch, mm (0.1 to 1e4), or None (then fitted).
         mass_kg: mass carried by this track, kg (1e-3 to 1e6), or None (stiffness then
             not identifiable).
+        drawbar_pull_N: F_d, a known horizontal load the track pulls, N (>= 0; default 0).
+        ground: the ground's name ([ground] name), or None; recordings of one campaign on
+            one ground share C_rr (and F_max).
         body_markers, lug_markers: marker ids by role, for wide-form trajectory files.
         fps: camera frame rate, 1/s ([camera] fps, 0.01 to 1e8), or None.
         extra: every other table/key of rig.toml, kept as read ({table: {key: value}}).
@@ -103,6 +121,8 @@ class Rig:
     lugs_in_contact: int = 8
     lug_pitch_mm: float | None = None
     mass_kg: float | None = None
+    drawbar_pull_N: float = 0.0
+    ground: str | None = None
     body_markers: tuple[str, ...] = ()
     lug_markers: tuple[str, ...] = ()
     fps: float | None = None
@@ -247,7 +267,7 @@ def write_rig(path: str | os.PathLike, rig: Rig) -> None:
     tables: dict[str, dict] = {table: {} for table in _TABLES}
     for table, key, attr, _ in _FIELDS:
         value = getattr(rig, attr)
-        if value is not None and value != ():
+        if value is not None and value != () and not (attr == "drawbar_pull_N" and value == 0):
             tables[table][key] = list(value) if isinstance(value, tuple) else value
     top: dict = {}
     for name, content in rig.extra.items():

@@ -405,7 +405,7 @@ def _derived_samples(res: FitResult, names, flat_samples: np.ndarray) -> dict:
         p = dict(base)
         for i, k in enumerate(names):
             p[k] = th[i]
-        q = derived(p, prob.lay, mass)
+        q = derived(p, prob.lay, mass, prob.rig.drawbar_pull_N)
         return {k: q[k] for k in REPORTED if k in q}
 
     out = {k: np.asarray(v) for k, v in one(jnp.asarray(flat_samples)).items()}

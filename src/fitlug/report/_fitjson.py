@@ -53,12 +53,18 @@ def fit_json(res, *, input_path: str | None = None, mcmc=None, discrepancy=None,
         "uncertainty_method": "posterior (emcee)" if posterior else "least squares (Jacobian)",
         "rig": {"load_bearing_length_mm": rig.load_bearing_length_mm,
                 "lugs_in_contact": rig.lugs_in_contact, "lug_pitch_mm": rig.lug_pitch_mm,
-                "mass_kg": rig.mass_kg},
+                "mass_kg": rig.mass_kg,
+                "drawbar_pull_N": getattr(rig, "drawbar_pull_N", 0.0),
+                "ground": getattr(rig, "ground", None)},
         "reference_paper_slip": REFERENCE_SLIP,
         # fitted markers with their coverage, and tracker fragments fitted as one marker
         "markers": list(prob.init_info.get("markers", [])),
         "joined": list(prob.init_info.get("joined", [])),
     }
+    if getattr(rig, "drawbar_pull_N", 0.0) and rig.mass_kg is None:
+        out.setdefault("not_identifiable", {})["rolling_resistance"] = (
+            "a drawbar pull without [vehicle] mass_kg in rig.toml: only C_rr + F_d/(m g) "
+            "is measured")
     if mcmc is not None:
         out["mcmc"] = mcmc
     else:

@@ -9,3 +9,11 @@ from ._simulate import (
     truth_params as truth_params,
     write_simulation as write_simulation,
 )
+from ._campaign import (
+    Run as Run,
+    campaign_scenarios as campaign_scenarios,
+    law_slip as law_slip,
+    law_slope as law_slope,
+    simulate_campaign as simulate_campaign,
+    simulate_points as simulate_points,
+)

@@ -29,6 +29,8 @@ class Scenario:
     lug_pitch_mm: float = 18.36
     n_belt: int = 22  # N: lugs on the belt
     mass_kg: float | None = 10.0
+    drawbar_pull_N: float = 0.0  # F_d, known towed load (MODEL.md §2)
+    ground: str | None = None  # the rig's [ground] name
     # physics
     slip: float = REFERENCE_SLIP  # s0 of the linear law
     rolling_resistance: float = 0.1
@@ -63,15 +65,26 @@ class Scenario:
 
     @property
     def beta(self) -> float:
-        """ds/da from s0 and C_rr: beta = s0 / (1000 g C_rr)."""
-        return self.slip / (1000.0 * 9.81 * self.rolling_resistance)
+        """ds/da from s0, C_rr and F_d: beta = s0 m / (1000 (m C_rr g + F_d))
+        (= s0 / (1000 g C_rr) without a drawbar pull)."""
+        if not self.drawbar_pull_N:
+            return self.slip / (1000.0 * 9.81 * self.rolling_resistance)
+        if self.mass_kg is None:
+            raise ValueError("a drawbar pull needs the mass (Scenario.mass_kg)")
+        return self.slip * self.mass_kg / (1000.0 * self.traction_N)
+
+    @property
+    def traction_N(self) -> float | None:
+        """Steady traction F0 = m C_rr g + F_d (None without a mass)."""
+        if self.mass_kg is None:
+            return None
+        return self.mass_kg * self.rolling_resistance * 9.81 + self.drawbar_pull_N
 
     @property
     def stiffness(self) -> float | None:
         if self.mass_kg is None:
             return None
-        return 2 * self.mass_kg * self.rolling_resistance * 9.81 / (
-            self.slip * self.n_contact * self.L_mm)
+        return 2 * self.traction_N / (self.slip * self.n_contact * self.L_mm)
 
     def replace(self, **kw) -> "Scenario":
         return dataclasses.replace(self, **kw)

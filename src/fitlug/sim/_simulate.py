@@ -92,6 +92,9 @@ def simulate(sc: Scenario, seed: int = 0) -> tuple[Recording, dict]:
         "rolling_resistance": sc.rolling_resistance,
         "beta_per_mm_s2": sc.beta,
         "mass_kg": sc.mass_kg,
+        "drawbar_pull_N": sc.drawbar_pull_N,
+        "traction_N": sc.traction_N,
+        "ground": sc.ground,
         "geometry": {"R_mm": sc.R_mm, "D_mm": sc.D_mm, "e_mm": sc.e_mm,
                      "pitch_mm": sc.pitch, "n_belt": sc.n_belt,
                      "x_off_mm": sc.x_off_mm, "y_off_mm": sc.y_off_mm},
@@ -108,7 +111,8 @@ def simulate(sc: Scenario, seed: int = 0) -> tuple[Recording, dict]:
 
 def rig_of(sc: Scenario) -> Rig:
     return Rig(load_bearing_length_mm=sc.L_mm, lugs_in_contact=sc.n_contact,
-               lug_pitch_mm=sc.lug_pitch_mm, mass_kg=sc.mass_kg, fps=sc.fps)
+               lug_pitch_mm=sc.lug_pitch_mm, mass_kg=sc.mass_kg, fps=sc.fps,
+               drawbar_pull_N=sc.drawbar_pull_N, ground=sc.ground)
 
 
 def write_simulation(out_dir: str | os.PathLike, sc: Scenario, seed: int = 0, *,

@@ -1,0 +1,133 @@
+"""Campaign benchmark: throughput on Dask workers, resume, and the coverage of k's 95 % band.
+
+    python benchmarks/bench_campaign.py                 # 32 recordings, 1 and 2 workers, n=50
+    python benchmarks/bench_campaign.py --quick         # 6 recordings, n=10
+    python benchmarks/bench_campaign.py --skip-timing --n 200 --workers 16
+
+Timing: a simulated campaign of --recordings short recordings (fitlug.sim SMALL_BASE:
+3 s at 50 fps, 5 lug + 1 body markers) fitted with 1 and 2 local Dask workers (fresh output
+folders), the recordings per minute of each, their ratio, and the time of a resumed run
+(nothing changed). By default each recording is fitted as `--no-explain --no-mcmc` does
+(least squares with the law's curvature, lug_sliding, free); --full adds the explanation and
+a 10 s posterior per recording.
+
+Coverage: --n campaigns whose per-recording points are drawn from the law
+(fitlug.sim.simulate_points: each point's error the size of one short recording's fit),
+NOT from simulated recordings (that would take hours); each is fitted by the campaign model
+(law choice, flags, emcee) and we count how often the 95 % interval of k holds the truth
+(target 90-98 %). Parallel over campaigns with --workers processes (spawn).
+"""
+
+from __future__ import annotations
+
+import argparse
+import multiprocessing
+import os
+import shutil
+import sys
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "src"))
+
+K = 0.25
+GROUNDS = {"concrete": {"C_rr": 0.06, "F_max": 50.0}, "sand": {"C_rr": 0.15, "F_max": 45.0}}
+
+
+def _coverage_one(args):
+    seed, law, n_rec = args
+    from fitlug.campaign import fit_points
+    from fitlug.sim._campaign import default_runs, simulate_points
+
+    runs = default_runs(n_rec)
+    pts = simulate_points(runs, k=K, grounds=GROUNDS, law=law, seed=seed)
+    res = fit_points(pts, seed=seed)
+    lo, hi = res.stiffness["ci95"]
+    crr = res.rolling_resistance
+    c_in = all(crr[g]["ci95"][0] <= GROUNDS[g]["C_rr"] <= crr[g]["ci95"][1] for g in crr)
+    return {"k_in": lo <= K <= hi, "crr_in": c_in, "law_ok": res.law == law,
+            "flagged": len(res.flagged), "z": (res.stiffness["value"] - K) / res.stiffness["std"]}
+
+
+def coverage(n: int, law: str, n_rec: int, workers: int) -> dict:
+    jobs = [(1000 + i, law, n_rec) for i in range(n)]
+    if workers > 1:
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as ex:
+            out = list(ex.map(_coverage_one, jobs))
+    else:
+        out = [_coverage_one(j) for j in jobs]
+    return {"n": n, "k_coverage": sum(o["k_in"] for o in out) / n,
+            "crr_coverage": sum(o["crr_in"] for o in out) / n,
+            "law_named": sum(o["law_ok"] for o in out) / n,
+            "false_flags": sum(o["flagged"] for o in out),
+            "z_sd": float(__import__("numpy").std([o["z"] for o in out]))}
+
+
+def timing(n_rec: int, worker_counts, full: bool, keep: str | None) -> None:
+    from fitlug.campaign import campaign
+    from fitlug.sim._campaign import default_runs, simulate_campaign
+
+    root = keep or tempfile.mkdtemp(prefix="bench_campaign_")
+    data = os.path.join(root, "data")
+    if not os.path.isdir(data):
+        t = time.perf_counter()
+        simulate_campaign(data, runs=default_runs(n_rec), k=K, grounds=GROUNDS, law="linear")
+        print(f"simulated {n_rec} recordings in {time.perf_counter() - t:.1f} s")
+    opts = dict(explain=full, mcmc=full, report=False, mcmc_budget=10.0)
+    rates = {}
+    for w in worker_counts:
+        out = os.path.join(root, f"fits_w{w}")
+        shutil.rmtree(out, ignore_errors=True)
+        t = time.perf_counter()
+        res = campaign([data], out=out, workers=w, **opts)
+        dt = time.perf_counter() - t
+        rates[w] = n_rec / dt * 60
+        fails = len(res.failed)
+        print(f"workers={w}: {dt:.1f} s for {n_rec} recordings = {rates[w]:.2f} recordings/min "
+              f"({fails} failed; law {res.law}, k = {res.stiffness['value']:.5f} "
+              f"± {res.stiffness['std']:.2g})")
+    if len(rates) >= 2:
+        a, b = sorted(rates)[:2]
+        print(f"scaling ratio {b} vs {a} workers: {rates[b] / rates[a]:.2f}")
+    w = worker_counts[0]
+    t = time.perf_counter()
+    res = campaign([data], out=os.path.join(root, f"fits_w{w}"), workers=w, **opts)
+    dt = time.perf_counter() - t
+    n_un = sum(r.status == "unchanged" for r in res.recordings)
+    print(f"resumed run (workers={w}): {dt:.1f} s, {n_un}/{n_rec} recordings unchanged")
+    if not keep:
+        shutil.rmtree(root, ignore_errors=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--recordings", type=int, default=32)
+    ap.add_argument("--n", type=int, default=50, help="simulated campaigns for the coverage")
+    ap.add_argument("--law", choices=("linear", "janosi_hanamoto", "both"), default="both")
+    ap.add_argument("--workers", type=int, default=1, help="processes for the coverage part")
+    ap.add_argument("--dask-workers", default="1,2", help="worker counts timed (default 1,2)")
+    ap.add_argument("--full", action="store_true", help="explain + posterior per recording")
+    ap.add_argument("--quick", action="store_true", help="6 recordings, n = 10")
+    ap.add_argument("--skip-timing", action="store_true")
+    ap.add_argument("--skip-coverage", action="store_true")
+    ap.add_argument("--keep", help="work folder to keep (and reuse) the simulated recordings")
+    a = ap.parse_args()
+    if a.quick:
+        a.recordings, a.n = 6, 10
+    print(f"machine: {os.cpu_count()} CPUs (timings on a shared machine are inflated)")
+    if not a.skip_timing:
+        timing(a.recordings, [int(w) for w in a.dask_workers.split(",")], a.full, a.keep)
+    if not a.skip_coverage:
+        laws = ("linear", "janosi_hanamoto") if a.law == "both" else (a.law,)
+        for law in laws:
+            t = time.perf_counter()
+            c = coverage(a.n, law, 8, a.workers)
+            print(f"coverage ({law}, {c['n']} campaigns of 8 simulated points): k 95 % band "
+                  f"{100 * c['k_coverage']:.0f} %, C_rr bands {100 * c['crr_coverage']:.0f} %, "
+                  f"law named {100 * c['law_named']:.0f} %, false flags {c['false_flags']}, "
+                  f"sd of (k - truth)/std {c['z_sd']:.2f}  ({time.perf_counter() - t:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()
