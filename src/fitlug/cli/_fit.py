@@ -48,15 +48,24 @@ def run(args) -> int:
         post = sample_posterior(final, seed=args.seed, progress=prog,
                                 time_budget_s=args.mcmc_budget)
 
+    if post is None:
+        from ..posterior import least_squares_identifiability
+
+        unident = least_squares_identifiability(final, seed=args.seed)
+    else:
+        unident = post.not_identifiable
+
     from ..report import fit_json
 
     doc = fit_json(final, input_path=args.csv,
                    posterior=None if post is None else post.estimates,
+                   not_identifiable=unident,
+                   uncertainty_method=None if post is None else post.uncertainty_method,
                    mcmc=None if post is None else post.mcmc_json(),
                    discrepancy=None if expl is None else expl.to_json())
     if post is None:
         doc["mcmc"] = None
-        doc["mcmc_skipped"] = "--no-mcmc: uncertainties are least-squares (Jacobian) errors"
+        doc["mcmc_skipped"] = f"--no-mcmc: uncertainties are {doc['uncertainty_method']}"
     if args.no_explain:
         doc["discrepancy_skipped"] = "--no-explain"
     os.makedirs(out, exist_ok=True)
@@ -73,21 +82,24 @@ def run(args) -> int:
     return 0
 
 
-def _fmt(est, digits=4):
+def _fmt(est, digits=4, reason=None):
     if not est:
-        return "not identifiable (needs [vehicle] mass_kg in rig.toml)"
+        return "not identifiable" + (f": {reason}" if reason else "")
     return f"{est['value']:.{digits}g} ± {est['std']:.2g}  (95 %: {est['ci95'][0]:.{digits}g} … {est['ci95'][1]:.{digits}g})"
 
 
 def _summary(args, doc, out, report, seconds):
+    why = doc.get("not_identifiable") or {}
     lines = [
         f"fitlug: {doc['input']}",
-        f"  slip s0            {_fmt(doc['slip'])}",
-        f"  lug deflection Δl' {_fmt(doc['delta_l_mm'])} mm",
-        f"  lug stiffness k    {_fmt(doc['stiffness_N_per_mm'])}" + (" N/mm" if doc["stiffness_N_per_mm"] else ""),
-        f"  rolling resistance {_fmt(doc['rolling_resistance'])}",
+        f"  slip s0            {_fmt(doc['slip'], reason=why.get('slip'))}",
+        f"  lug deflection Δl' {_fmt(doc['delta_l_mm'], reason=why.get('delta_l_mm'))}" + (" mm" if doc["delta_l_mm"] else ""),
+        f"  lug stiffness k    {_fmt(doc['stiffness_N_per_mm'], reason=why.get('stiffness_N_per_mm'))}" + (" N/mm" if doc["stiffness_N_per_mm"] else ""),
+        f"  rolling resistance {_fmt(doc['rolling_resistance'], reason=why.get('rolling_resistance'))}",
         f"  chi2/dof           {doc['chi2_per_dof']:.3f}   (noise: body {doc['noise_mm']['body']:.4f} mm, lug {doc['noise_mm']['lug']:.4f} mm)",
     ]
+    if doc.get("uncertainty_method", "").find("tempered") >= 0 or "robust" in doc.get("uncertainty_method", ""):
+        lines.append(f"  uncertainty        {doc['uncertainty_method']}")
     d = doc.get("discrepancy")
     if d:
         eff = ", ".join(e["id"] for e in d.get("effects", [])) or "-"

@@ -74,6 +74,9 @@ class FitResult:
     converged: bool
     steps: int
     quantities: dict = field(default_factory=dict)  # name -> Estimate
+    # set by fitlug.explain when the verdict is 'unexplained': how the quantities' errors
+    # were widened (cluster-robust), see fitlug.explain._robust.robust_result
+    robust: dict | None = None
 
     @property
     def chi2_per_dof(self) -> float:

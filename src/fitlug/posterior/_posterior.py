@@ -40,6 +40,7 @@ from .. import _jaxconfig  # noqa: F401
 from .._errors import FitError
 from ..model.effects import CATALOG
 from ..fit._lsq import jacobian, residuals
+from ._identify import not_identifiable
 from ._mcmc import Chain, autocorr_time, run_ensemble
 from ..fit._result import Estimate, FitResult, derived
 
@@ -81,6 +82,9 @@ class Posterior:
     n_marginalised: int
     settings: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)  # stage -> seconds
+    not_identifiable: dict = field(default_factory=dict)  # quantity -> reason
+    uncertainty_method: str = "posterior (emcee)"
+    temper: dict = field(default_factory=lambda: {"factor": 1.0})
 
     @property
     def parameters(self) -> tuple:
@@ -118,6 +122,7 @@ class Posterior:
             "priors": {**{k: v for k, v in {**_POSITIVE, **_NONNEG}.items()
                           if k in c.names}, "other": "flat"},
             "linearity_check": self.check,
+            "tempering": self.temper,
             "settings": self.settings,
             "seed": int(self.seed),
             "seconds": _num(self.seconds),
@@ -211,6 +216,14 @@ class _Marginal:
         self.chol = np.linalg.cholesky(self.cov)
         self._Je, self._Minv = jnp.asarray(Je), jnp.asarray(self.Minv)
         self.chi2_hat = None
+        self.temper = 1.0
+
+    def tempered(self, c: float) -> None:
+        """Temper the likelihood to L^(1/c): information / c, covariance * c."""
+        self.temper = float(c)
+        self.F = self.F / c
+        self.cov = self.cov * c
+        self.chol = self.chol * math.sqrt(c)
 
     def exact_chi2(self, thetas: np.ndarray) -> np.ndarray:
         """|P r(theta, eta_hat)|^2 for (m, d) thetas, in fixed-size vmapped batches."""
@@ -236,7 +249,7 @@ class _Marginal:
         pts = self.check_points()
         chi = self.exact_chi2(np.vstack([self.theta_hat, pts]))
         self.chi2_hat = float(chi[0])
-        exact = chi[1:] - chi[0]
+        exact = (chi[1:] - chi[0]) / self.temper
         z = pts - self.theta_hat
         gauss = np.einsum("ij,jk,ik->i", z, self.F, z)
         diff = exact - gauss
@@ -277,10 +290,49 @@ def _exact_log_prob(marg: _Marginal):
         out = np.full(len(x), -np.inf)
         ok = np.isfinite(prior)
         if ok.any():
-            out[ok] = -0.5 * (marg.exact_chi2(x[ok]) - marg.chi2_hat)
+            out[ok] = -0.5 * (marg.exact_chi2(x[ok]) - marg.chi2_hat) / marg.temper
         return out
 
     return lp
+
+
+# ----- honest errors when the misfit is unexplained -------------------------------------
+
+TEMPERED = ("slip", "delta_l_mm", "rolling_resistance", "k_over_m")
+
+
+def tempering(res: FitResult) -> dict:
+    """The factor c >= 1 by which the likelihood is tempered (L^(1/c)) for `res`.
+
+    1 unless fitlug.explain left a misfit unexplained and widened the least-squares errors
+    to cluster-robust ones (res.robust). Then c is the largest ratio robust / naive
+    variance over the reported quantities, times (t_{G-1, 0.975} / z_0.975)^2 for the G
+    clusters of the robust covariance (a sandwich from G clusters has G - 1 degrees of
+    freedom: Cameron & Miller 2015), so that every posterior interval is at least as wide
+    as the small-sample robust least-squares one. The posterior keeps the likelihood's
+    shape (and its priors); only its information is divided by c.
+    """
+    info = getattr(res, "robust", None)
+    if not info:
+        return {"factor": 1.0}
+    ratios = {}
+    for q in TEMPERED:
+        a, b = info["naive_std"].get(q), info["robust_std"].get(q)
+        if a and b and math.isfinite(a) and math.isfinite(b) and a > 0:
+            ratios[q] = (b / a) ** 2
+    c = max([1.0, *ratios.values()])
+    G = info.get("clusters")
+    t_corr = 1.0
+    if G and G >= 2:
+        from scipy import stats
+
+        t_corr = (float(stats.t.ppf(0.975, G - 1)) / 1.959963984540054) ** 2
+    c *= t_corr
+    note = (f"{G} clusters: errors x {math.sqrt(t_corr):.3f} for t with {G - 1} degrees of "
+            "freedom" if G else "least squares")
+    return {"factor": float(c), "method": info["method"], "clusters": G,
+            "variance_ratios": {k: float(v) for k, v in ratios.items()},
+            "small_sample_factor": float(t_corr), "note": note}
 
 
 # ----- the verb ---------------------------------------------------------------------------
@@ -308,6 +360,9 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     t0 = time.perf_counter()
     names = slip_law_parameters(res)
     marg = _Marginal(res, names, batch=walkers // 2)
+    temper = tempering(res)
+    if temper["factor"] > 1.0:
+        marg.tempered(temper["factor"])
     check = marg.linearity_check()
     use = method
     if method == "auto":
@@ -324,11 +379,17 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     t2 = time.perf_counter()
     samples = _derived_samples(res, names, chain.flat())
     estimates = {k: _estimate(samples[k]) for k in REPORTED if k in samples}
+    unident = not_identifiable(samples, names)
     t3 = time.perf_counter()
     desc = {"gaussian": "emcee on the Gaussian limit of the linearly marginalised likelihood",
             "exact": "emcee on the exact-model, linearly marginalised likelihood"}[use]
+    how = "posterior (emcee)"
+    if temper["factor"] > 1.0:
+        how += (f", likelihood tempered by 1/{temper['factor']:.4g} so that its errors reach "
+                f"the {temper['method']} ones ({temper['note']}): unexplained misfit")
     return Posterior(estimates=estimates, samples=samples, chain=chain,
                      method=f"{use}: {desc}", check=check, seed=seed,
+                     not_identifiable=unident, uncertainty_method=how, temper=temper,
                      seconds=time.perf_counter() - t0, n_marginalised=marg.n_marginalised,
                      settings={"time_budget_s": time_budget_s, "min_tau_multiple":
                                min_tau_multiple, "target_ess": target_ess,
@@ -374,3 +435,15 @@ def _derived_samples(res: FitResult, names, flat_samples: np.ndarray) -> dict:
 def _estimate(x: np.ndarray) -> Estimate:
     lo, med, hi = np.percentile(x, [2.5, 50.0, 97.5])
     return Estimate(float(med), float(np.std(x, ddof=1)), (float(lo), float(hi)))
+
+
+def least_squares_identifiability(res: FitResult, *, seed: int = 0, draws: int = 4000) -> dict:
+    """quantity -> reason for a least-squares-only run (no chain): the same decision as the
+    posterior's (fitlug.posterior._identify), on draws from the Gaussian limit of the
+    marginal of the slip law (tempered like the posterior when the misfit is unexplained)."""
+    names = slip_law_parameters(res)
+    marg = _Marginal(res, names, batch=16)
+    c = tempering(res)["factor"]
+    rng = np.random.default_rng(seed)
+    th = marg.theta_hat + math.sqrt(c) * rng.standard_normal((draws, len(names))) @ marg.chol.T
+    return not_identifiable(_derived_samples(res, names, th), names)

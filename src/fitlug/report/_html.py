@@ -129,8 +129,9 @@ def _estimates(fj, st) -> str:
         e = fj.get(key)
         ls = lsq.get(_LSQ_NAME.get(key, key)) or {}
         if e is None:
-            rows.append([label, unit, "not identifiable" if key.startswith("stiff") else
-                         "&ndash;", "", "", "", ""])
+            why = (fj.get("not_identifiable") or {}).get(key)
+            rows.append([label, unit, "not identifiable" if why or key.startswith("stiff")
+                         else "&ndash;", "", "", html.escape(why or ""), ""])
             continue
         rows.append([label, unit, _fmt(e.get("value"), 6), _fmt(e.get("std"), 3),
                      _fmt(e.get("ci95"), 6), src,
@@ -204,6 +205,9 @@ def _posterior(st, fj) -> str:
     for key, label in _CORNER:
         if key == "k_over_m" and "stiffness_N_per_mm" in names:
             continue  # k itself is shown; k/m is the same up to the mass
+        if {"k_over_m": "k_over_m_N_per_mm_kg"}.get(key, key) in (fj.get("not_identifiable")
+                                                                  or {}):
+            continue  # nothing to draw: the data do not fix it
         if key in names:
             cols.append(names.index(key))
             labels.append(label)
