@@ -159,3 +159,30 @@ def test_fit_json_says_why_a_quantity_is_null(knocked):
     assert d["not_identifiable"] == {"stiffness_N_per_mm": "because",
                                      "k_over_m_N_per_mm_kg": "also"}
     assert d["slip"] is not None and math.isfinite(d["slip"]["std"])
+
+
+def test_effect_parameter_without_information_is_not_identifiable():
+    """body_bounce with one body marker: B (pitch) acts exactly like A (heave) at the one
+    marker, so the data carry no information on it; A stays identified."""
+    from fitlug.fit import build_problem
+    from fitlug.fit._fit import fit_problem, free_parameters
+
+    sc = SHORT.replace(body_markers=((10.0, 75.0),), lug_markers=6,
+                       effects={"body_bounce": {"bounce_A": 0.03, "bounce_phi": 0.4}})
+    rec, truth = simulate(sc, 4104)
+    prob = build_problem(rec, rig_of(sc), effects=("body_bounce",),
+                         noise={"lug": sc.noise_lug_mm, "body": sc.noise_body_mm})
+    p0 = dict(prob.p0)
+    p0.update(bounce_A=np.float64(0.03), bounce_phi=np.float64(0.4))
+    free = [k for k in free_parameters(prob.lay) if k != "bounce_B"]
+    res = fit_problem(prob, p0, free=free)
+    why = res.effect_identifiability("body_bounce")
+    assert set(why) == {"B_per_mm"}, why
+    assert "information" in why["B_per_mm"]
+    doc = fit_json(res, discrepancy={"effects": [
+        {"id": "body_bounce", "params": res.effect_params("body_bounce"),
+         "params_std": res.effect_params_std("body_bounce")}]})
+    e = doc["discrepancy"]["effects"][0]
+    assert e["params"]["B_per_mm"] is None and e["params"]["A_mm"] is not None
+    assert set(e["not_identifiable"]) == {"B_per_mm"}
+    jax.clear_caches()

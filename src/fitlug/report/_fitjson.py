@@ -85,23 +85,26 @@ def fit_json(res, *, input_path: str | None = None, mcmc=None, discrepancy=None,
         out["mcmc"] = None
         out.pop("mcmc")
     if discrepancy is not None:
-        out["discrepancy"] = _effect_identifiability(discrepancy)
+        out["discrepancy"] = _effect_identifiability(discrepancy, res)
     return out
 
 
-def _effect_identifiability(disc: dict) -> dict:
+def _effect_identifiability(disc: dict, res=None) -> dict:
     """Effect parameters the data cannot fix: null in `params`, the reason in the entry's
     `not_identifiable` (BRIEF). Decided from their delta-method standard error: a parameter
     whose information is singular at this geometry (std missing or not finite), or a phase
     whose std exceeds a quarter turn (its 95 % interval covers the circle), is not
     identifiable."""
     for e in disc.get("effects") or []:
-        params, std = e.get("params") or {}, e.get("params_std")
-        if std is None:
-            continue
+        params, std = e.get("params") or {}, e.get("params_std") or {}
         why = {}
+        if res is not None and hasattr(res, "effect_identifiability"):
+            try:
+                why.update(res.effect_identifiability(e["id"]))
+            except (KeyError, ValueError):  # the final model lost the effect
+                pass
         for k, v in params.items():
-            if v is None:
+            if v is None or k in why or k not in std:
                 continue
             sd = std.get(k)
             if sd is None or not np.isfinite(sd):
