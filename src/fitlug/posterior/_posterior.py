@@ -122,7 +122,7 @@ class Posterior:
             "priors": {**{k: v for k, v in {**_POSITIVE, **_NONNEG}.items()
                           if k in c.names}, "other": "flat"},
             "linearity_check": self.check,
-            "tempering": self.temper,
+            "tempering": {k: v for k, v in self.temper.items() if k != "cov"},
             "settings": self.settings,
             "seed": int(self.seed),
             "seconds": _num(self.seconds),
@@ -216,14 +216,32 @@ class _Marginal:
         self.chol = np.linalg.cholesky(self.cov)
         self._Je, self._Minv = jnp.asarray(Je), jnp.asarray(self.Minv)
         self.chi2_hat = None
-        self.temper = 1.0
+        self.stretch = None  # A: the likelihood is evaluated at theta_hat + A (theta - theta_hat)
 
-    def tempered(self, c: float) -> None:
-        """Temper the likelihood to L^(1/c): information / c, covariance * c."""
-        self.temper = float(c)
-        self.F = self.F / c
-        self.cov = self.cov * c
-        self.chol = self.chol * math.sqrt(c)
+    def widened(self, S: np.ndarray) -> None:
+        """Stretch the likelihood so that its Gaussian limit has covariance S.
+
+        L_w(theta) = L(theta_hat + A (theta - theta_hat)) with A^T F A = S^-1
+        (A = F^-1/2 S^-1/2): the likelihood's shape is kept, its information becomes S^-1.
+        For S = c cov this is the tempered likelihood L^(1/c) in the Gaussian limit.
+        """
+        d = np.sqrt(np.diag(self.cov))
+        Fs = self.F * np.outer(d, d)  # correlation form: s0 ~ 1e-6 and beta ~ 1e-8
+        Ss = S / np.outer(d, d)
+        w1, V1 = np.linalg.eigh(Fs)
+        w2, V2 = np.linalg.eigh(0.5 * (Ss + Ss.T))
+        As = (V1 / np.sqrt(w1)) @ V1.T @ (V2 / np.sqrt(w2)) @ V2.T
+        self.stretch = As * np.outer(d, 1.0 / d)
+        self.F = np.linalg.inv(0.5 * (S + S.T))
+        self.F = 0.5 * (self.F + self.F.T)
+        self.cov = 0.5 * (S + S.T)
+        self.chol = np.linalg.cholesky(self.cov)
+
+    def map_theta(self, thetas: np.ndarray) -> np.ndarray:
+        """Where the (stretched) likelihood is evaluated for these theta."""
+        if self.stretch is None:
+            return thetas
+        return self.theta_hat + (np.atleast_2d(thetas) - self.theta_hat) @ self.stretch.T
 
     def exact_chi2(self, thetas: np.ndarray) -> np.ndarray:
         """|P r(theta, eta_hat)|^2 for (m, d) thetas, in fixed-size vmapped batches."""
@@ -247,9 +265,9 @@ class _Marginal:
 
     def linearity_check(self) -> dict:
         pts = self.check_points()
-        chi = self.exact_chi2(np.vstack([self.theta_hat, pts]))
+        chi = self.exact_chi2(self.map_theta(np.vstack([self.theta_hat, pts])))
         self.chi2_hat = float(chi[0])
-        exact = (chi[1:] - chi[0]) / self.temper
+        exact = chi[1:] - chi[0]
         z = pts - self.theta_hat
         gauss = np.einsum("ij,jk,ik->i", z, self.F, z)
         diff = exact - gauss
@@ -290,7 +308,7 @@ def _exact_log_prob(marg: _Marginal):
         out = np.full(len(x), -np.inf)
         ok = np.isfinite(prior)
         if ok.any():
-            out[ok] = -0.5 * (marg.exact_chi2(x[ok]) - marg.chi2_hat) / marg.temper
+            out[ok] = -0.5 * (marg.exact_chi2(marg.map_theta(x[ok])) - marg.chi2_hat)
         return out
 
     return lp
@@ -301,38 +319,68 @@ def _exact_log_prob(marg: _Marginal):
 TEMPERED = ("slip", "delta_l_mm", "rolling_resistance", "k_over_m")
 
 
-def tempering(res: FitResult) -> dict:
-    """The factor c >= 1 by which the likelihood is tempered (L^(1/c)) for `res`.
+def tempering(res: FitResult, marg: "_Marginal | None" = None) -> dict:
+    """How the likelihood of `res` is widened: {"factor": 1.0} when it is not.
 
-    1 unless fitlug.explain left a misfit unexplained and widened the least-squares errors
-    to cluster-robust ones (res.robust). Then c is the largest ratio robust / naive
-    variance over the reported quantities, times (t_{G-1, 0.975} / z_0.975)^2 for the G
-    clusters of the robust covariance (a sandwich from G clusters has G - 1 degrees of
-    freedom: Cameron & Miller 2015), so that every posterior interval is at least as wide
-    as the small-sample robust least-squares one. The posterior keeps the likelihood's
-    shape (and its priors); only its information is divided by c.
+    Only when fitlug.explain left a misfit unexplained and widened the least-squares errors
+    to cluster-robust ones (res.robust). Then the posterior is made consistent with them:
+    the target covariance of the slip law is the theta-block of the robust covariance that
+    set the slip's error, times (t_{G-1, 0.975} / z_0.975)^2 for its G clusters (a
+    sandwich from G clusters has G - 1 degrees of freedom: Cameron & Miller 2015), scaled
+    up further if any reported quantity (slip, dl', C_rr, k/m) would still be narrower
+    than its own robust least-squares error (delta method). The likelihood is stretched to
+    that covariance (_Marginal.widened): its shape and the priors are kept.
+    Returns {"factor" (slip variance over the white-noise one), "cov", "method",
+    "clusters", "small_sample_factor", "extra_scale", "note"}.
     """
     info = getattr(res, "robust", None)
-    if not info:
+    if not info or info.get("cov") is None or info.get("method") == "least squares":
         return {"factor": 1.0}
-    ratios = {}
-    for q in TEMPERED:
-        a, b = info["naive_std"].get(q), info["robust_std"].get(q)
-        if a and b and math.isfinite(a) and math.isfinite(b) and a > 0:
-            ratios[q] = (b / a) ** 2
-    c = max([1.0, *ratios.values()])
+    if marg is None:
+        marg = _Marginal(res, slip_law_parameters(res), batch=16)
     G = info.get("clusters")
     t_corr = 1.0
     if G and G >= 2:
         from scipy import stats
 
         t_corr = (float(stats.t.ppf(0.975, G - 1)) / 1.959963984540054) ** 2
-    c *= t_corr
-    note = (f"{G} clusters: errors x {math.sqrt(t_corr):.3f} for t with {G - 1} degrees of "
-            "freedom" if G else "least squares")
-    return {"factor": float(c), "method": info["method"], "clusters": G,
-            "variance_ratios": {k: float(v) for k, v in ratios.items()},
-            "small_sample_factor": float(t_corr), "note": note}
+    sl = res.packing.slices()
+    idx = [sl[k].start for k in marg.names]
+    S = np.asarray(info["cov"])[np.ix_(idx, idx)] * t_corr
+    S = 0.5 * (S + S.T)
+    grads = _derived_gradients(res, marg.names, marg.theta_hat)
+    extra = 1.0
+    for q in TEMPERED:
+        want = info["robust_std"].get(q)
+        if q not in grads or not want or not math.isfinite(want):
+            continue
+        have = float(grads[q] @ S @ grads[q])
+        if have > 0:
+            extra = max(extra, want ** 2 * t_corr / have)
+    S = S * extra
+    g = grads["slip"]
+    naive = float(g @ marg.cov @ g)
+    factor = float(g @ S @ g) / naive if naive > 0 else float("inf")
+    note = (f"{G} clusters, errors x {math.sqrt(t_corr):.3f} for t with {G - 1} degrees of "
+            "freedom" if G else "no clusters")
+    return {"factor": factor, "cov": S, "method": info["method"], "clusters": G,
+            "small_sample_factor": float(t_corr), "extra_scale": float(extra), "note": note}
+
+
+def _derived_gradients(res: FitResult, names, theta_hat) -> dict:
+    """d quantity / d theta at theta_hat for the reported quantities."""
+    prob = res.problem
+    base = {k: jnp.asarray(v) for k, v in res.params.items()}
+
+    def f(th):
+        p = dict(base)
+        for i, k in enumerate(names):
+            p[k] = th[i]
+        q = derived(p, prob.lay, prob.rig.mass_kg)
+        return {k: q[k] for k in REPORTED if k in q}
+
+    jac = jax.jacfwd(f)(jnp.asarray(theta_hat, float))
+    return {k: np.asarray(v, float) for k, v in jac.items()}
 
 
 # ----- the verb ---------------------------------------------------------------------------
@@ -360,9 +408,9 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     t0 = time.perf_counter()
     names = slip_law_parameters(res)
     marg = _Marginal(res, names, batch=walkers // 2)
-    temper = tempering(res)
-    if temper["factor"] > 1.0:
-        marg.tempered(temper["factor"])
+    temper = tempering(res, marg)
+    if temper.get("cov") is not None:
+        marg.widened(temper.pop("cov"))
     check = marg.linearity_check()
     use = method
     if method == "auto":
@@ -385,8 +433,9 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
             "exact": "emcee on the exact-model, linearly marginalised likelihood"}[use]
     how = "posterior (emcee)"
     if temper["factor"] > 1.0:
-        how += (f", likelihood tempered by 1/{temper['factor']:.4g} so that its errors reach "
-                f"the {temper['method']} ones ({temper['note']}): unexplained misfit")
+        how += (f", likelihood tempered (stretched) to the {temper['method']} covariance "
+                f"({temper['note']}; slip error x {math.sqrt(temper['factor']):.3g} the "
+                "white-noise one): unexplained misfit")
     return Posterior(estimates=estimates, samples=samples, chain=chain,
                      method=f"{use}: {desc}", check=check, seed=seed,
                      not_identifiable=unident, uncertainty_method=how, temper=temper,
@@ -443,7 +492,9 @@ def least_squares_identifiability(res: FitResult, *, seed: int = 0, draws: int =
     marginal of the slip law (tempered like the posterior when the misfit is unexplained)."""
     names = slip_law_parameters(res)
     marg = _Marginal(res, names, batch=16)
-    c = tempering(res)["factor"]
+    temper = tempering(res, marg)
+    if temper.get("cov") is not None:
+        marg.widened(temper["cov"])
     rng = np.random.default_rng(seed)
-    th = marg.theta_hat + math.sqrt(c) * rng.standard_normal((draws, len(names))) @ marg.chol.T
+    th = marg.theta_hat + rng.standard_normal((draws, len(names))) @ marg.chol.T
     return not_identifiable(_derived_samples(res, names, th), names)
