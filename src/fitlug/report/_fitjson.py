@@ -91,10 +91,10 @@ def fit_json(res, *, input_path: str | None = None, mcmc=None, discrepancy=None,
 
 def _effect_identifiability(disc: dict, res=None) -> dict:
     """Effect parameters the data cannot fix: null in `params`, the reason in the entry's
-    `not_identifiable` (BRIEF). Decided from their delta-method standard error: a parameter
-    whose information is singular at this geometry (std missing or not finite), or a phase
-    whose std exceeds a quarter turn (its 95 % interval covers the circle), is not
-    identifiable."""
+    `not_identifiable` (BRIEF). Decided from the information: FitResult.effect_identifiability
+    (no information left in the parameter's Jacobian column), a standard error missing or
+    not finite, or a phase whose std exceeds a quarter turn (its 95 % interval covers the
+    circle)."""
     for e in disc.get("effects") or []:
         params, std = e.get("params") or {}, e.get("params_std") or {}
         why = {}
