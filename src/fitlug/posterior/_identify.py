@@ -33,10 +33,10 @@ LINEAR_R2 = 0.99
 
 _LABEL = {"slip": "the slip", "delta_l_mm": "dl'", "stiffness_N_per_mm": "k",
           "rolling_resistance": "C_rr", "k_over_m": "k/m"}
-_MEANING = {
-    "beta": ("the slope of the slip with acceleration, beta = ds/da; an acceleration phase "
-             "(or a known drawbar pull) is what fixes it"),
-    "s0": "the steady slip s0",
+_MEANING = {  # parameter -> (what it is, what would fix it)
+    "beta": ("beta = ds/da, the slope of the slip with acceleration",
+             "; an acceleration phase (or a known drawbar pull) would fix it"),
+    "s0": ("the steady slip s0", ""),
 }
 
 
@@ -84,10 +84,10 @@ def not_identifiable(samples: dict, names) -> dict:
         if np.isfinite(r) and r2 >= LINEAR_R2:
             continue
         lo, hi = np.percentile(np.asarray(samples[worst], float), [2.5, 97.5])
-        why = _MEANING.get(worst, worst)
-        out[q] = (f"the data leave {worst} undetermined (relative std {_pct(rel[worst])} > "
-                  f"{REL_STD_MAX:.0%}, 95 % interval {lo:.3g} … {hi:.3g}; {why}), and "
-                  f"{label} depends on it nonlinearly (its own relative std {_pct(r)})")
+        what, fix = _MEANING.get(worst, (worst, ""))
+        out[q] = (f"the data do not fix {what} (relative std {_pct(rel[worst])} > "
+                  f"{100 * REL_STD_MAX:.0f} %, 95 %: {lo:.2g} … {hi:.2g}) and {label} "
+                  f"depends on it nonlinearly{fix}")
     return out
 
 
