@@ -420,7 +420,9 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
 
     rng = np.random.default_rng(seed)
     p0 = _start(marg, walkers, rng)
-    budget = max(time_budget_s - (time.perf_counter() - t0), 1e-3)
+    # the chain keeps at least half the budget, however long the set-up took (compiles
+    # on a loaded machine): a chain starved to a few steps would report its start spread
+    budget = max(time_budget_s - (time.perf_counter() - t0), 0.5 * time_budget_s)
     chain = run_ensemble(log_prob, p0, names=names, seed=int(rng.integers(2 ** 31)),
                          time_budget_s=budget, min_tau_multiple=min_tau_multiple,
                          target_ess=target_ess, progress=progress)
