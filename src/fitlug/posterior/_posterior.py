@@ -20,6 +20,12 @@ optimum (principal axes and diagonals) and uses the Gaussian limit only when it 
 to `LINEARITY_TOL` in delta-chi^2 everywhere there; otherwise it samples the exact
 marginal under the time budget. The check's largest discrepancy is reported.
 
+When fitlug.explain leaves a misfit unexplained (res.robust set), the white-noise
+likelihood is orders of magnitude too confident: it is stretched to the cluster-robust
+covariance of the slip law (see `tempering`), so the posterior is never narrower than the
+robust least-squares errors. What the data cannot fix is found from the samples
+(`._identify`) and reported, not printed as a number (Posterior.not_identifiable).
+
 Priors (flat otherwise): beta > 0 (k > 0), s0 >= 0 (C_rr >= 0), slide_mu >= 0 (a
 positive friction limit F_max). The measurement noise per role is held at the fit's
 estimate (from ~10^4 residuals: its own uncertainty changes interval widths by < 1 %).
