@@ -44,7 +44,8 @@ def robust_result(res, geo: Geometry):
     Returns (result, method) where method names the covariance that set the slip's error.
     result.robust records what the posterior needs to widen itself consistently:
     {"method", "clusters" (number of clusters of that covariance, None for least squares),
-    "cov" (that covariance of the free parameters, packing order),
+    "cov" (that covariance of the free parameters, packing order), "covs" (every robust
+    covariance with its number of clusters),
     "naive_std" and "robust_std" (quantity -> standard error)}.
     """
     prob = res.problem
@@ -72,6 +73,7 @@ def robust_result(res, geo: Geometry):
         out[k] = dataclasses.replace(qs[best][k], ci95=None)  # interval from the new std
     method = max(qs, key=lambda n: (qs[n]["slip"].std or 0.0))
     info = {"method": method, "clusters": clusters[method], "cov": covs[method],
+            "covs": {n: (covs[n], clusters[n]) for n in qs if n != "least squares"},
             "naive_std": {k: e.std for k, e in res.quantities.items()},
             "robust_std": {k: e.std for k, e in out.items()}}
     return dataclasses.replace(res, quantities=out, robust=info), method

@@ -330,12 +330,14 @@ def tempering(res: FitResult, marg: "_Marginal | None" = None) -> dict:
 
     Only when fitlug.explain left a misfit unexplained and widened the least-squares errors
     to cluster-robust ones (res.robust). Then the posterior is made consistent with them:
-    the target covariance of the slip law is the theta-block of the robust covariance that
-    set the slip's error, times (t_{G-1, 0.975} / z_0.975)^2 for its G clusters (a
-    sandwich from G clusters has G - 1 degrees of freedom: Cameron & Miller 2015), scaled
-    up further if any reported quantity (slip, dl', C_rr, k/m) would still be narrower
-    than its own robust least-squares error (delta method). The likelihood is stretched to
-    that covariance (_Marginal.widened): its shape and the priors are kept.
+    each cluster-robust covariance of the slip law (by marker, by time block) is taken
+    times (t_{G-1, 0.975} / z_0.975)^2 for its G clusters (a sandwich from G clusters has
+    G - 1 degrees of freedom: Cameron & Miller 2015); each reported quantity (slip, dl',
+    C_rr, k/m) must be at least as wide as under any of them and as its robust
+    least-squares error (delta method). Of the candidates (each covariance, and their sum,
+    each scaled up until every quantity reaches its target) the one giving the slip the
+    smallest variance is used. The likelihood is stretched to that covariance
+    (_Marginal.widened): its shape and the priors are kept.
     Returns {"factor" (slip variance over the white-noise one), "cov", "method",
     "clusters", "small_sample_factor", "extra_scale", "note"}.
     """
@@ -344,32 +346,50 @@ def tempering(res: FitResult, marg: "_Marginal | None" = None) -> dict:
         return {"factor": 1.0}
     if marg is None:
         marg = _Marginal(res, slip_law_parameters(res), batch=16)
-    G = info.get("clusters")
-    t_corr = 1.0
-    if G and G >= 2:
-        from scipy import stats
+    from scipy import stats
 
-        t_corr = (float(stats.t.ppf(0.975, G - 1)) / 1.959963984540054) ** 2
     sl = res.packing.slices()
     idx = [sl[k].start for k in marg.names]
-    S = np.asarray(info["cov"])[np.ix_(idx, idx)] * t_corr
-    S = 0.5 * (S + S.T)
     grads = _derived_gradients(res, marg.names, marg.theta_hat)
-    extra = 1.0
+    g = grads["slip"]
+    cands = info.get("covs") or {info["method"]: (info["cov"], info.get("clusters"))}
+    blocks = {}
+    for name, (C, G) in cands.items():
+        t_corr = (float(stats.t.ppf(0.975, G - 1)) / 1.959963984540054) ** 2 if G and G >= 2 \
+            else 1.0
+        blocks[name] = (0.5 * (C + C.T)[np.ix_(idx, idx)] * t_corr, G, t_corr)
+    if len(blocks) > 1:  # their sum: at least as wide as each in every direction
+        blocks["sum of the cluster-robust covariances"] = (
+            sum(b[0] for b in blocks.values()), None,
+            max(b[2] for b in blocks.values()))
+    # each reported quantity's target variance: its robust least-squares one, and the
+    # largest t-corrected one of the cluster-robust covariances
+    target = {}
     for q in TEMPERED:
         want = info["robust_std"].get(q)
         if q not in grads or not want or not math.isfinite(want):
             continue
-        have = float(grads[q] @ S @ grads[q])
-        if have > 0:
-            extra = max(extra, want ** 2 * t_corr / have)
-    S = S * extra
+        target[q] = max([want ** 2] + [float(grads[q] @ b[0] @ grads[q])
+                                       for n, b in blocks.items() if n in cands])
+    best = None
+    for name, (S, G, t_corr) in blocks.items():
+        extra = 1.0  # so that no reported quantity is narrower than its target
+        for q, want2 in target.items():
+            have = float(grads[q] @ S @ grads[q])
+            if have > 0:
+                extra = max(extra, want2 / have)
+        var = float(g @ S @ g) * extra
+        if best is None or var < best[0]:
+            best = (var, name, S * extra, G, t_corr, extra)
+    var, method, S, G, t_corr, extra = best
     g = grads["slip"]
     naive = float(g @ marg.cov @ g)
     factor = float(g @ S @ g) / naive if naive > 0 else float("inf")
     note = (f"{G} clusters, errors x {math.sqrt(t_corr):.3f} for t with {G - 1} degrees of "
-            "freedom" if G else "no clusters")
-    return {"factor": factor, "cov": S, "method": info["method"], "clusters": G,
+            "freedom" if G else f"errors x {math.sqrt(t_corr):.3f} for t")
+    if extra > 1.0 + 1e-9:
+        note += f", x {math.sqrt(extra):.3f} so that no quantity is narrower than its own"
+    return {"factor": factor, "cov": S, "method": method, "clusters": G,
             "small_sample_factor": float(t_corr), "extra_scale": float(extra), "note": note}
 
 
