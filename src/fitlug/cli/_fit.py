@@ -55,15 +55,24 @@ def run(args) -> int:
         post = sample_posterior(final, seed=args.seed, progress=prog,
                                 time_budget_s=args.mcmc_budget)
 
+    if post is None:
+        from ..posterior import least_squares_identifiability
+
+        unident = least_squares_identifiability(final, seed=args.seed)
+    else:
+        unident = post.not_identifiable
+
     from ..report import fit_json
 
     doc = fit_json(final, input_path=args.csv,
                    posterior=None if post is None else post.estimates,
+                   not_identifiable=unident,
+                   uncertainty_method=None if post is None else post.uncertainty_method,
                    mcmc=None if post is None else post.mcmc_json(),
                    discrepancy=None if expl is None else expl.to_json())
     if post is None:
         doc["mcmc"] = None
-        doc["mcmc_skipped"] = "--no-mcmc: uncertainties are least-squares (Jacobian) errors"
+        doc["mcmc_skipped"] = f"--no-mcmc: uncertainties are {doc['uncertainty_method']}"
     if args.no_explain:
         doc["discrepancy_skipped"] = "--no-explain"
     _display_keys(doc, args)
@@ -110,11 +119,11 @@ def _display_keys(doc, args) -> None:
                    .strftime("%Y-%m-%d %H:%M UTC"))
 
 
-def _fmt(est, unit=""):
+def _fmt(est, unit="", reason=None):
     from ..report._format import interval, pm
 
     if not est or est.get("value") is None:
-        return "not identifiable"
+        return "not identifiable" + (f": {reason}" if reason else "")
     ci = est.get("ci95") or [None, None]
     u = f" {unit}" if unit else ""
     return (f"{pm(est['value'], est.get('std'))}{u}   ({interval(ci[0], ci[1], est.get('std'))})")
@@ -123,15 +132,15 @@ def _fmt(est, unit=""):
 def _summary(args, doc, out, report, seconds):
     from ..report._format import pm, sig, sigma_apart
 
-    stiff = doc["stiffness_N_per_mm"]
-    why = (doc.get("not_identifiable") or {}).get("stiffness_N_per_mm") or \
-        "needs [vehicle] mass_kg in rig.toml"
+    why = dict(doc.get("not_identifiable") or {})
+    why.setdefault("stiffness_N_per_mm", "needs [vehicle] mass_kg in rig.toml")
     lines = [
         f"fitlug: {doc['input']}   (± is 1 sigma: {doc.get('uncertainty_method', '')})",
-        f"  slip s0            {_fmt(doc['slip'])}",
-        f"  lug deflection Δl' {_fmt(doc['delta_l_mm'], 'mm')}",
-        f"  lug stiffness k    " + (_fmt(stiff, "N/mm") if stiff else f"not identifiable ({why})"),
-        f"  rolling resistance {_fmt(doc['rolling_resistance'])}",
+        f"  slip s0            {_fmt(doc['slip'], reason=why.get('slip'))}",
+        f"  lug deflection Δl' {_fmt(doc['delta_l_mm'], 'mm', why.get('delta_l_mm'))}",
+        f"  lug stiffness k    "
+        f"{_fmt(doc['stiffness_N_per_mm'], 'N/mm', why.get('stiffness_N_per_mm'))}",
+        f"  rolling resistance {_fmt(doc['rolling_resistance'], reason=why.get('rolling_resistance'))}",
         f"  chi2/dof           {doc['chi2_per_dof']:.3f}   (noise: body "
         f"{1000 * doc['noise_mm']['body']:.2f} µm, lug {1000 * doc['noise_mm']['lug']:.2f} µm)",
     ]

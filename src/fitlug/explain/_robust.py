@@ -42,6 +42,11 @@ def robust_result(res, geo: Geometry):
     """A copy of `res` whose quantities carry cluster-robust standard errors.
 
     Returns (result, method) where method names the covariance that set the slip's error.
+    result.robust records what the posterior needs to widen itself consistently:
+    {"method", "clusters" (number of clusters of that covariance, None for least squares),
+    "cov" (that covariance of the free parameters, packing order), "covs" (every robust
+    covariance with its number of clusters),
+    "naive_std" and "robust_std" (quantity -> standard error)}.
     """
     prob = res.problem
     fixed = {k: jnp.asarray(v, float) for k, v in res.params.items()
@@ -53,6 +58,9 @@ def robust_result(res, geo: Geometry):
     covs = {"least squares": res.cov,
             "cluster-robust by marker": _sandwich(J, r, geo.marker, Hinv),
             "cluster-robust by time block": _sandwich(J, r, blocks, Hinv)}
+    clusters = {"least squares": None,
+                "cluster-robust by marker": int(len(np.unique(geo.marker[geo.valid]))),
+                "cluster-robust by time block": int(len(np.unique(blocks[geo.valid])))}
     fixed_np = {k: v for k, v in res.params.items() if k not in res.packing.names}
     qs = {}
     for name, C in covs.items():
@@ -65,4 +73,8 @@ def robust_result(res, geo: Geometry):
         best = max(qs, key=lambda n: (qs[n][k].std or 0.0))
         out[k] = dataclasses.replace(qs[best][k], ci95=None)  # interval from the new std
     method = max(qs, key=lambda n: (qs[n]["slip"].std or 0.0))
-    return dataclasses.replace(res, quantities=out), method
+    info = {"method": method, "clusters": clusters[method], "cov": covs[method],
+            "covs": {n: (covs[n], clusters[n]) for n in qs if n != "least squares"},
+            "naive_std": {k: e.std for k, e in res.quantities.items()},
+            "robust_std": {k: e.std for k, e in out.items()}}
+    return dataclasses.replace(res, quantities=out, robust=info), method

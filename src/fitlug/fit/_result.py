@@ -85,6 +85,9 @@ class FitResult:
     converged: bool
     steps: int
     quantities: dict = field(default_factory=dict)  # name -> Estimate
+    # set by fitlug.explain when the verdict is 'unexplained': how the quantities' errors
+    # were widened (cluster-robust), see fitlug.explain._robust.robust_result
+    robust: dict | None = None
 
     @property
     def chi2_per_dof(self) -> float:
@@ -145,6 +148,68 @@ class FitResult:
         C = self.cov[np.ix_(idx, idx)]
         return {k: (None if g is None else float(np.sqrt(max(g @ C @ g, 0.0))))
                 for k, g in grads.items()}
+
+
+    def effect_identifiability(self, effect_id: str, tol: float = 1e-8) -> dict:
+        """Reported parameters of an effect the data cannot fix here: {name: reason}.
+
+        Decided from the Fisher information: for each of the effect's model parameters,
+        held or fitted, the information left in its Jacobian column once every other
+        fitted parameter has taken its share, |P_perp J_k|^2, against its own |J_k|^2. A
+        ratio below `tol` means the data cannot tell it from the others (or it does not
+        act at all: zero column): its reported counterparts are not identifiable. Covers
+        a parameter held by convention because the geometry makes it degenerate (B of
+        body_bounce with one body marker) and a free one at a degenerate geometry.
+        """
+        from ._lsq import Packing, jacobian
+
+        eff = CATALOG[effect_id]
+        p = {k: jnp.asarray(v, float) for k, v in self.params.items()}
+        internal = [k for k in eff.defaults if k in p and np.ndim(p[k]) == 0
+                    and k not in eff.fixed_in_fit]
+        if not internal:
+            return {}
+        held = [k for k in internal if k not in self.packing.names]
+        pk = Packing.of(p, set(self.packing.names) | set(held))
+        fixed = {k: v for k, v in p.items() if k not in pk.names}
+        prob = self.problem
+        J = np.asarray(jacobian(pk.pack(p), fixed, prob.lay, prob.obs, pk))
+        sl = pk.slices()
+        fitted = np.concatenate([np.arange(sl[k].start, sl[k].stop) for k in pk.names
+                                 if k not in held])
+        weak = {}
+        for k in internal:
+            i = sl[k].start
+            others = fitted[fitted != i]  # against the fitted parameters only
+            jk = J[:, i]
+            nk = float(jk @ jk)
+            A = J[:, others]
+            sc = 1.0 / np.maximum(np.linalg.norm(A, axis=0), 1e-300)
+            As = A * sc
+            coef, *_ = np.linalg.lstsq(As, jk, rcond=1e-12)
+            left = jk - As @ coef
+            ratio = float(left @ left) / nk if nk > 0 else 0.0
+            if ratio < tol:
+                weak[k] = ratio
+        if not weak:
+            return {}
+        base = {k: np.asarray(v, float) for k, v in self.params.items()}
+        rep0 = eff.report(base)
+        out = {}
+        for k, ratio in weak.items():
+            h = max(eff.scales.get(k, 1.0), 1e-9 * abs(float(base[k])))
+            q = dict(base)
+            q[k] = base[k] + h
+            rep = eff.report(q)
+            for name, v0 in rep0.items():
+                v1 = rep.get(name)
+                if v0 is None or v1 is None or abs(v1 - v0) > 1e-12 * max(abs(v0), 1e-300):
+                    how = ("held by the fit: " if k in held else "")
+                    out[name] = (f"{how}the data carry no information on {k} at this "
+                                 f"geometry: its effect on the markers is that of other "
+                                 f"parameters (information left {ratio:.1e} of its own, "
+                                 f"threshold {tol:.0e})")
+        return out
 
 
 def compute_quantities(res_params, packing, flat, cov, lay, mass_kg, fixed,

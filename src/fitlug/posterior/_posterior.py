@@ -20,6 +20,12 @@ optimum (principal axes and diagonals) and uses the Gaussian limit only when it 
 to `LINEARITY_TOL` in delta-chi^2 everywhere there; otherwise it samples the exact
 marginal under the time budget. The check's largest discrepancy is reported.
 
+When fitlug.explain leaves a misfit unexplained (res.robust set), the white-noise
+likelihood is orders of magnitude too confident: it is stretched to the cluster-robust
+covariance of the slip law (see `tempering`), so the posterior is never narrower than the
+robust least-squares errors. What the data cannot fix is found from the samples
+(`._identify`) and reported, not printed as a number (Posterior.not_identifiable).
+
 Priors (flat otherwise): beta > 0 (k > 0), s0 >= 0 (C_rr >= 0), slide_mu >= 0 (a
 positive friction limit F_max). The measurement noise per role is held at the fit's
 estimate (from ~10^4 residuals: its own uncertainty changes interval widths by < 1 %).
@@ -41,6 +47,7 @@ from .._errors import FitError
 from ..model.effects import CATALOG
 from ..fit._lsq import (LARGE_ENTRIES, chunk_plan, chunkable, jacobian, normal_equations,
                         residuals)
+from ._identify import not_identifiable
 from ._mcmc import Chain, autocorr_time, run_ensemble
 from ..fit._result import Estimate, FitResult, derived
 
@@ -82,6 +89,9 @@ class Posterior:
     n_marginalised: int
     settings: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)  # stage -> seconds
+    not_identifiable: dict = field(default_factory=dict)  # quantity -> reason
+    uncertainty_method: str = "posterior (emcee)"
+    temper: dict = field(default_factory=lambda: {"factor": 1.0})
 
     @property
     def parameters(self) -> tuple:
@@ -119,6 +129,7 @@ class Posterior:
             "priors": {**{k: v for k, v in {**_POSITIVE, **_NONNEG}.items()
                           if k in c.names}, "other": "flat"},
             "linearity_check": self.check,
+            "tempering": {k: v for k, v in self.temper.items() if k != "cov"},
             "settings": self.settings,
             "seed": int(self.seed),
             "seconds": _num(self.seconds),
@@ -247,6 +258,32 @@ class _Marginal:
         self._Je = None if JtJ is not None else jnp.asarray(Je)
         self._Minv = jnp.asarray(self.Minv)
         self.chi2_hat = None
+        self.stretch = None  # A: the likelihood is evaluated at theta_hat + A (theta - theta_hat)
+
+    def widened(self, S: np.ndarray) -> None:
+        """Stretch the likelihood so that its Gaussian limit has covariance S.
+
+        L_w(theta) = L(theta_hat + A (theta - theta_hat)) with A^T F A = S^-1
+        (A = F^-1/2 S^-1/2): the likelihood's shape is kept, its information becomes S^-1.
+        For S = c cov this is the tempered likelihood L^(1/c) in the Gaussian limit.
+        """
+        d = np.sqrt(np.diag(self.cov))
+        Fs = self.F * np.outer(d, d)  # correlation form: s0 ~ 1e-6 and beta ~ 1e-8
+        Ss = S / np.outer(d, d)
+        w1, V1 = np.linalg.eigh(Fs)
+        w2, V2 = np.linalg.eigh(0.5 * (Ss + Ss.T))
+        As = (V1 / np.sqrt(w1)) @ V1.T @ (V2 / np.sqrt(w2)) @ V2.T
+        self.stretch = As * np.outer(d, 1.0 / d)
+        self.F = np.linalg.inv(0.5 * (S + S.T))
+        self.F = 0.5 * (self.F + self.F.T)
+        self.cov = 0.5 * (S + S.T)
+        self.chol = np.linalg.cholesky(self.cov)
+
+    def map_theta(self, thetas: np.ndarray) -> np.ndarray:
+        """Where the (stretched) likelihood is evaluated for these theta."""
+        if self.stretch is None:
+            return thetas
+        return self.theta_hat + (np.atleast_2d(thetas) - self.theta_hat) @ self.stretch.T
 
     def exact_chi2(self, thetas: np.ndarray) -> np.ndarray:
         """|P r(theta, eta_hat)|^2 for (m, d) thetas, in fixed-size vmapped batches."""
@@ -276,7 +313,7 @@ class _Marginal:
 
     def linearity_check(self) -> dict:
         pts = self.check_points()
-        chi = self.exact_chi2(np.vstack([self.theta_hat, pts]))
+        chi = self.exact_chi2(self.map_theta(np.vstack([self.theta_hat, pts])))
         self.chi2_hat = float(chi[0])
         exact = chi[1:] - chi[0]
         z = pts - self.theta_hat
@@ -319,10 +356,99 @@ def _exact_log_prob(marg: _Marginal):
         out = np.full(len(x), -np.inf)
         ok = np.isfinite(prior)
         if ok.any():
-            out[ok] = -0.5 * (marg.exact_chi2(x[ok]) - marg.chi2_hat)
+            out[ok] = -0.5 * (marg.exact_chi2(marg.map_theta(x[ok])) - marg.chi2_hat)
         return out
 
     return lp
+
+
+# ----- honest errors when the misfit is unexplained -------------------------------------
+
+TEMPERED = ("slip", "delta_l_mm", "rolling_resistance", "k_over_m")
+
+
+def tempering(res: FitResult, marg: "_Marginal | None" = None) -> dict:
+    """How the likelihood of `res` is widened: {"factor": 1.0} when it is not.
+
+    Only when fitlug.explain left a misfit unexplained and widened the least-squares errors
+    to cluster-robust ones (res.robust). Then the posterior is made consistent with them:
+    each cluster-robust covariance of the slip law (by marker, by time block) is taken
+    times (t_{G-1, 0.975} / z_0.975)^2 for its G clusters (a sandwich from G clusters has
+    G - 1 degrees of freedom: Cameron & Miller 2015); each reported quantity (slip, dl',
+    C_rr, k/m) must be at least as wide as under any of them and as its robust
+    least-squares error (delta method). Of the candidates (each covariance, and their sum,
+    each scaled up until every quantity reaches its target) the one giving the slip the
+    smallest variance is used. The likelihood is stretched to that covariance
+    (_Marginal.widened): its shape and the priors are kept.
+    Returns {"factor" (slip variance over the white-noise one), "cov", "method",
+    "clusters", "small_sample_factor", "extra_scale", "note"}.
+    """
+    info = getattr(res, "robust", None)
+    if not info or info.get("cov") is None or info.get("method") == "least squares":
+        return {"factor": 1.0}
+    if marg is None:
+        marg = _Marginal(res, slip_law_parameters(res), batch=16)
+    from scipy import stats
+
+    sl = res.packing.slices()
+    idx = [sl[k].start for k in marg.names]
+    grads = _derived_gradients(res, marg.names, marg.theta_hat)
+    g = grads["slip"]
+    cands = info.get("covs") or {info["method"]: (info["cov"], info.get("clusters"))}
+    blocks = {}
+    for name, (C, G) in cands.items():
+        t_corr = (float(stats.t.ppf(0.975, G - 1)) / 1.959963984540054) ** 2 if G and G >= 2 \
+            else 1.0
+        blocks[name] = (0.5 * (C + C.T)[np.ix_(idx, idx)] * t_corr, G, t_corr)
+    if len(blocks) > 1:  # their sum: at least as wide as each in every direction
+        blocks["sum of the cluster-robust covariances"] = (
+            sum(b[0] for b in blocks.values()), None,
+            max(b[2] for b in blocks.values()))
+    # each reported quantity's target variance: its robust least-squares one, and the
+    # largest t-corrected one of the cluster-robust covariances
+    target = {}
+    for q in TEMPERED:
+        want = info["robust_std"].get(q)
+        if q not in grads or not want or not math.isfinite(want):
+            continue
+        target[q] = max([want ** 2] + [float(grads[q] @ b[0] @ grads[q])
+                                       for n, b in blocks.items() if n in cands])
+    best = None
+    for name, (S, G, t_corr) in blocks.items():
+        extra = 1.0  # so that no reported quantity is narrower than its target
+        for q, want2 in target.items():
+            have = float(grads[q] @ S @ grads[q])
+            if have > 0:
+                extra = max(extra, want2 / have)
+        var = float(g @ S @ g) * extra
+        if best is None or var < best[0]:
+            best = (var, name, S * extra, G, t_corr, extra)
+    var, method, S, G, t_corr, extra = best
+    g = grads["slip"]
+    naive = float(g @ marg.cov @ g)
+    factor = float(g @ S @ g) / naive if naive > 0 else float("inf")
+    note = (f"{G} clusters, errors x {math.sqrt(t_corr):.3f} for t with {G - 1} degrees of "
+            "freedom" if G else f"errors x {math.sqrt(t_corr):.3f} for t")
+    if extra > 1.0 + 1e-9:
+        note += f", x {math.sqrt(extra):.3f} so that no quantity is narrower than its own"
+    return {"factor": factor, "cov": S, "method": method, "clusters": G,
+            "small_sample_factor": float(t_corr), "extra_scale": float(extra), "note": note}
+
+
+def _derived_gradients(res: FitResult, names, theta_hat) -> dict:
+    """d quantity / d theta at theta_hat for the reported quantities."""
+    prob = res.problem
+    base = {k: jnp.asarray(v) for k, v in res.params.items()}
+
+    def f(th):
+        p = dict(base)
+        for i, k in enumerate(names):
+            p[k] = th[i]
+        q = derived(p, prob.lay, prob.rig.mass_kg)
+        return {k: q[k] for k in REPORTED if k in q}
+
+    jac = jax.jacfwd(f)(jnp.asarray(theta_hat, float))
+    return {k: np.asarray(v, float) for k, v in jac.items()}
 
 
 # ----- the verb ---------------------------------------------------------------------------
@@ -350,6 +476,9 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     t0 = time.perf_counter()
     names = slip_law_parameters(res)
     marg = _Marginal(res, names, batch=walkers // 2)
+    temper = tempering(res, marg)
+    if temper.get("cov") is not None:
+        marg.widened(temper.pop("cov"))
     check = marg.linearity_check()
     use = method
     if method == "auto":
@@ -359,18 +488,27 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
 
     rng = np.random.default_rng(seed)
     p0 = _start(marg, walkers, rng)
-    budget = max(time_budget_s - (time.perf_counter() - t0), 1e-3)
+    # the chain keeps at least half the budget, however long the set-up took (compiles
+    # on a loaded machine): a chain starved to a few steps would report its start spread
+    budget = max(time_budget_s - (time.perf_counter() - t0), 0.5 * time_budget_s)
     chain = run_ensemble(log_prob, p0, names=names, seed=int(rng.integers(2 ** 31)),
                          time_budget_s=budget, min_tau_multiple=min_tau_multiple,
                          target_ess=target_ess, progress=progress)
     t2 = time.perf_counter()
     samples = _derived_samples(res, names, chain.flat())
     estimates = {k: _estimate(samples[k]) for k in REPORTED if k in samples}
+    unident = not_identifiable(samples, names)
     t3 = time.perf_counter()
     desc = {"gaussian": "emcee on the Gaussian limit of the linearly marginalised likelihood",
             "exact": "emcee on the exact-model, linearly marginalised likelihood"}[use]
+    how = "posterior (emcee)"
+    if temper["factor"] > 1.0:
+        how += (f", likelihood tempered (stretched) to the {temper['method']} covariance "
+                f"({temper['note']}; slip error x {math.sqrt(temper['factor']):.3g} the "
+                "white-noise one): unexplained misfit")
     return Posterior(estimates=estimates, samples=samples, chain=chain,
                      method=f"{use}: {desc}", check=check, seed=seed,
+                     not_identifiable=unident, uncertainty_method=how, temper=temper,
                      seconds=time.perf_counter() - t0, n_marginalised=marg.n_marginalised,
                      settings={"time_budget_s": time_budget_s, "min_tau_multiple":
                                min_tau_multiple, "target_ess": target_ess,
@@ -416,3 +554,17 @@ def _derived_samples(res: FitResult, names, flat_samples: np.ndarray) -> dict:
 def _estimate(x: np.ndarray) -> Estimate:
     lo, med, hi = np.percentile(x, [2.5, 50.0, 97.5])
     return Estimate(float(med), float(np.std(x, ddof=1)), (float(lo), float(hi)))
+
+
+def least_squares_identifiability(res: FitResult, *, seed: int = 0, draws: int = 4000) -> dict:
+    """quantity -> reason for a least-squares-only run (no chain): the same decision as the
+    posterior's (fitlug.posterior._identify), on draws from the Gaussian limit of the
+    marginal of the slip law (tempered like the posterior when the misfit is unexplained)."""
+    names = slip_law_parameters(res)
+    marg = _Marginal(res, names, batch=16)
+    temper = tempering(res, marg)
+    if temper.get("cov") is not None:
+        marg.widened(temper["cov"])
+    rng = np.random.default_rng(seed)
+    th = marg.theta_hat + rng.standard_normal((draws, len(names))) @ marg.chol.T
+    return not_identifiable(_derived_samples(res, names, th), names)

@@ -15,20 +15,42 @@ def _num(x):
     return x if np.isfinite(x) else None
 
 
+# quantity name (FitResult.quantities, Posterior.estimates) -> fit.json key
+JSON_KEY = {"slip": "slip", "delta_l_mm": "delta_l_mm", "stiffness_N_per_mm":
+            "stiffness_N_per_mm", "rolling_resistance": "rolling_resistance",
+            "k_over_m": "k_over_m_N_per_mm_kg"}
+NO_MASS = ("no mass in rig.toml ([vehicle] mass_kg): the data measure k/m "
+           "(k_over_m_N_per_mm_kg), not k")
+
+
 def fit_json(res, *, input_path: str | None = None, mcmc=None, discrepancy=None,
-             posterior=None) -> dict:
+             posterior=None, not_identifiable=None, uncertainty_method=None) -> dict:
     """The fit.json dictionary of a least-squares result (plus posterior / discrepancy blocks).
 
     `posterior`: name -> Estimate from the sampler; it replaces the least-squares estimates
     of slip, delta_l_mm, stiffness_N_per_mm and rolling_resistance when given.
+    `not_identifiable`: quantity name -> reason (fitlug.posterior's decision): those keys
+    are null and the reasons go to the top-level "not_identifiable" {fit.json key: reason}.
+    `uncertainty_method`: how the headline errors were made (default: from the inputs).
     """
     q = dict(res.quantities)
     prob = res.problem
     rig = prob.rig
     if posterior:
         q.update(posterior)
+    unident = {JSON_KEY.get(k, k): v for k, v in (not_identifiable or {}).items()}
+    if rig.mass_kg is None:
+        unident["stiffness_N_per_mm"] = NO_MASS
+    if uncertainty_method is None:
+        robust = getattr(res, "robust", None)
+        uncertainty_method = (
+            "posterior (emcee)" if posterior else
+            f"least squares, {robust['method']} errors (unexplained misfit)" if robust else
+            "least squares (Jacobian)")
 
     def est(name):
+        if JSON_KEY.get(name, name) in unident:
+            return None
         e = q.get(name)
         return None if e is None else e.as_dict()
 
@@ -50,7 +72,8 @@ def fit_json(res, *, input_path: str | None = None, mcmc=None, discrepancy=None,
                           "chi2": _num(res.chi2), "dof": int(res.dof),
                           "n_params": int(res.n_params), "n_data": int(res.n_data),
                           "effects": list(res.effects)},
-        "uncertainty_method": "posterior (emcee)" if posterior else "least squares (Jacobian)",
+        "uncertainty_method": uncertainty_method,
+        "not_identifiable": unident,
         "rig": {"load_bearing_length_mm": rig.load_bearing_length_mm,
                 "lugs_in_contact": rig.lugs_in_contact, "lug_pitch_mm": rig.lug_pitch_mm,
                 "mass_kg": rig.mass_kg,
@@ -71,5 +94,35 @@ def fit_json(res, *, input_path: str | None = None, mcmc=None, discrepancy=None,
         out["mcmc"] = None
         out.pop("mcmc")
     if discrepancy is not None:
-        out["discrepancy"] = discrepancy
+        out["discrepancy"] = _effect_identifiability(discrepancy, res)
     return out
+
+
+def _effect_identifiability(disc: dict, res=None) -> dict:
+    """Effect parameters the data cannot fix: null in `params`, the reason in the entry's
+    `not_identifiable` (BRIEF). Decided from the information: FitResult.effect_identifiability
+    (no information left in the parameter's Jacobian column), a standard error missing or
+    not finite, or a phase whose std exceeds a quarter turn (its 95 % interval covers the
+    circle)."""
+    for e in disc.get("effects") or []:
+        params, std = e.get("params") or {}, e.get("params_std") or {}
+        why = {}
+        if res is not None and hasattr(res, "effect_identifiability"):
+            try:
+                why.update(res.effect_identifiability(e["id"]))
+            except (KeyError, ValueError):  # the final model lost the effect
+                pass
+        for k, v in params.items():
+            if v is None or k in why or k not in std:
+                continue
+            sd = std.get(k)
+            if sd is None or not np.isfinite(sd):
+                why[k] = ("the data carry no information on it at this geometry (singular "
+                          "Fisher information)")
+            elif "phi" in k and sd > np.pi / 2:
+                why[k] = (f"its std {sd:.2g} rad exceeds a quarter turn: the data do not fix "
+                          "the phase")
+        if why:
+            e["params"] = {k: (None if k in why else v) for k, v in params.items()}
+            e["not_identifiable"] = why
+    return disc

@@ -512,6 +512,9 @@ def _posterior(st, fj) -> str:
     for key, label in _CORNER:
         if key == "k_over_m" and "stiffness_N_per_mm" in names:
             continue  # k itself is shown; k/m is the same up to the mass
+        if {"k_over_m": "k_over_m_N_per_mm_kg"}.get(key, key) in (fj.get("not_identifiable")
+                                                                  or {}):
+            continue  # nothing to draw: the data do not fix it
         if key in names:
             cols.append(names.index(key))
             labels.append(label)
