@@ -32,7 +32,7 @@ import os
 import sys
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 
 import numpy as np
 
@@ -142,21 +142,42 @@ def main(argv=None):
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--seed0", type=int, default=1000)
     ap.add_argument("--out", default=None, help="write every result as JSON")
+    ap.add_argument("--log", default=None,
+                    help="append one JSON line per recording as it finishes (a run cut short "
+                         "keeps what it did)")
+    ap.add_argument("--from-log", default=None, help="summarise a --log file, no new fits")
     a = ap.parse_args(argv)
     rows = [r for r in a.rows.split(",") if r]
     effects = [e for e in a.effects.split(",") if e] if a.n_effect > 0 else []
+    if a.from_log:
+        with open(a.from_log) as fh:
+            results = [json.loads(line) for line in fh if line.strip()]
+        print(f"{len(results)} recordings from {a.from_log}")
+        summarise(results, rows, effects)
+        return
     tasks = []
     for row in rows:
         tasks += [(row, None, a.seed0 + k) for k in range(a.n)]
         for i, e in enumerate(effects):
             tasks += [(row, e, a.seed0 + 10000 * (i + 1) + k) for k in range(a.n_effect)]
+    # interleave rows and effects, so that a run cut short has a bit of every row
+    tasks = sorted(tasks, key=lambda t: (t[2] % 10000, t[0], t[1] or ""))
     t0 = time.perf_counter()
+    log = open(a.log, "a") if a.log else None
+
+    def keep(r):
+        if log is not None:
+            log.write(json.dumps(r) + "\n")
+            log.flush()
+        return r
+
     if a.workers > 1:
         ctx = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(a.workers, mp_context=ctx) as ex:
-            results = list(ex.map(one, tasks))
+            futures = [ex.submit(one, t) for t in tasks]
+            results = [keep(f.result()) for f in as_completed(futures)]
     else:
-        results = [one(t) for t in tasks]
+        results = [keep(one(t)) for t in tasks]
     print(f"{len(tasks)} recordings in {time.perf_counter() - t0:.0f} s with "
           f"{a.workers} worker(s)")
     summarise(results, rows, effects)
