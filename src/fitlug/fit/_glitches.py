@@ -1,0 +1,213 @@
+"""Glitches: isolated gross errors of the tracker, found, listed and kept out of the fit.
+
+A tracker now and then jumps for one frame or two to a reflection or a neighbour
+(MODEL.md §2, end): a sample a fraction of a millimetre or more off, while the samples
+around it are fine. Such a sample is not physics: it is found here, its weight set to
+zero, and it is listed (fit.json `glitches`).
+
+The rule (a test on standardised residuals with the noise known from the data):
+
+1. Residuals of the fit, data minus model, in units of the noise sigma per role (which
+   comes from 4th differences of the data, median/MAD based and clipped, so a few
+   glitches do not move it), for every valid sample, flagged ones included.
+2. For each sample t of a marker, the *local level* of its residuals: a quadratic in time
+   (a line when fewer neighbours) fitted, per axis, to its neighbours 2 to 5 frames away
+   on both sides (t-1 and t+1 are left out, so that a glitch of two consecutive frames
+   does not pull its own prediction). The model's slow misfit (an effect not yet in the
+   model, a speed profile pulled by the glitch itself) is smooth over those 11 frames
+   and the local level follows it.
+3. The statistic z_t^2 = (e_x^2 + e_y^2) / ((1 + h_t) s_t^2), with e the sample's
+   deviation from its local level, h_t the prediction's leverage (the variance of the
+   prediction in units of sigma^2) and s_t^2 = max(1, chi^2/dof of the neighbours about
+   their fit): a sample is judged against the local roughness when that is larger than
+   the noise. Under the noise alone z^2 is chi^2 with 2 degrees of freedom.
+4. Threshold: the family-wise false-alarm rate ALPHA = 1 % over all N valid samples
+   (Bonferroni): P(z^2 > c^2) = exp(-c^2/2) = ALPHA / N, c = sqrt(2 ln(N / ALPHA)).
+   N = 7800 gives c = 5.2 sigma (34 um for a 6.5 um lug noise).
+5. Samples above c are flagged worst first (a local maximum within 5 frames), the
+   neighbour fits recomputed without them, until none is left above c. A run of more than
+   MAX_RUN consecutive flagged frames is not isolated and is unflagged.
+6. Isolation is what tells a glitch from a marker that jumps and STAYS jumped: after such a
+   step every sample agrees with its neighbours, and the few samples at the step see
+   neighbours that disagree among themselves (s_t is large), so nothing is flagged and the
+   step remains a located mismatch of that marker.
+
+:func:`fitlug.fit.fit` sets the flagged samples' weights to zero, refits, and repeats the
+search on the new residuals (flags are recomputed from scratch each round, so a flag
+caused by the first fit's distortion is dropped) until the set no longer changes, at
+most MAX_ROUNDS rounds. The problem keeps the zero weights, so the explanation's
+candidate fits and the posterior see the clean problem.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import _jaxconfig  # noqa: F401
+from ..model import predict
+
+ALPHA = 0.01
+MAX_RUN = 3
+MAX_ROUNDS = 3
+NEAR, FAR = 2, 5  # neighbours used: frames NEAR..FAR away on each side
+_MAX_PASSES = 20
+
+RULE = ("standardised residual of each sample (noise per role from 4th differences of the "
+        "data) against the local level of its marker's residuals (a quadratic through the "
+        f"neighbours {NEAR}-{FAR} frames away on both sides), scaled by the prediction's "
+        "leverage and the neighbours' own roughness; flagged when z^2 > 2 ln(N / alpha), a "
+        f"family-wise false-alarm rate alpha = {ALPHA:g} over the N valid samples "
+        f"(Bonferroni, chi^2 with 2 dof); runs of more than {MAX_RUN} consecutive frames "
+        "are not isolated and not glitches; flagged samples get zero weight and the fit is "
+        f"repeated until the set is stable (at most {MAX_ROUNDS} rounds)")
+
+
+def threshold(n_samples: int, alpha: float = ALPHA) -> float:
+    """c with P(chi^2_2 > c^2) = alpha / n_samples (Bonferroni over the samples)."""
+    return math.sqrt(2.0 * math.log(max(n_samples, 1) / alpha))
+
+
+@jax.jit
+def _predict(p, lay):
+    return predict(p, lay)
+
+
+def standardised_residuals(res) -> dict:
+    """Data minus model in units of the role's noise, for every valid sample (flagged too).
+
+    Returns {'lug': (ex, ey, valid), 'body': (...)} over the problem's lug / body rows.
+    """
+    prob = res.problem
+    p = {k: jnp.asarray(v, float) for k, v in res.params.items()}
+    lx, ly, bx, by = (np.asarray(a) for a in _predict(p, prob.lay))
+    rec = prob.rec
+    out = {}
+    for role, rows, mx, my in (("lug", prob.lug_rows, lx, ly), ("body", prob.body_rows, bx, by)):
+        x, y = np.asarray(rec.x[rows], float), np.asarray(rec.y[rows], float)
+        valid = np.isfinite(x) & np.isfinite(y)
+        s = float(prob.noise[role])
+        ex = np.where(valid, (np.where(valid, x, 0.0) - mx) / s, 0.0)
+        ey = np.where(valid, (np.where(valid, y, 0.0) - my) / s, 0.0)
+        out[role] = (ex, ey, valid)
+    return out
+
+
+def _local_z(t, ex, ey, ok, fps):
+    """z statistic of every sample of one series (time-sorted) against its neighbours.
+
+    `ok`: samples usable as neighbours (valid and not flagged). Returns z (nan where a
+    sample has too few neighbours to be judged).
+    """
+    n = len(t)
+    offs = np.r_[np.arange(-FAR, -NEAR + 1), np.arange(NEAR, FAR + 1)]
+    frame = np.rint((t - t[0]) * fps).astype(np.int64)
+    # neighbour at a frame offset: the sample with that frame number, if any
+    pos = np.full(int(frame[-1]) + 1 + 2 * FAR, -1, np.int64)
+    pos[frame] = np.arange(n)
+    want = frame[:, None] + offs[None, :]
+    inside = (want >= 0) & (want <= frame[-1])
+    idx = np.where(inside, pos[np.clip(want, 0, len(pos) - 1)], -1)
+    have = (idx >= 0)
+    have &= np.where(have, ok[np.clip(idx, 0, n - 1)], False)
+    w = have.astype(float)
+    u = offs[None, :].astype(float) * np.ones((n, 1)) / FAR  # in units of the window
+    n_left = np.sum(have & (offs[None, :] < 0), 1)
+    n_right = np.sum(have & (offs[None, :] > 0), 1)
+    n_nb = n_left + n_right
+    deg = np.where((n_left >= 2) & (n_right >= 2) & (n_nb >= 5), 2, 1)
+    judged = (n_nb >= 3) & ((n_left >= 1) & (n_right >= 1) | (n_nb >= 4))
+    V = np.stack([np.ones_like(u), u, np.where(deg[:, None] == 2, u * u, 0.0)], -1)  # (n,8,3)
+    A = np.einsum("nk,nki,nkj->nij", w, V, V)
+    A[:, 2, 2] += (deg == 1)  # a line: the quadratic's column is zero, keep A invertible
+    A += 1e-12 * np.eye(3)
+    Ainv = np.linalg.inv(A)
+    zi = np.clip(idx, 0, n - 1)
+    out2 = np.zeros(n)
+    rss = np.zeros(n)
+    for e in (ex, ey):
+        b = np.einsum("nk,nki,nk->ni", w, V, e[zi])
+        c = np.einsum("nij,nj->ni", Ainv, b)
+        fitv = np.einsum("nki,ni->nk", V, c)
+        rss += np.sum(w * (e[zi] - fitv) ** 2, 1)
+        out2 += (e - c[:, 0]) ** 2  # prediction at u = 0 is the constant term
+    h = Ainv[:, 0, 0]  # leverage of the prediction at u = 0
+    dof = 2 * (n_nb - (deg + 1))
+    rough = np.where(dof > 0, rss / np.maximum(dof, 1), 1.0)
+    s2 = np.maximum(1.0, rough)
+    z = np.sqrt(out2 / ((1.0 + h) * s2))
+    return np.where(judged, z, np.nan)
+
+
+def _runs(flag_frames: np.ndarray) -> list:
+    """Split sorted frame numbers into runs of consecutive frames."""
+    if len(flag_frames) == 0:
+        return []
+    cut = np.flatnonzero(np.diff(flag_frames) > 1) + 1
+    return np.split(np.arange(len(flag_frames)), cut)
+
+
+def find(res, alpha: float = ALPHA) -> dict:
+    """Glitches of a fit: {'lug': bool mask over lug rows, 'body': ..., 'z': {...}, 'c': c}."""
+    prob = res.problem
+    lay = prob.lay
+    fps = float(prob.init_info.get("fps") or 100.0)
+    std = standardised_residuals(res)
+    n_valid = sum(int(v[2].sum()) for v in std.values())
+    c = threshold(n_valid, alpha)
+    out = {"c": c, "n": n_valid, "z": {}}
+    for role, t_all, idx_all in (("lug", np.asarray(lay.lug_t), np.asarray(lay.lug_i)),
+                                 ("body", np.asarray(lay.body_t), np.asarray(lay.body_j))):
+        ex, ey, valid = std[role]
+        flag = np.zeros(len(t_all), bool)
+        zall = np.zeros(len(t_all))
+        for m in np.unique(idx_all):
+            rows = np.flatnonzero((idx_all == m) & valid)
+            if len(rows) < 4:
+                continue
+            rows = rows[np.argsort(t_all[rows], kind="stable")]
+            t = t_all[rows]
+            f = np.zeros(len(rows), bool)
+            frame = np.rint((t - t[0]) * fps).astype(np.int64)
+            for _ in range(_MAX_PASSES):
+                z = _local_z(t, ex[rows], ey[rows], ~f, fps)
+                zz = np.where(np.isfinite(z) & ~f, z, 0.0)
+                cand = np.flatnonzero(zz > c)
+                if len(cand) == 0:
+                    break
+                # local maxima within FAR frames: the worst of a cluster goes first
+                new = [i for i in cand
+                       if zz[i] >= zz[np.abs(frame - frame[i]) <= FAR].max()]
+                f[new] = True
+            z = _local_z(t, ex[rows], ey[rows], ~f, fps)
+            for run in _runs(frame[f]):
+                if len(run) > MAX_RUN:
+                    f[np.flatnonzero(f)[run]] = False
+            flag[rows] = f
+            zall[rows] = np.where(np.isfinite(z), z, 0.0)
+        out[role] = flag
+        out["z"][role] = zall
+    out["std"] = std
+    return out
+
+
+def listing(res, found: dict) -> list:
+    """fit.json `glitches`: [{marker, time_s, dx_mm, dy_mm, size_sigma}], in time order."""
+    prob = res.problem
+    rec = prob.rec
+    out = []
+    for role, rows in (("lug", prob.lug_rows), ("body", prob.body_rows)):
+        flag = found[role]
+        ex, ey, _ = found["std"][role]
+        s = float(prob.noise[role])
+        for i in np.flatnonzero(flag):
+            r = rows[i]
+            out.append({"marker": rec.markers[int(rec.marker_index[r])], "role": role,
+                        "time_s": float(rec.t[r]), "dx_mm": float(ex[i] * s),
+                        "dy_mm": float(ey[i] * s), "size_sigma": float(found["z"][role][i])})
+    out.sort(key=lambda g: (g["time_s"], g["marker"]))
+    return out
