@@ -20,7 +20,11 @@ The rule (a test on standardised residuals with the noise known from the data):
    deviation from its local level, h_t the prediction's leverage (the variance of the
    prediction in units of sigma^2) and s_t^2 = max(1, chi^2/dof of the neighbours about
    their fit): a sample is judged against the local roughness when that is larger than
-   the noise. Under the noise alone z^2 is chi^2 with 2 degrees of freedom.
+   the noise. Under the noise alone z^2 is chi^2 with 2 degrees of freedom (a little
+   less extreme: the clip at 1). The fit leaves out one neighbour that is itself far off
+   the others (another glitch nearby). z is then capped by the sample's distance from the
+   mean of each side's neighbours alone: a glitch stands off both sides, the edge of a
+   step agrees with one of them.
 4. Threshold: the family-wise false-alarm rate ALPHA = 1 % over all N valid samples
    (Bonferroni): P(z^2 > c^2) = exp(-c^2/2) = ALPHA / N, c = sqrt(2 ln(N / ALPHA)).
    N = 7800 gives c = 5.2 sigma (34 um for a 6.5 um lug noise).
@@ -56,6 +60,7 @@ MAX_RUN = 3
 MAX_ROUNDS = 3
 NEAR, FAR = 2, 5  # neighbours used: frames NEAR..FAR away on each side
 _MAX_PASSES = 20
+NEIGHBOUR_OUT = 5.0  # sigma: a neighbour this far off the others' fit is left out
 
 RULE = ("standardised residual of each sample (noise per role from 4th differences of the "
         "data) against the local level of its marker's residuals (a quadratic through the "
@@ -97,50 +102,84 @@ def standardised_residuals(res) -> dict:
     return out
 
 
+def _fit_local(w, V, E, zi):
+    """Weighted local fits, per axis, of the residual series E on each sample's neighbours.
+
+    w (n, K) neighbour weights (0/1), V (n, K, 3) design (a zero third column: a line),
+    zi (n, K) neighbour positions. Returns (coefficients per axis (n, 3), the leverage of
+    the prediction at u = 0 in units of sigma^2, RSS over both axes).
+    """
+    A = np.einsum("nk,nki,nkj->nij", w, V, V)
+    A[:, 2, 2] += np.all(V[:, :, 2] == 0, 1)  # a line: keep A invertible
+    A += 1e-12 * np.eye(3)
+    Ainv = np.linalg.inv(A)
+    coefs, rss = [], np.zeros(len(w))
+    for e in E:
+        c = np.einsum("nij,nj->ni", Ainv, np.einsum("nk,nki,nk->ni", w, V, e[zi]))
+        rss += np.sum(w * (e[zi] - np.einsum("nki,ni->nk", V, c)) ** 2, 1)
+        coefs.append(c)
+    return coefs, Ainv[:, 0, 0], rss
+
+
 def _local_z(t, ex, ey, ok, fps):
     """z statistic of every sample of one series (time-sorted) against its neighbours.
 
-    `ok`: samples usable as neighbours (valid and not flagged). Returns z (nan where a
-    sample has too few neighbours to be judged).
+    `ok`: samples usable as neighbours (valid and not flagged). The neighbour fit is made
+    robust to one other glitch among the neighbours (the end of a run of three, a glitch a
+    few frames away): when leaving one neighbour out puts that neighbour more than
+    NEIGHBOUR_OUT sigma off the others' fit, the fit without it (the one with the lowest
+    RSS) is used. Returns z (nan where a sample has too few neighbours to be judged).
     """
     n = len(t)
     offs = np.r_[np.arange(-FAR, -NEAR + 1), np.arange(NEAR, FAR + 1)]
+    K = len(offs)
     frame = np.rint((t - t[0]) * fps).astype(np.int64)
-    # neighbour at a frame offset: the sample with that frame number, if any
-    pos = np.full(int(frame[-1]) + 1 + 2 * FAR, -1, np.int64)
+    pos = np.full(int(frame[-1]) + 1, -1, np.int64)
     pos[frame] = np.arange(n)
     want = frame[:, None] + offs[None, :]
     inside = (want >= 0) & (want <= frame[-1])
     idx = np.where(inside, pos[np.clip(want, 0, len(pos) - 1)], -1)
-    have = (idx >= 0)
-    have &= np.where(have, ok[np.clip(idx, 0, n - 1)], False)
-    w = have.astype(float)
-    u = offs[None, :].astype(float) * np.ones((n, 1)) / FAR  # in units of the window
-    n_left = np.sum(have & (offs[None, :] < 0), 1)
-    n_right = np.sum(have & (offs[None, :] > 0), 1)
-    n_nb = n_left + n_right
-    deg = np.where((n_left >= 2) & (n_right >= 2) & (n_nb >= 5), 2, 1)
-    judged = (n_nb >= 3) & ((n_left >= 1) & (n_right >= 1) | (n_nb >= 4))
-    V = np.stack([np.ones_like(u), u, np.where(deg[:, None] == 2, u * u, 0.0)], -1)  # (n,8,3)
-    A = np.einsum("nk,nki,nkj->nij", w, V, V)
-    A[:, 2, 2] += (deg == 1)  # a line: the quadratic's column is zero, keep A invertible
-    A += 1e-12 * np.eye(3)
-    Ainv = np.linalg.inv(A)
     zi = np.clip(idx, 0, n - 1)
-    out2 = np.zeros(n)
-    rss = np.zeros(n)
-    for e in (ex, ey):
-        b = np.einsum("nk,nki,nk->ni", w, V, e[zi])
-        c = np.einsum("nij,nj->ni", Ainv, b)
-        fitv = np.einsum("nki,ni->nk", V, c)
-        rss += np.sum(w * (e[zi] - fitv) ** 2, 1)
-        out2 += (e - c[:, 0]) ** 2  # prediction at u = 0 is the constant term
-    h = Ainv[:, 0, 0]  # leverage of the prediction at u = 0
-    dof = 2 * (n_nb - (deg + 1))
-    rough = np.where(dof > 0, rss / np.maximum(dof, 1), 1.0)
-    s2 = np.maximum(1.0, rough)
-    z = np.sqrt(out2 / ((1.0 + h) * s2))
-    return np.where(judged, z, np.nan)
+    have = (idx >= 0) & ok[zi]
+    u = np.broadcast_to(offs[None, :] / FAR, (n, K)).astype(float)
+    E = (ex, ey)
+
+    def local(hv):
+        n_left = np.sum(hv & (offs[None, :] < 0), 1)
+        n_right = np.sum(hv & (offs[None, :] > 0), 1)
+        n_nb = n_left + n_right
+        deg = np.where((n_left >= 2) & (n_right >= 2) & (n_nb >= 5), 2, 1)
+        V = np.stack([np.ones_like(u), u, np.where(deg[:, None] == 2, u * u, 0.0)], -1)
+        judged = (n_nb >= 3) & (((n_left >= 1) & (n_right >= 1)) | (n_nb >= 4))
+        coefs, h, rss = _fit_local(hv.astype(float), V, E, zi)
+        dof = 2 * (n_nb - (deg + 1))
+        return {"V": V, "c": coefs, "h": h, "rss": rss, "dof": dof, "judged": judged}
+
+    cur = local(have)
+    for k in range(K):  # drop-one robustness
+        hv = have.copy()
+        hv[:, k] = False
+        alt = local(hv)
+        dev2 = sum((e[zi[:, k]] - np.einsum("ni,ni->n", alt["V"][:, k], c)) ** 2
+                   for e, c in zip(E, alt["c"]))
+        rough = np.maximum(1.0, alt["rss"] / np.maximum(alt["dof"], 1))
+        use = (have[:, k] & alt["judged"] & (dev2 > NEIGHBOUR_OUT ** 2 * rough)
+               & (alt["rss"] < cur["rss"]))
+        if use.any():
+            for key in ("h", "rss", "dof", "judged"):
+                cur[key] = np.where(use, alt[key], cur[key])
+            cur["c"] = [np.where(use[:, None], a, b) for a, b in zip(alt["c"], cur["c"])]
+    rough = np.where(cur["dof"] > 0, cur["rss"] / np.maximum(cur["dof"], 1), 1.0)
+    out2 = (ex - cur["c"][0][:, 0]) ** 2 + (ey - cur["c"][1][:, 0]) ** 2
+    z = np.sqrt(out2 / ((1.0 + cur["h"]) * np.maximum(1.0, rough)))
+    # a glitch stands off BOTH sides: the edge of a step agrees with the level of one side
+    for side in (offs < 0, offs > 0):
+        hv = have & side[None, :]
+        m = hv.sum(1)
+        d2 = sum((e - np.sum(np.where(hv, e[zi], 0.0), 1) / np.maximum(m, 1)) ** 2 for e in E)
+        z_side = np.sqrt(d2 / (1.0 + 1.0 / np.maximum(m, 1)))
+        z = np.where(m > 0, np.minimum(z, z_side), z)
+    return np.where(cur["judged"], z, np.nan)
 
 
 def _runs(flag_frames: np.ndarray) -> list:

@@ -1,0 +1,165 @@
+"""Glitches (isolated gross errors of the tracker) are found, listed and kept out of the fit.
+
+Truth the code did not produce: glitches injected at known samples (0.5-2 mm, single ones
+and runs of two or three frames) into the bundled recording and into recordings of the
+independent generator (tests/independent_sim.py); white noise for the rule's calibration.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import fitlug
+from fitlug.fit import fit
+from fitlug.fit._glitches import MAX_RUN, _local_z, threshold
+
+FPS = 100.0
+
+
+def inject(rec, n, seed, *, pairs=0, roles=("lug", "body"), size=(0.5, 2.0)):
+    """`n` glitches (0.5-2 mm in a random direction) at random valid samples of `roles`;
+    the first `pairs` of them last two consecutive frames. Returns (recording, sorted list
+    of (marker, time_s) of every glitched sample)."""
+    rng = np.random.default_rng(seed)
+    role = np.array([rec.roles[m] for m in rec.marker_index])
+    ok = np.flatnonzero(np.isin(role, roles) & np.isfinite(rec.x) & np.isfinite(rec.y))
+    x, y = rec.x.copy(), rec.y.copy()
+    truth = set()
+    for i, r in enumerate(rng.choice(ok, n, replace=False)):
+        a, ang = rng.uniform(*size), rng.uniform(0, 2 * math.pi)
+        rows = [r]
+        if i < pairs:
+            later = np.flatnonzero((rec.marker_index == rec.marker_index[r]) & (rec.t > rec.t[r]))
+            rows.append(later[np.argmin(rec.t[later])])
+        for g in rows:
+            x[g] += a * math.cos(ang)
+            y[g] += a * math.sin(ang)
+            truth.add((rec.markers[rec.marker_index[g]], round(float(rec.t[g]), 6)))
+    return rec.with_(x=x, y=y), sorted(truth, key=lambda m: (m[1], m[0]))
+
+
+def listed(res):
+    return sorted(((g["marker"], round(g["time_s"], 6))
+                   for g in res.problem.init_info["glitches"]), key=lambda m: (m[1], m[0]))
+
+
+# ---- the rule on white noise and on synthetic residual series ---------------------------
+
+def test_threshold_is_the_family_wise_gaussian_tail():
+    c = threshold(7800, 0.01)
+    assert 7800 * math.exp(-c * c / 2) == pytest.approx(0.01)
+    assert 5.1 < c < 5.3
+
+
+def test_statistic_is_no_more_extreme_than_chi2_with_two_dof_on_white_noise():
+    rng = np.random.default_rng(0)
+    t = np.arange(650) / FPS
+    z = np.concatenate([_local_z(t, rng.normal(size=650), rng.normal(size=650),
+                                 np.ones(650, bool), FPS) for _ in range(40)])
+    z = z[np.isfinite(z)]
+    assert len(z) > 0.99 * 40 * 650
+    for q in (2.0, 3.0):  # tail of chi^2_2: exp(-q^2/2); the clips make it smaller (conservative)
+        tail = math.exp(-q * q / 2)
+        n_exp = tail * len(z)
+        assert 0.1 * tail < np.mean(z > q) < tail + 4 * math.sqrt(n_exp) / len(z)
+
+
+@pytest.mark.parametrize("step", [3.0, 8.0, 30.0, 300.0])
+def test_a_step_that_stays_is_never_a_glitch(step):
+    rng = np.random.default_rng(int(step))
+    t = np.arange(650) / FPS
+    ex, ey = rng.normal(size=650), rng.normal(size=650)
+    ex[300:] += step
+    ey[300:] -= 0.5 * step
+    z = _local_z(t, ex, ey, np.ones(650, bool), FPS)
+    assert np.nanmax(z) < threshold(7800)
+
+
+def test_runs_of_up_to_three_frames_stand_out_of_their_neighbours():
+    rng = np.random.default_rng(1)
+    t = np.arange(650) / FPS
+    ex, ey = rng.normal(size=650), rng.normal(size=650)
+    ex[100:103] += [80.0, 80.0, 120.0]  # a run of three (two values)
+    ey[400] += 40.0  # a single one
+    ex[200:202] += 60.0  # a pair
+    ok = np.ones(650, bool)
+    z = _local_z(t, ex, ey, ok, FPS)
+    c = threshold(7800)
+    assert z[101] > c and z[400] > c and z[200] > c and z[201] > c
+    ok[[101, 400, 200, 201]] = False  # once the worst are out, the run's ends stand out too
+    z = _local_z(t, ex, ey, ok, FPS)
+    assert z[100] > c and z[102] > c
+    assert MAX_RUN == 3
+
+
+# ---- the bundled recording with lug and body glitches -----------------------------------
+
+@pytest.fixture(scope="module")
+def reference():
+    rec = fitlug.read_trajectories("data/reference/trajectories.csv")
+    rig = fitlug.read_rig("data/reference/rig.toml")
+    return rec, rig
+
+
+def test_glitches_of_the_reference_recording_are_listed_and_kept_out(reference):
+    from fitlug.explain import explain
+
+    rec, rig = reference
+    clean = fit(rec, rig, glitches=False)
+    bad, truth = inject(rec, 10, 4, pairs=3)
+    res = fit(bad, rig)
+    assert listed(res) == truth  # every glitched sample, marker and time, and nothing else
+    g = {(d["marker"], round(d["time_s"], 6)): d for d in res.problem.init_info["glitches"]}
+    for (m, t) in truth:  # size: the displacement put in (0.5-2 mm), far above threshold
+        d = g[(m, t)]
+        assert 0.45 < math.hypot(d["dx_mm"], d["dy_mm"]) < 2.05
+        assert d["size_sigma"] > res.problem.init_info["glitch_threshold_sigma"]
+    # the flagged samples carry no weight, and the fit is the clean one's
+    n_flag = len(truth)
+    assert res.n_data == clean.n_data - 2 * n_flag
+    s, s0 = res.slip, clean.slip
+    assert abs(s.value - 0.07716) < 3 * s.std
+    assert abs(s.value - s0.value) < 0.2 * s0.std
+    assert s.std == pytest.approx(s0.std, rel=0.02)
+    k, k0 = res.quantities["stiffness_N_per_mm"], clean.quantities["stiffness_N_per_mm"]
+    assert abs(k.value - k0.value) < 0.2 * k0.std
+    assert res.chi2_per_dof == pytest.approx(clean.chi2_per_dof, abs=0.02)
+    assert res.problem.noise["lug"] == pytest.approx(clean.problem.noise["lug"], rel=0.01)
+    # the explanation sees the clean problem: nothing to explain
+    ex = explain(res)
+    assert ex.verdict == "none" and ex.effects == []
+    doc = ex.to_json()
+    assert doc["located"] == []
+
+
+def test_a_clean_recording_has_no_glitches(reference):
+    rec, rig = reference
+    assert fit(rec, rig).problem.init_info["glitches"] == []
+
+
+# ---- a catalog effect with 0.2 % glitches (independent generator) -----------------------
+
+def test_a_catalog_effect_is_named_through_glitches():
+    import independent_sim as ind
+    from fitlug.explain import explain
+    from fitlug.explain._engine import Engine
+
+    rec, rig, truth = ind.make(seed=11, fps=120.0, effects={"belt_sag": {"sag_d": 0.5}})
+    n = int(round(0.002 * np.sum(np.isfinite(rec.x))))
+    bad, gl = inject(rec, n, 2, pairs=3)
+    res = fit(bad, rig)
+    assert listed(res) == gl
+    ex = explain(res)
+    assert (ex.verdict, ex.effects) == ("explained", ["belt_sag"])
+    d = ex.final.effect_params("belt_sag")["d_mm"]
+    assert d == pytest.approx(0.5, rel=0.1)
+    s = ex.final.slip
+    assert abs(s.value - truth["slip"]) < 3 * s.std
+    # the candidate fits and the final model keep the zero weights
+    flagged = np.asarray(res.problem.obs["lug_w"]) == 0
+    assert np.array_equal(np.asarray(ex.final.problem.obs["lug_w"]) == 0, flagged)
+    assert np.array_equal(np.asarray(Engine(res).obs["lug_w"]) == 0, flagged)
+    assert ex.final.problem.init_info["glitches"] == res.problem.init_info["glitches"]
