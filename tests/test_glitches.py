@@ -163,3 +163,55 @@ def test_a_catalog_effect_is_named_through_glitches():
     assert np.array_equal(np.asarray(ex.final.problem.obs["lug_w"]) == 0, flagged)
     assert np.array_equal(np.asarray(Engine(res).obs["lug_w"]) == 0, flagged)
     assert ex.final.problem.init_info["glitches"] == res.problem.init_info["glitches"]
+
+
+# ---- tracker systematics: below the floor, not physics ----------------------------------
+
+def tracker_bias(rec, seed, *, cell_um=2.0, blur_um=1.5):
+    """Imitates a tracker's structured error (what `fit-lug track` shows on rendered video):
+    a constant bias per marker and path segment (cell_um RMS per axis) plus a shift along
+    the marker's motion growing with its image speed (blur_um at the fastest). The segment
+    is read off the data (top / bottom run by height, arcs by the side of the body)."""
+    rng = np.random.default_rng(seed)
+    x, y = rec.x.copy(), rec.y.copy()
+    body = [m for m, r in enumerate(rec.roles) if r == "body"]
+    frames = np.unique(rec.t)
+    bx = np.array([np.nanmean(rec.x[np.isin(rec.marker_index, body) & (rec.t == t)])
+                   for t in frames])
+    lug = np.array([rec.roles[m] == "lug" for m in rec.marker_index])
+    ylo, yhi = np.nanmin(rec.y[lug]), np.nanmax(rec.y[lug])
+    for m in range(len(rec.markers)):
+        rows = np.flatnonzero((rec.marker_index == m) & np.isfinite(rec.x))
+        rows = rows[np.argsort(rec.t[rows])]
+        if rec.roles[m] == "lug":
+            h = (rec.y[rows] - ylo) / (yhi - ylo)
+            side = rec.x[rows] - np.interp(rec.t[rows], frames, bx) > 0
+            seg = np.select([h < 0.15, h > 0.85, side], [0, 2, 3], 1)
+        else:
+            seg = np.zeros(len(rows), int)
+        b = rng.normal(0.0, cell_um * 1e-3, (4, 2))
+        vx, vy = np.gradient(rec.x[rows], rec.t[rows]), np.gradient(rec.y[rows], rec.t[rows])
+        sp = np.hypot(vx, vy)
+        u = sp / max(float(sp.max()), 1e-12)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            dx, dy = np.where(sp > 0, vx / sp, 0.0), np.where(sp > 0, vy / sp, 0.0)
+        x[rows] += b[seg, 0] + blur_um * 1e-3 * u * dx
+        y[rows] += b[seg, 1] + blur_um * 1e-3 * u * dy
+    return rec.with_(x=x, y=y)
+
+
+def test_tracker_systematics_below_the_floor_are_not_physics():
+    import independent_sim as ind
+    from fitlug.explain import explain
+
+    rec, rig, truth = ind.make(seed=11, fps=120.0)
+    ex = explain(fit(tracker_bias(rec, 5), rig))
+    assert ex.verdict == "none" and ex.effects == []
+    s = ex.final.slip
+    assert abs(s.value - truth["slip"]) < 3 * s.std
+    doc = ex.to_json()
+    if ex.systematics is not None:  # the tests fired: the misfit is reported as a floor
+        sysb = doc["systematics"]
+        assert 0 < sysb["amplitude_um"] <= sysb["floor_um"]
+        assert sysb["slip_effect"]["in_std"] < 1.0 and 0 <= sysb["share_of_misfit"] <= 1
+        assert "floor" in sysb["note"]

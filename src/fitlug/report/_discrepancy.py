@@ -189,7 +189,7 @@ def discrepancy_section(fit_json: dict, state=None) -> str:
                        f"<td>{_e(p.get('axis'))}</td><td>{_e(p.get('segment'))}</td>"
                        f"<td>{_e(p.get('phase'))}</td><td>{_num(p.get('frequency_hz'), 3)}</td>"
                        f"<td>{_num(tr[0], 3)} – {_num(tr[1], 3)}</td>"
-                       f"<td>{100 * (p.get('share_of_misfit') or 0):.0f} %</td></tr>")
+                       f"<td>{_share(p)}</td></tr>")
         out.append("</table>")
     plots = []
     try:
@@ -226,3 +226,12 @@ def discrepancy_section(fit_json: dict, state=None) -> str:
         out.append("</table>")
     out.append("</section>")
     return "\n".join(out)
+
+
+def _share(part: dict) -> str:
+    """A located row's share; a row found by a test (a spectral line) is not a share."""
+    if part.get("share_of_misfit") is None:
+        x = part.get("share_of_excess_chi2")
+        return f"({part.get('test', 'test')})" if x is None else \
+            f"({part.get('test', 'test')}: {100 * x:.0f} % of excess chi2)"
+    return f"{100 * part['share_of_misfit']:.0f} %"

@@ -56,6 +56,12 @@ def fit_json(res, *, input_path: str | None = None, mcmc=None, discrepancy=None,
                 "mass_kg": rig.mass_kg},
         "reference_paper_slip": REFERENCE_SLIP,
     }
+    info = getattr(prob, "init_info", None) or {}
+    if "glitches" in info:  # isolated gross errors kept out of the estimates (fitlug.fit)
+        out["glitches"] = [{k: (_num(v) if isinstance(v, float) else v) for k, v in g.items()}
+                           for g in info["glitches"]]
+        out["glitch_rule"] = info.get("glitch_rule")
+        out["glitch_threshold_sigma"] = _num(info.get("glitch_threshold_sigma"))
     if mcmc is not None:
         out["mcmc"] = mcmc
     else:

@@ -147,7 +147,23 @@ def _estimates(fj, st) -> str:
         rows.append([f"noise, {role} markers", "mm", _fmt(noise.get(role), 4), "", "",
                      html.escape(str(fj.get("noise_source", ""))), ""])
     return _table(["quantity", "unit", "value", "std", "95 % interval", "from",
-                   "least squares"], rows)
+                   "least squares"], rows) + _glitches(fj)
+
+
+def _glitches(fj) -> str:
+    """The samples kept out of the estimates as gross errors (fit.json `glitches`)."""
+    gl = fj.get("glitches")
+    if gl is None:
+        return ""
+    rule = html.escape(str(fj.get("glitch_rule") or ""))
+    if not gl:
+        return f'<p class="small">Glitches: none found ({rule}).</p>'
+    rows = [[html.escape(str(g.get("marker"))), _fmt(g.get("time_s"), 5),
+             _fmt(g.get("dx_mm"), 3), _fmt(g.get("dy_mm"), 3), _fmt(g.get("size_sigma"), 3)]
+            for g in gl]
+    return (f"<h3>Glitches kept out of the estimates ({len(gl)})</h3>"
+            + _table(["marker", "time (s)", "dx (mm)", "dy (mm)", "size (sigma)"], rows)
+            + f'<p class="small">Rule: {rule}.</p>')
 
 
 def _trajectories(st) -> str:
