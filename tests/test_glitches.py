@@ -98,6 +98,17 @@ def test_runs_of_up_to_three_frames_stand_out_of_their_neighbours():
     assert MAX_RUN == 3
 
 
+def test_the_noise_from_the_data_is_robust_to_glitches():
+    from fitlug.fit import estimate_noise
+
+    rec = fitlug.read_trajectories("data/reference/trajectories.csv")
+    clean = estimate_noise(rec)
+    n = int(0.002 * np.sum(np.isfinite(rec.x)))
+    bad, _ = inject(rec, n, 3, pairs=n // 4)
+    for role, v in estimate_noise(bad).items():  # 0.2 % glitches of 0.5-2 mm: < 1 %
+        assert v == pytest.approx(clean[role], rel=0.01)
+
+
 # ---- the bundled recording with lug and body glitches -----------------------------------
 
 @pytest.fixture(scope="module")
@@ -132,6 +143,15 @@ def test_glitches_of_the_reference_recording_are_listed_and_kept_out(reference):
     assert abs(k.value - k0.value) < 0.2 * k0.std
     assert res.chi2_per_dof == pytest.approx(clean.chi2_per_dof, abs=0.02)
     assert res.problem.noise["lug"] == pytest.approx(clean.problem.noise["lug"], rel=0.01)
+    # fit.json and the report list them
+    from fitlug.report import fit_json
+    from fitlug.report._html import _glitches
+
+    fj = fit_json(res)
+    assert [(d["marker"], round(d["time_s"], 6)) for d in fj["glitches"]] == truth
+    assert "family-wise" in fj["glitch_rule"]
+    table = _glitches(fj)
+    assert table.count("<tr>") == len(truth) + 1 and truth[0][0] in table
     # the explanation sees the clean problem: nothing to explain
     ex = explain(res)
     assert ex.verdict == "none" and ex.effects == []
