@@ -1,4 +1,8 @@
-"""The least-squares fit of a recording: one verb, one structured result."""
+"""The least-squares fit of a recording: one verb, one structured result.
+
+fit() fits, re-estimates the noise from the residuals and keeps glitches (isolated gross
+errors, found by the rule of :mod:`._glitches`) out with zero weight.
+"""
 
 from __future__ import annotations
 
