@@ -46,7 +46,6 @@ candidate fits and the posterior see the clean problem.
 from __future__ import annotations
 
 import math
-from functools import partial
 
 import jax
 import jax.numpy as jnp
