@@ -72,6 +72,8 @@ def _design(geo):
         if np.ptp(vn[sel]) > 0.2:  # a speed term only where the speed changes
             cols.append(w * vn)
             labels.append(int(k))
+    if not cols:
+        return np.zeros((len(geo.t), 0)), np.zeros(0, int)
     return np.stack(cols, 1), np.array(labels)
 
 
