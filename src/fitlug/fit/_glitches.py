@@ -30,7 +30,9 @@ The rule (a test on standardised residuals with the noise known from the data):
    N = 7800 gives c = 5.2 sigma (34 um for a 6.5 um lug noise).
 5. Samples above c are flagged worst first (a local maximum within 5 frames), the
    neighbour fits recomputed without them, until none is left above c. A run of more than
-   MAX_RUN consecutive flagged frames is not isolated and is unflagged.
+   MAX_RUN consecutive flagged frames is not isolated and is unflagged, and so are flags
+   that COMMON (3) or more markers share within a frame: glitches are independent, and a
+   common jump (a lost frame, an image shake) is physics or timing for the explanation.
 6. Isolation is what tells a glitch from a marker that jumps and STAYS jumped: after such a
    step every sample agrees with its neighbours, and the few samples at the step see
    neighbours that disagree among themselves (s_t is large), so nothing is flagged and the
@@ -59,6 +61,7 @@ MAX_RUN = 3
 MAX_ROUNDS = 3
 NEAR, FAR = 2, 5  # neighbours used: frames NEAR..FAR away on each side
 _MAX_PASSES = 20
+COMMON = 3  # markers flagged in one frame: a common cause, not glitches
 NEIGHBOUR_OUT = 5.0  # sigma: a neighbour this far off the others' fit is left out
 
 RULE = ("standardised residual of each sample (noise per role from 4th differences of the "
@@ -222,13 +225,28 @@ def find(res, alpha: float = ALPHA) -> dict:
                        if zz[i] >= zz[np.abs(frame - frame[i]) <= FAR].max()]
                 f[new] = True
             z = _local_z(t, ex[rows], ey[rows], ~f, fps)
+            on = np.flatnonzero(f)
             for run in _runs(frame[f]):
                 if len(run) > MAX_RUN:
-                    f[np.flatnonzero(f)[run]] = False
+                    f[on[run]] = False
             flag[rows] = f
             zall[rows] = np.where(np.isfinite(z), z, 0.0)
         out[role] = flag
         out["z"][role] = zall
+    # glitches are independent: flags on COMMON or more markers in one frame (+-1) are a
+    # common cause (a lost frame, an image shake), physics or timing, not the tracker's
+    tl, tb = np.asarray(lay.lug_t), np.asarray(lay.body_t)
+    ft = np.rint(np.r_[tl[out["lug"]], tb[out["body"]]] * fps).astype(np.int64)
+    mk = np.r_[np.asarray(lay.lug_i)[out["lug"]], 10_000 + np.asarray(lay.body_j)[out["body"]]]
+    if len(ft):
+        bad = [f0 for f0 in np.unique(ft)
+               if len(np.unique(mk[np.abs(ft - f0) <= 1])) >= COMMON]
+        if bad:
+            bad = np.array(bad)
+            for role, tt in (("lug", tl), ("body", tb)):
+                fr = np.rint(tt * fps).astype(np.int64)
+                near = np.any(np.abs(fr[:, None] - bad[None, :]) <= 1, 1)
+                out[role] = out[role] & ~near
     out["std"] = std
     return out
 
