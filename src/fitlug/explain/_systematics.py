@@ -16,8 +16,8 @@ misfit is of that kind and size:
 2. it must hold the misfit: its residuals pass detection (fitlug.explain.detect), i.e. no
    structure is left that per-marker-per-segment offsets cannot carry (a 3.3 Hz image
    vibration, a marker that shifts at some time, stays);
-3. its amplitude must sit below the tracker-systematics floor: the RMS of the fitted
-   systematic over the samples, in um, at most FLOOR_PX (0.01 px, twice the bias measured
+3. its amplitude must sit below the tracker-systematics floor: the RMS over the samples
+   of what fitting it changes in the residuals, in um, at most FLOOR_PX (0.01 px, twice the bias measured
    on the project's renders) times the recording's mm per pixel (from its x_px column),
    else FLOOR_UM (3 um: 0.01 px at the reference camera's 0.39 mm/px, rounded up);
 4. its effect on the slip must be negligible: the slip moves by less than SLIP_EFFECT_MAX
@@ -104,10 +104,11 @@ def tracker_systematics(res, geo, alpha: float) -> dict | None:
     d_slip = float(g @ delta[:n_p])
     s_std = float(res.slip.std or 0.0)
     effect = abs(d_slip) / s_std if s_std > 0 else np.inf
-    # amplitude of the fitted systematic, um (per sample: offset + speed term, in mm)
-    sysw = N @ delta[n_p:]
+    # amplitude of the systematic: what fitting the nuisance (and refitting the model with
+    # it) changes in the residuals, um RMS; offsets that the model's own parameters can
+    # take (a body marker's offset) cancel here instead of counting twice
     w = np.where(geo.valid, geo.weight, 1.0)
-    sys_mm = np.where(geo.valid, sysw / w, 0.0)
+    sys_mm = np.where(geo.valid, (r2 - r) / w, 0.0)
     amp = 1000.0 * float(np.sqrt(np.sum(sys_mm ** 2) / max(geo.n, 1)))
     floor, how = floor_um(prob.rec)
     M, _ = structured_misfit(geo, r)
