@@ -175,7 +175,12 @@ def test_the_discrepancy_block_follows_data_md(frame_drop_explained):
         assert p["axis"] in ("x", "y")
         assert p["segment"] in ("bottom", "rear_arc", "top", "front_arc", "body")
         assert p["phase"] in ("accelerate", "cruise", "decelerate", "all")
-        assert 0 <= p["share_of_misfit"] <= 1
+        if "test" in p:  # a spectral line or one series: not a share of the cells'
+            assert p["share_of_misfit"] is None and 0 <= p["share_of_excess_chi2"] <= 1
+        else:
+            assert 0 <= p["share_of_misfit"] <= 1
+    cells = [p["share_of_misfit"] for p in doc["located"] if "test" not in p]
+    assert sum(cells) <= 1 + 1e-9  # the located table's shares add up
     assert all(DATA_MD_EFFECT <= set(e) for e in doc["effects"])
     assert doc["effects"][0]["delta_bic"] < -10
     for key in ("slip_before", "slip_after"):

@@ -20,6 +20,10 @@ or more effects added, each must still earn its place in the final model (backwa
 check). The final model is polished with its exact Jacobian (:mod:`._final`); its
 residuals decide the verdict: consistent -> 'explained', else 'unexplained' with the
 located remaining mismatch, and its error bars widened (:mod:`._robust`).
+A located misfit that per-marker-per-segment offsets and speed terms carry, below the
+tracker-systematics floor and with a negligible effect on the slip, is the tracker's
+own structured error (:mod:`._systematics`): reported as `systematics`, and the verdict
+follows the effects.
 'unexplained' needs a place: residuals that fail a test while no part of them stands
 out (no cell of significant structured misfit, no spectral line or series with
 p < 1e-4) are a false alarm of the tests (they allow 5 %), and the verdict follows the
@@ -42,6 +46,7 @@ from ._engine import Engine
 from ._final import final_fit
 from ._locate import Location, locate, residual_map, spectrum_summary
 from ._robust import robust_result
+from ._systematics import tracker_systematics
 from ._table import geometry, structured_misfit
 
 BIC_THRESHOLD = -10.0
@@ -81,6 +86,7 @@ class Explanation:
     slip_uncertainty: str = "least squares"
     timing_s: dict = field(default_factory=dict)
     geometry: object = None  # fitlug.explain.Geometry of the residual vectors
+    systematics: dict | None = None  # the tracker-systematics check (see ._systematics)
 
     def _final_params(self, step: Step) -> dict:
         """The effect's parameters under the final model, with standard errors (and as
@@ -121,6 +127,14 @@ class Explanation:
                           "bic": "chi2 + k ln N, noise per role fixed at the base fit's"},
             "timing_s": self.timing_s,
         }
+        if self.systematics is not None:
+            sysb = {k: v for k, v in self.systematics.items() if k != "why_not"}
+            if self.systematics.get("why_not") is None:
+                out["systematics"] = sysb
+            else:
+                out["systematics_check"] = {**sysb, "not_systematics_because":
+                                            self.systematics["why_not"],
+                                            "note": "checked: not a tracker floor"}
         if self.geometry is not None:
             g = self.geometry
             out["maps"] = {"before": residual_map(g, self.base.residuals)}
@@ -271,9 +285,14 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
         if not loc0.parts:  # a marginal test result that points nowhere: noise
             return Explanation("none", res, res, [], [], [], det0, det0, loc0, loc0, rounds,
                                "least squares", timing, geo)
+        sysb = tracker_systematics(res, geo, alpha)
+        timing["total"] = time.perf_counter() - t_start
+        if sysb["why_not"] is None:  # below the tracker's floor: a measurement, not physics
+            return Explanation("none", res, res, [], [], [], det0, det0, loc0, loc0, rounds,
+                               "least squares", timing, geo, sysb)
         final, method = robust_result(res, geo)
         return Explanation("unexplained", res, final, [], loc0.parts, [], det0, det0, loc0,
-                           loc0, rounds, method, timing, geo)
+                           loc0, rounds, method, timing, geo, sysb)
 
     t0 = time.perf_counter()
     final = final_fit(res, eng, accepted, theta)
@@ -283,14 +302,19 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
     if steps:  # the last step's chi2 from the exact final fit
         steps[-1].chi2_per_dof_after = float(final.chi2_per_dof)
         steps[-1].params = final.effect_params(steps[-1].effect)
+    sysb = None
     if det1.consistent or not loc1.parts:
         verdict, located, method = "explained", loc0.parts, "least squares"
     else:
-        verdict, located = "unexplained", loc1.parts
-        final, method = robust_result(final, geo)
+        sysb = tracker_systematics(final, geo, alpha)
+        if sysb["why_not"] is None:  # what is left sits below the tracker's floor
+            verdict, located, method = "explained", loc0.parts, "least squares"
+        else:
+            verdict, located = "unexplained", loc1.parts
+            final, method = robust_result(final, geo)
     timing["total"] = time.perf_counter() - t_start
     return Explanation(verdict, res, final, list(accepted), located, steps, det0, det1, loc0,
-                       loc1, rounds, method, timing, geo)
+                       loc1, rounds, method, timing, geo, sysb)
 
 
 def _start(eng, scr, chi2_cur, names):

@@ -7,7 +7,10 @@ white noise contributing zero on average. Shares are fractions of the positive t
 The located mismatch (DATA.md `discrepancy.located`) is a short list of parts, one per
 (axis, path segment) cell that holds a significant share, each with the markers that
 carry most of it, the motion phase it concentrates in ('all' if none), its time range,
-and the frequency of its residual spectrum's peak when there is a clear one.
+and the frequency of its residual spectrum's peak when there is a clear one. The cells'
+shares add up to at most 100 %. Rows found by a test rather than by a cell (a spectral
+line, one non-white series) come after them with `share_of_misfit` None (they overlap
+the cells) and their share of the excess chi^2 apart.
 """
 
 from __future__ import annotations
@@ -173,8 +176,9 @@ def locate(geo: Geometry, r: np.ndarray, det=None) -> Location:
 def _test_parts(geo, r, det, parts) -> list:
     """Parts for a strong spectral line and a strongly non-white series (see locate).
 
-    Their share of the misfit is their share of the excess chi^2 (sum r^2 - n), which
-    counts fast misfit too.
+    They are not shares of the structured misfit (the cells' shares add up to at most
+    100 %, these overlap them): their `share_of_misfit` is None, and their share of the
+    excess chi^2 (sum r^2 - n, which counts fast misfit too) is `share_of_excess_chi2`.
     """
     out = []
     tot = max(float(np.sum(r[geo.valid] ** 2)) - geo.n, 1e-300)
@@ -199,7 +203,8 @@ def _test_parts(geo, r, det, parts) -> list:
         out.append({"markers": names, "axis": ax, "segment": SEGMENTS[seg_best], "phase": "all",
                     "frequency_hz": float(det.line_hz),
                     "t_range_s": [float(geo.t[sel].min()), float(geo.t[sel].max())],
-                    "share_of_misfit": share(sel), "test": "spectral line",
+                    "share_of_misfit": None, "share_of_excess_chi2": share(sel),
+                    "test": "spectral line",
                     "p_value": float(det.line_p)})
     if det.periodogram_p < STRONG_P and det.periodogram_series:
         name, ax = det.periodogram_series.rsplit(".", 1)
@@ -210,7 +215,8 @@ def _test_parts(geo, r, det, parts) -> list:
             out.append({"markers": [name], "axis": ax, "segment": SEGMENTS[seg],
                         "phase": "all", "frequency_hz": None,
                         "t_range_s": [float(geo.t[sel].min()), float(geo.t[sel].max())],
-                        "share_of_misfit": share(sel), "test": "cumulative periodogram",
+                        "share_of_misfit": None, "share_of_excess_chi2": share(sel),
+                        "test": "cumulative periodogram",
                         "p_value": float(det.periodogram_p)})
     return out
 

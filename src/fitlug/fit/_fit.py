@@ -1,4 +1,8 @@
-"""The least-squares fit of a recording: one verb, one structured result."""
+"""The least-squares fit of a recording: one verb, one structured result.
+
+fit() fits, re-estimates the noise from the residuals and keeps glitches (isolated gross
+errors, found by the rule of :mod:`._glitches`) out with zero weight.
+"""
 
 from __future__ import annotations
 
@@ -11,6 +15,7 @@ from .._errors import FitError
 from ..model import param_names
 from ..model.effects import CATALOG
 from ._lsq import covariance, covariance_normal, least_squares
+from . import _glitches
 from ._noise import fourth_differences, noise_from_differences
 from ._problem import Problem, build_problem
 from ._result import FitResult, compute_quantities
@@ -83,11 +88,15 @@ def reweighted(prob: Problem, noise: dict) -> Problem:
                       "noise_source": "residual differences"})
 
 
-def fit(rec, rig=None, *, effects=(), noise: dict | None = None, **kw) -> FitResult:
+def fit(rec, rig=None, *, effects=(), noise: dict | None = None, glitches: bool = True,
+        **kw) -> FitResult:
     """Fit the base model (plus `effects`) to a recording; see :func:`fit_problem`.
 
     Without a sigma_mm column or a given `noise`, the noise per role is re-estimated
-    from the first fit's residuals and the fit repeated with those weights.
+    from the first fit's residuals and the fit repeated with those weights. Glitches
+    (isolated gross errors of the tracker, :mod:`fitlug.fit._glitches`) are then found,
+    given zero weight and listed in ``problem.init_info['glitches']``; the fit is
+    repeated until their set is stable. ``glitches=False`` keeps every sample.
     """
     from ..io import Rig
 
@@ -95,9 +104,59 @@ def fit(rec, rig=None, *, effects=(), noise: dict | None = None, **kw) -> FitRes
     prob = build_problem(rec, rig, effects=effects, noise=noise)
     res = fit_problem(prob, **kw)
     res = _check_lug_count(res, **kw)
-    if noise is None and prob.noise_source == "differences":
+    renoise = noise is None and prob.noise_source == "differences"
+    if glitches:
+        res = remove_glitches(res, renoise=renoise, **kw)
+    elif renoise:
         res = refit_noise(res, **kw)
     return res
+
+
+def with_flags(prob: Problem, flags: dict) -> Problem:
+    """`prob` with zero weight on the flagged samples ({'lug': mask, 'body': mask}) and its
+    nominal weight (valid / sigma) on every other valid sample."""
+    rec = prob.rec
+    obs = dict(prob.obs)
+    for role, rows, key in (("lug", prob.lug_rows, "lug_w"), ("body", prob.body_rows, "body_w")):
+        valid = np.isfinite(rec.x[rows]) & np.isfinite(rec.y[rows])
+        if prob.noise_source == "sigma_mm column":
+            w = 1.0 / np.asarray(rec.sigma[rows], float)
+        else:
+            w = np.full(len(rows), 1.0 / prob.noise[role])
+        obs[key] = jnp.asarray(np.where(valid & ~flags[role], w, 0.0), float)
+    return Problem(**{**prob.__dict__, "obs": obs})
+
+
+def remove_glitches(res: FitResult, *, renoise: bool = True, **kw) -> FitResult:
+    """Find glitches (:func:`fitlug.fit._glitches.find`), zero their weights and refit,
+    until the flagged set is stable (at most _glitches.MAX_ROUNDS refits). With `renoise`
+    the noise per role is re-estimated from the residuals (flagged samples left out)
+    before each refit, so a clean recording costs the one refit of :func:`refit_noise`.
+
+    The result's problem carries the zero weights and, in its init_info, the list
+    ('glitches'), the rule ('glitch_rule') and the threshold in sigma ('glitch_threshold').
+    """
+    kw.pop("p_start", None)
+    none = {k: np.zeros(len(getattr(res.problem, k + "_rows")), bool) for k in ("lug", "body")}
+    applied = none  # the flags the current fit's weights carry
+    found = _glitches.find(res)
+    for rnd in range(_glitches.MAX_ROUNDS):
+        same = all(np.array_equal(found[k], applied[k]) for k in ("lug", "body"))
+        if same and (rnd > 0 or not renoise):
+            break
+        prob = with_flags(res.problem, found)
+        if renoise:  # the noise from the residuals, without the flagged samples
+            new = residual_noise(dataclasses.replace(res, problem=prob))
+            if all(np.isfinite(v) and v > 0 for v in new.values()):
+                prob = reweighted(prob, new)
+        res = fit_problem(prob, p_start=res.params, **kw)
+        applied = found
+        found = _glitches.find(res)
+    found = {**found, "lug": applied["lug"], "body": applied["body"]}  # what the weights hold
+    info = {**res.problem.init_info, "glitches": _glitches.listing(res, found),
+            "glitch_rule": _glitches.RULE, "glitch_threshold_sigma": float(found["c"])}
+    prob = Problem(**{**res.problem.__dict__, "init_info": info})
+    return dataclasses.replace(res, problem=prob)
 
 
 def _check_lug_count(res: FitResult, **kw) -> FitResult:

@@ -340,14 +340,20 @@ def _located(d) -> str:
                        + (f" at {F.sig(p.get('frequency_hz'), 3)} Hz"
                           if p.get("frequency_hz") else "")
                        + f", p = {F.sig(p.get('p_value'), 2)}; it concentrates "
-                       f"{F.percent(p.get('share_of_misfit'))} of that group's misfit.</li>")
+                       f"{F.percent(p.get('share_of_excess_chi2', p.get('share_of_misfit')))}"
+                       " of that group's excess χ².</li>")
         out.append("</ul>")
     sysm = d.get("systematics")
     if sysm:
+        eff = sysm.get("slip_effect")
+        if isinstance(eff, dict):  # {delta, std, in_std}
+            eff = f"{F.sig(eff.get('delta'), 2)}, {F.sig(eff.get('in_std'), 2)} σ"
+        else:
+            eff = F.sig(eff, 2)
         out.append(f"<p>Below the tracker-systematics floor: a structured misfit of "
                    f"{F.sig(sysm.get('amplitude_um'), 2)} µm "
                    f"({F.percent(sysm.get('share_of_misfit'))} of the misfit; effect on the "
-                   f"slip {F.sig(sysm.get('slip_effect'), 2)}). {_e(sysm.get('note', ''))}</p>")
+                   f"slip {eff}). {_e(sysm.get('note', ''))}</p>")
     return "".join(out)
 
 
@@ -451,3 +457,4 @@ def discrepancy_section(fit_json: dict, state=None) -> str:
     out.append(_candidates(d))
     out.append("</section>")
     return "\n".join(out)
+

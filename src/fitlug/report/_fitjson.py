@@ -88,6 +88,12 @@ def fit_json(res, *, input_path: str | None = None, mcmc=None, discrepancy=None,
         out.setdefault("not_identifiable", {})["rolling_resistance"] = (
             "a drawbar pull without [vehicle] mass_kg in rig.toml: only C_rr + F_d/(m g) "
             "is measured")
+    info = getattr(prob, "init_info", None) or {}
+    if "glitches" in info:  # isolated gross errors kept out of the estimates (fitlug.fit)
+        out["glitches"] = [{k: (_num(v) if isinstance(v, float) else v) for k, v in g.items()}
+                           for g in info["glitches"]]
+        out["glitch_rule"] = info.get("glitch_rule")
+        out["glitch_threshold_sigma"] = _num(info.get("glitch_threshold_sigma"))
     if mcmc is not None:
         out["mcmc"] = mcmc
     else:

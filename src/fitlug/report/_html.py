@@ -326,7 +326,7 @@ def _estimates(fj, st) -> str:
     d = fj.get("discrepancy") or {}
     for eff in d.get("effects") or []:
         out += _effect_table(eff)
-    return out
+    return out + _glitches(fj)
 
 
 def _effect_table(eff) -> str:
@@ -383,6 +383,22 @@ def _slip_section(fj, st) -> str:
     out.append(figure_html(fig, "horizontal stall of one lug marker with creep length and "
                                 "no-slip path", cap))
     return "".join(out)
+
+
+def _glitches(fj) -> str:
+    """The samples kept out of the estimates as gross errors (fit.json `glitches`)."""
+    gl = fj.get("glitches")
+    if gl is None:
+        return ""
+    rule = _e(str(fj.get("glitch_rule") or ""))
+    if not gl:
+        return f'<p class="small">Glitches: none found ({rule}).</p>'
+    rows = [[_e(str(g.get("marker"))), F.sig(g.get("time_s"), 5),
+             F.sig(g.get("dx_mm"), 3), F.sig(g.get("dy_mm"), 3), F.sig(g.get("size_sigma"), 3)]
+            for g in gl]
+    return (f"<h3>Glitches kept out of the estimates ({len(gl)})</h3>"
+            + _table(["marker", "time (s)", "dx (mm)", "dy (mm)", "size (σ)"], rows)
+            + f'<p class="small">Rule: {rule}.</p>')
 
 
 def _trajectories(st) -> str:

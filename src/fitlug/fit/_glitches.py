@@ -1,0 +1,269 @@
+"""Glitches: isolated gross errors of the tracker, found, listed and kept out of the fit.
+
+A tracker now and then jumps for one frame or two to a reflection or a neighbour
+(MODEL.md §2, end): a sample a fraction of a millimetre or more off, while the samples
+around it are fine. Such a sample is not physics: it is found here, its weight set to
+zero, and it is listed (fit.json `glitches`).
+
+The rule (a test on standardised residuals with the noise known from the data):
+
+1. Residuals of the fit, data minus model, in units of the noise sigma per role (which
+   comes from 4th differences of the data, median/MAD based and clipped, so a few
+   glitches do not move it), for every valid sample, flagged ones included.
+2. For each sample t of a marker, the *local level* of its residuals: a quadratic in time
+   (a line when fewer neighbours) fitted, per axis, to its neighbours 2 to 5 frames away
+   on both sides (t-1 and t+1 are left out, so that a glitch of two consecutive frames
+   does not pull its own prediction). The model's slow misfit (an effect not yet in the
+   model, a speed profile pulled by the glitch itself) is smooth over those 11 frames
+   and the local level follows it.
+3. The statistic z_t^2 = (e_x^2 + e_y^2) / ((1 + h_t) s_t^2), with e the sample's
+   deviation from its local level, h_t the prediction's leverage (the variance of the
+   prediction in units of sigma^2) and s_t^2 = max(1, chi^2/dof of the neighbours about
+   their fit): a sample is judged against the local roughness when that is larger than
+   the noise. Under the noise alone z^2 is chi^2 with 2 degrees of freedom (a little
+   less extreme: the clip at 1). The fit leaves out one neighbour that is itself far off
+   the others (another glitch nearby). z is then capped by the sample's distance from the
+   mean of each side's neighbours alone: a glitch stands off both sides, the edge of a
+   step agrees with one of them.
+4. Threshold: the family-wise false-alarm rate ALPHA = 1 % over all N valid samples
+   (Bonferroni): P(z^2 > c^2) = exp(-c^2/2) = ALPHA / N, c = sqrt(2 ln(N / ALPHA)).
+   N = 7800 gives c = 5.2 sigma (34 um for a 6.5 um lug noise).
+5. Samples above c are flagged worst first (a local maximum within 5 frames), the
+   neighbour fits recomputed without them, until none is left above c. A run of more than
+   MAX_RUN consecutive flagged frames is not isolated and is unflagged, and so are flags
+   that COMMON (3) or more markers share within a frame: glitches are independent, and a
+   common jump (a lost frame, an image shake) is physics or timing for the explanation.
+6. Isolation is what tells a glitch from a marker that jumps and STAYS jumped: after such a
+   step every sample agrees with its neighbours, and the few samples at the step see
+   neighbours that disagree among themselves (s_t is large), so nothing is flagged and the
+   step remains a located mismatch of that marker.
+
+:func:`fitlug.fit.fit` sets the flagged samples' weights to zero, refits, and repeats the
+search on the new residuals (flags are recomputed from scratch each round, so a flag
+caused by the first fit's distortion is dropped) until the set no longer changes, at
+most MAX_ROUNDS rounds. The problem keeps the zero weights, so the explanation's
+candidate fits and the posterior see the clean problem.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import _jaxconfig  # noqa: F401
+from ..model import predict
+
+ALPHA = 0.01
+MAX_RUN = 3
+MAX_ROUNDS = 3
+NEAR, FAR = 2, 5  # neighbours used: frames NEAR..FAR away on each side
+_MAX_PASSES = 20
+COMMON = 3  # markers flagged in one frame: a common cause, not glitches
+NEIGHBOUR_OUT = 5.0  # sigma: a neighbour this far off the others' fit is left out
+
+RULE = ("standardised residual of each sample (noise per role from 4th differences of the "
+        "data) against the local level of its marker's residuals (a quadratic through the "
+        f"neighbours {NEAR}-{FAR} frames away on both sides), scaled by the prediction's "
+        "leverage and the neighbours' own roughness; flagged when z^2 > 2 ln(N / alpha), a "
+        f"family-wise false-alarm rate alpha = {ALPHA:g} over the N valid samples "
+        f"(Bonferroni, chi^2 with 2 dof); runs of more than {MAX_RUN} consecutive frames "
+        "are not isolated and not glitches; flagged samples get zero weight and the fit is "
+        f"repeated until the set is stable (at most {MAX_ROUNDS} rounds)")
+
+
+def threshold(n_samples: int, alpha: float = ALPHA) -> float:
+    """c with P(chi^2_2 > c^2) = alpha / n_samples (Bonferroni over the samples)."""
+    return math.sqrt(2.0 * math.log(max(n_samples, 1) / alpha))
+
+
+@jax.jit
+def _predict(p, lay):
+    return predict(p, lay)
+
+
+def standardised_residuals(res) -> dict:
+    """Data minus model in units of the role's noise, for every valid sample (flagged too).
+
+    Returns {'lug': (ex, ey, valid), 'body': (...)} over the problem's lug / body rows.
+    """
+    prob = res.problem
+    p = {k: jnp.asarray(v, float) for k, v in res.params.items()}
+    lx, ly, bx, by = (np.asarray(a) for a in _predict(p, prob.lay))
+    rec = prob.rec
+    out = {}
+    for role, rows, mx, my in (("lug", prob.lug_rows, lx, ly), ("body", prob.body_rows, bx, by)):
+        x, y = np.asarray(rec.x[rows], float), np.asarray(rec.y[rows], float)
+        valid = np.isfinite(x) & np.isfinite(y)
+        s = float(prob.noise[role])
+        ex = np.where(valid, (np.where(valid, x, 0.0) - mx) / s, 0.0)
+        ey = np.where(valid, (np.where(valid, y, 0.0) - my) / s, 0.0)
+        out[role] = (ex, ey, valid)
+    return out
+
+
+def _fit_local(w, V, E, zi):
+    """Weighted local fits, per axis, of the residual series E on each sample's neighbours.
+
+    w (n, K) neighbour weights (0/1), V (n, K, 3) design (a zero third column: a line),
+    zi (n, K) neighbour positions. Returns (coefficients per axis (n, 3), the leverage of
+    the prediction at u = 0 in units of sigma^2, RSS over both axes).
+    """
+    A = np.einsum("nk,nki,nkj->nij", w, V, V)
+    A[:, 2, 2] += np.all(V[:, :, 2] == 0, 1)  # a line: keep A invertible
+    A += 1e-12 * np.eye(3)
+    Ainv = np.linalg.inv(A)
+    coefs, rss = [], np.zeros(len(w))
+    for e in E:
+        c = np.einsum("nij,nj->ni", Ainv, np.einsum("nk,nki,nk->ni", w, V, e[zi]))
+        rss += np.sum(w * (e[zi] - np.einsum("nki,ni->nk", V, c)) ** 2, 1)
+        coefs.append(c)
+    return coefs, Ainv[:, 0, 0], rss
+
+
+def _local_z(t, ex, ey, ok, fps):
+    """z statistic of every sample of one series (time-sorted) against its neighbours.
+
+    `ok`: samples usable as neighbours (valid and not flagged). The neighbour fit is made
+    robust to one other glitch among the neighbours (the end of a run of three, a glitch a
+    few frames away): when leaving one neighbour out puts that neighbour more than
+    NEIGHBOUR_OUT sigma off the others' fit, the fit without it (the one with the lowest
+    RSS) is used. Returns z (nan where a sample has too few neighbours to be judged).
+    """
+    n = len(t)
+    offs = np.r_[np.arange(-FAR, -NEAR + 1), np.arange(NEAR, FAR + 1)]
+    K = len(offs)
+    frame = np.rint((t - t[0]) * fps).astype(np.int64)
+    pos = np.full(int(frame[-1]) + 1, -1, np.int64)
+    pos[frame] = np.arange(n)
+    want = frame[:, None] + offs[None, :]
+    inside = (want >= 0) & (want <= frame[-1])
+    idx = np.where(inside, pos[np.clip(want, 0, len(pos) - 1)], -1)
+    zi = np.clip(idx, 0, n - 1)
+    have = (idx >= 0) & ok[zi]
+    u = np.broadcast_to(offs[None, :] / FAR, (n, K)).astype(float)
+    E = (ex, ey)
+
+    def local(hv):
+        n_left = np.sum(hv & (offs[None, :] < 0), 1)
+        n_right = np.sum(hv & (offs[None, :] > 0), 1)
+        n_nb = n_left + n_right
+        deg = np.where((n_left >= 2) & (n_right >= 2) & (n_nb >= 5), 2, 1)
+        V = np.stack([np.ones_like(u), u, np.where(deg[:, None] == 2, u * u, 0.0)], -1)
+        judged = (n_nb >= 3) & (((n_left >= 1) & (n_right >= 1)) | (n_nb >= 4))
+        coefs, h, rss = _fit_local(hv.astype(float), V, E, zi)
+        dof = 2 * (n_nb - (deg + 1))
+        return {"V": V, "c": coefs, "h": h, "rss": rss, "dof": dof, "judged": judged}
+
+    cur = local(have)
+    for k in range(K):  # drop-one robustness
+        hv = have.copy()
+        hv[:, k] = False
+        alt = local(hv)
+        dev2 = sum((e[zi[:, k]] - np.einsum("ni,ni->n", alt["V"][:, k], c)) ** 2
+                   for e, c in zip(E, alt["c"]))
+        rough = np.maximum(1.0, alt["rss"] / np.maximum(alt["dof"], 1))
+        use = (have[:, k] & alt["judged"] & (dev2 > NEIGHBOUR_OUT ** 2 * rough)
+               & (alt["rss"] < cur["rss"]))
+        if use.any():
+            for key in ("h", "rss", "dof", "judged"):
+                cur[key] = np.where(use, alt[key], cur[key])
+            cur["c"] = [np.where(use[:, None], a, b) for a, b in zip(alt["c"], cur["c"])]
+    rough = np.where(cur["dof"] > 0, cur["rss"] / np.maximum(cur["dof"], 1), 1.0)
+    out2 = (ex - cur["c"][0][:, 0]) ** 2 + (ey - cur["c"][1][:, 0]) ** 2
+    z = np.sqrt(out2 / ((1.0 + cur["h"]) * np.maximum(1.0, rough)))
+    # a glitch stands off BOTH sides: the edge of a step agrees with the level of one side
+    for side in (offs < 0, offs > 0):
+        hv = have & side[None, :]
+        m = hv.sum(1)
+        d2 = sum((e - np.sum(np.where(hv, e[zi], 0.0), 1) / np.maximum(m, 1)) ** 2 for e in E)
+        z_side = np.sqrt(d2 / (1.0 + 1.0 / np.maximum(m, 1)))
+        z = np.where(m > 0, np.minimum(z, z_side), z)
+    return np.where(cur["judged"], z, np.nan)
+
+
+def _runs(flag_frames: np.ndarray) -> list:
+    """Split sorted frame numbers into runs of consecutive frames."""
+    if len(flag_frames) == 0:
+        return []
+    cut = np.flatnonzero(np.diff(flag_frames) > 1) + 1
+    return np.split(np.arange(len(flag_frames)), cut)
+
+
+def find(res, alpha: float = ALPHA) -> dict:
+    """Glitches of a fit: {'lug': bool mask over lug rows, 'body': ..., 'z': {...}, 'c': c}."""
+    prob = res.problem
+    lay = prob.lay
+    fps = float(prob.init_info.get("fps") or 100.0)
+    std = standardised_residuals(res)
+    n_valid = sum(int(v[2].sum()) for v in std.values())
+    c = threshold(n_valid, alpha)
+    out = {"c": c, "n": n_valid, "z": {}}
+    for role, t_all, idx_all in (("lug", np.asarray(lay.lug_t), np.asarray(lay.lug_i)),
+                                 ("body", np.asarray(lay.body_t), np.asarray(lay.body_j))):
+        ex, ey, valid = std[role]
+        flag = np.zeros(len(t_all), bool)
+        zall = np.zeros(len(t_all))
+        for m in np.unique(idx_all):
+            rows = np.flatnonzero((idx_all == m) & valid)
+            if len(rows) < 4:
+                continue
+            rows = rows[np.argsort(t_all[rows], kind="stable")]
+            t = t_all[rows]
+            f = np.zeros(len(rows), bool)
+            frame = np.rint((t - t[0]) * fps).astype(np.int64)
+            for _ in range(_MAX_PASSES):
+                z = _local_z(t, ex[rows], ey[rows], ~f, fps)
+                zz = np.where(np.isfinite(z) & ~f, z, 0.0)
+                cand = np.flatnonzero(zz > c)
+                if len(cand) == 0:
+                    break
+                # local maxima within FAR frames: the worst of a cluster goes first
+                new = [i for i in cand
+                       if zz[i] >= zz[np.abs(frame - frame[i]) <= FAR].max()]
+                f[new] = True
+            z = _local_z(t, ex[rows], ey[rows], ~f, fps)
+            on = np.flatnonzero(f)
+            for run in _runs(frame[f]):
+                if len(run) > MAX_RUN:
+                    f[on[run]] = False
+            flag[rows] = f
+            zall[rows] = np.where(np.isfinite(z), z, 0.0)
+        out[role] = flag
+        out["z"][role] = zall
+    # glitches are independent: flags on COMMON or more markers in one frame (+-1) are a
+    # common cause (a lost frame, an image shake), physics or timing, not the tracker's
+    tl, tb = np.asarray(lay.lug_t), np.asarray(lay.body_t)
+    ft = np.rint(np.r_[tl[out["lug"]], tb[out["body"]]] * fps).astype(np.int64)
+    mk = np.r_[np.asarray(lay.lug_i)[out["lug"]], 10_000 + np.asarray(lay.body_j)[out["body"]]]
+    if len(ft):
+        bad = [f0 for f0 in np.unique(ft)
+               if len(np.unique(mk[np.abs(ft - f0) <= 1])) >= COMMON]
+        if bad:
+            bad = np.array(bad)
+            for role, tt in (("lug", tl), ("body", tb)):
+                fr = np.rint(tt * fps).astype(np.int64)
+                near = np.any(np.abs(fr[:, None] - bad[None, :]) <= 1, 1)
+                out[role] = out[role] & ~near
+    out["std"] = std
+    return out
+
+
+def listing(res, found: dict) -> list:
+    """fit.json `glitches`: [{marker, time_s, dx_mm, dy_mm, size_sigma}], in time order."""
+    prob = res.problem
+    rec = prob.rec
+    out = []
+    for role, rows in (("lug", prob.lug_rows), ("body", prob.body_rows)):
+        flag = found[role]
+        ex, ey, _ = found["std"][role]
+        s = float(prob.noise[role])
+        for i in np.flatnonzero(flag):
+            r = rows[i]
+            out.append({"marker": rec.markers[int(rec.marker_index[r])], "role": role,
+                        "time_s": float(rec.t[r]), "dx_mm": float(ex[i] * s),
+                        "dy_mm": float(ey[i] * s), "size_sigma": float(found["z"][role][i])})
+    out.sort(key=lambda g: (g["time_s"], g["marker"]))
+    return out
