@@ -8,7 +8,25 @@ import os
 import numpy as np
 
 from ..io._atomic import write_text_atomic
-from ..report._html import _CSS, _fig, _fmt, _table, figure_html
+from ..report import _format as F
+from ..report._html import _CSS, _fig, _table, figure_html
+
+
+def _fmt(x, digits=5):
+    """A table cell: numbers to `digits` significant digits (never e+ notation), lists
+    bracketed, None as a dash."""
+    if x is None:
+        return "&ndash;"
+    if isinstance(x, (list, tuple)):
+        return "[" + ", ".join(_fmt(v, digits) for v in x) + "]"
+    if isinstance(x, bool):
+        return "yes" if x else "no"
+    if isinstance(x, (int, np.integer)):
+        return str(int(x))
+    try:
+        return F.sig(float(x), digits)
+    except (TypeError, ValueError):
+        return html.escape(str(x))
 from . import _model
 
 _COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf")
