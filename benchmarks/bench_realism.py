@@ -40,21 +40,10 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "src"))
 sys.path.insert(0, os.path.join(HERE, "..", "tests"))
 
-FPS = 120.0
-EFFECTS = {
-    "lug_ripple": {"lug_ripple": {"ripple_eps": 0.003, "ripple_phi": 1.0}},
-    "wheel_runout": {"wheel_runout": {"runout_eps": 0.006, "runout_phi": -0.7}},
-    "body_bounce": {"body_bounce": {"bounce_A": 0.03, "bounce_B": 1e-4, "bounce_phi": 0.4}},
-    "lug_sliding": {"lug_sliding": {"s_K": 0.2}},
-    "belt_sag": {"belt_sag": {"sag_d": 0.5}},
-    "ground_sinkage": {"ground_sinkage": {"sink_z": 0.3, "sink_us": 30.0}},
-    "lens_distortion": {"lens_distortion": {"lens_k1": 2e-8, "lens_cx": 300.0,
-                                            "lens_cy": 40.0}},
-    "marker_depth": {"marker_depth": {"depth_eps": 0.005, "depth_cx": 100.0,
-                                      "depth_cy": 30.0}},
-    "camera_tilt": {"camera_tilt": {"tilt_theta": 1e-3}},
-    "frame_drop": {"frame_drop": {"drop_dt": 1.0 / FPS, "drop_tstar": 2.5}},
-}
+# the effects and sizes of the blind test of the independent generator (one table for both)
+from test_explain_independent import CASES, FPS  # noqa: E402
+
+EFFECTS = {k: v for k, v in CASES.items() if len(v) == 1}
 ROWS = ("clean", "glitched", "fov", "all")
 
 

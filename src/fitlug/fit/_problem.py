@@ -96,10 +96,7 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
     if joined:
         body_ids, lug_ids = _ids(rec)
         tX, X, cx, cy = _init.body_reference(rec, body_ids, t_ref=t_first)
-    geom, rel = _init.lug_geometry(rec, lug_ids, tX, X)
-    P = float(belt_length(geom["R"], geom["D"]))
-    s, sigma0 = _init.slip_and_phases(rel, geom, tX, X, P)
-    N = _init.infer_n_belt(P, rig.lug_pitch_mm, sigma0)
+    geom, P, s, sigma0, N = _start_geometry(rec, lug_ids, tX, X, rig.lug_pitch_mm)
     # tracker fragments of one lug marker: belt coordinates equal modulo P (a whole
     # number of pitches apart is another lug), spans that do not overlap
     groups = _fragments.lug_groups(lug_ids, _fragments.spans_of(rec, lug_ids), sigma0, P,
@@ -111,10 +108,7 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
     if joined_l:
         body_ids, lug_ids = _ids(rec)
         tX, X, cx, cy = _init.body_reference(rec, body_ids, t_ref=t_first)
-        geom, rel = _init.lug_geometry(rec, lug_ids, tX, X)
-        P = float(belt_length(geom["R"], geom["D"]))
-        s, sigma0 = _init.slip_and_phases(rel, geom, tX, X, P)
-        N = _init.infer_n_belt(P, rig.lug_pitch_mm, sigma0)
+        geom, P, s, sigma0, N = _start_geometry(rec, lug_ids, tX, X, rig.lug_pitch_mm)
     joined = joined + joined_l
     valid = np.isfinite(rec.x) & np.isfinite(rec.y)
 
@@ -181,6 +175,14 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
     return Problem(rec=rec, rig=rig, lay=lay, obs=obs, lug_ids=lug_ids, body_ids=body_ids,
                    lug_rows=lug_rows, body_rows=body_rows, noise=noise, noise_source=src,
                    p0=p0, init_info=info)
+
+
+def _start_geometry(rec, lug_ids, tX, X, pitch):
+    """The data-derived geometry, belt length P, slip, marker phases sigma0 and lug count N."""
+    geom, rel = _init.lug_geometry(rec, lug_ids, tX, X)
+    P = float(belt_length(geom["R"], geom["D"]))
+    s, sigma0 = _init.slip_and_phases(rel, geom, tX, X, P)
+    return geom, P, s, sigma0, _init.infer_n_belt(P, pitch, sigma0)
 
 
 def _ids(rec):
