@@ -127,6 +127,13 @@ class Explanation:
                           "bic": "chi2 + k ln N, noise per role fixed at the base fit's"},
             "timing_s": self.timing_s,
         }
+        speed = (getattr(self.final, "robust", None) or {}).get("speed_sensitivity")
+        if speed is not None:
+            out["speed_sensitivity"] = {
+                **speed, "note": ("the model refitted with a free speed spline "
+                                  f"(breakpoints {speed['spacing_s']:g} s apart): each "
+                                  "quantity's shift is added in quadrature to its robust "
+                                  "error")}
         if self.systematics is not None:
             sysb = {k: v for k, v in self.systematics.items() if k != "why_not"}
             if self.systematics.get("why_not") is None:

@@ -7,7 +7,10 @@ H = J^T J and s_g = J_g^T r_g the score of cluster g, lets each cluster's residu
 arbitrarily correlated: clusters by marker cover a misfit carried by a few markers
 (one marker shifting on its lug), clusters by time block a misfit shared by all
 markers at some times (a disturbance of the whole image). Each quantity takes the
-largest of the least-squares, by-marker and by-time-block standard errors.
+largest of the least-squares, by-marker and by-time-block standard errors, and then
+carries in quadrature the shift the misfit can cause through the speed profile
+(:mod:`._speed`: a refit with a free speed spline), which no sandwich sees when the
+misfit does not average out.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import numpy as np
 from ..fit import covariance
 from ..fit._result import compute_quantities
 from ._engine import _jac_block
+from ._speed import speed_sensitivity
 from ._table import Geometry
 
 BLOCK_S = 0.5
@@ -38,7 +42,7 @@ def _sandwich(J, r, labels, Hinv):
     return Hinv @ S @ Hinv * (G / (G - 1))
 
 
-def robust_result(res, geo: Geometry):
+def robust_result(res, geo: Geometry, *, sensitivity: bool = True):
     """A copy of `res` whose quantities carry cluster-robust standard errors.
 
     Returns (result, method) where method names the covariance that set the slip's error.
@@ -72,9 +76,17 @@ def robust_result(res, geo: Geometry):
     for k, est in res.quantities.items():
         best = max(qs, key=lambda n: (qs[n][k].std or 0.0))
         out[k] = dataclasses.replace(qs[best][k], ci95=None)  # interval from the new std
-    method = max(qs, key=lambda n: (qs[n]["slip"].std or 0.0))
-    info = {"method": method, "clusters": clusters[method], "cov": covs[method],
+    method = cov_method = max(qs, key=lambda n: (qs[n]["slip"].std or 0.0))
+    speed = speed_sensitivity(res) if sensitivity else None
+    if speed is not None:
+        for k, d in speed["shift"].items():
+            if k in out and out[k].std is not None and np.isfinite(out[k].std):
+                out[k] = dataclasses.replace(out[k], std=float(np.hypot(out[k].std, d)),
+                                             ci95=None)
+        method += " + speed-profile sensitivity"
+    info = {"method": cov_method, "clusters": clusters[cov_method], "cov": covs[cov_method],
             "covs": {n: (covs[n], clusters[n]) for n in qs if n != "least squares"},
             "naive_std": {k: e.std for k, e in res.quantities.items()},
-            "robust_std": {k: e.std for k, e in out.items()}}
+            "robust_std": {k: e.std for k, e in out.items()}, "speed_sensitivity": speed,
+            "label": method}
     return dataclasses.replace(res, quantities=out, robust=info), method
