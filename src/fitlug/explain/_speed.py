@@ -63,7 +63,7 @@ def speed_sensitivity(res) -> dict | None:
     prob2 = dataclasses.replace(prob, lay=lay2)
     try:
         with np.errstate(all="ignore"):  # its own covariance is not used (and may be singular)
-                res2 = fit_problem(prob2, p, free=_free_names(res, lay2), max_steps=100,
+            res2 = fit_problem(prob2, p, free=_free_names(res, lay2), max_steps=100,
                                require_convergence=False)
     except Exception:  # noqa: BLE001 - a failed sensitivity refit leaves the errors as they are
         return None
