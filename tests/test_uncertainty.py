@@ -225,3 +225,40 @@ def test_effect_parameter_without_information_is_not_identifiable():
     assert e["params"]["B_per_mm"] is None and e["params"]["A_mm"] is not None
     assert set(e["not_identifiable"]) == {"B_per_mm"}
     jax.clear_caches()
+
+
+def test_tracker_systematics_are_carried_in_the_errors():
+    """Biases of 3 um per marker and path segment (a tracker's floor) trade with the
+    geometry and the slip law: the verdict stays 'none' (not physics), but the slip's
+    least-squares error alone put the truth 2.7 errors away (bench_coverage's
+    systematics row, seed 36000). With the nuisance carried it is inside 1.96 errors."""
+    from fitlug.posterior._posterior import tempering
+
+    rng = np.random.default_rng(36000)
+    sc = SHORT.replace(slip=float(rng.uniform(0.04, 0.12)),
+                       rolling_resistance=float(rng.uniform(0.06, 0.15)))
+    rec, truth = simulate(sc, 36000)
+    x, y = rec.x.copy(), rec.y.copy()
+    for k, m in enumerate(rec.markers):
+        if rec.role_of(m) != "lug":
+            continue
+        sel = np.flatnonzero(rec.marker_index == k)
+        yy = rec.y[sel]
+        lo, hi = np.nanmin(yy), np.nanmax(yy)
+        seg = np.where(yy < lo + 2.0, 0, np.where(yy > hi - 2.0, 1,
+                                                  np.where(np.gradient(yy) > 0, 2, 3)))
+        b = rng.normal(0.0, 0.003, (4, 2))
+        x[sel] += b[seg, 0]
+        y[sel] += b[seg, 1]
+    ex = explain(fit(rec.with_(x=x, y=y), rig_of(sc)), seed=1)
+    assert ex.verdict == "none" and ex.systematics is not None, ex.verdict
+    s = ex.final.slip
+    naive = ex.final.robust["naive_std"]["slip"]
+    assert abs(ex.base.slip.value - truth["slip"]) > 1.96 * naive  # the case that failed
+    assert s.std > 1.5 * naive
+    assert s.ci95[0] <= truth["slip"] <= s.ci95[1], (s, truth["slip"])
+    doc = fit_json(ex.final, discrepancy=ex.to_json())
+    assert "tracker-systematics nuisance" in doc["uncertainty_method"]
+    assert "_cov" not in doc["discrepancy"]["systematics"]
+    assert tempering(ex.final)["factor"] > 2.0  # the posterior is widened to match
+    jax.clear_caches()

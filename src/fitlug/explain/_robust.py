@@ -88,5 +88,35 @@ def robust_result(res, geo: Geometry, *, sensitivity: bool = True):
             "covs": {n: (covs[n], clusters[n]) for n in qs if n != "least squares"},
             "naive_std": {k: e.std for k, e in res.quantities.items()},
             "robust_std": {k: e.std for k, e in out.items()}, "speed_sensitivity": speed,
-            "label": method}
+            "label": method,
+            "uncertainty_method": f"least squares, {method} errors (unexplained misfit)"}
     return dataclasses.replace(res, quantities=out, robust=info), method
+
+
+def nuisance_result(res, sysb: dict):
+    """A copy of `res` whose quantities carry the tracker-systematics nuisance: each error
+    is the larger of the least-squares one and the one with the nuisance fitted beside the
+    model (sysb["_cov"], from explain._systematics)."""
+    C = sysb.get("_cov")
+    if C is None or not np.all(np.isfinite(C)):
+        return res
+    prob = res.problem
+    fixed_np = {k: v for k, v in res.params.items() if k not in res.packing.names}
+    q = compute_quantities(res.params, res.packing, res.flat, C, prob.lay, prob.rig.mass_kg,
+                           fixed_np, prob.rig.drawbar_pull_N)
+    out = {}
+    for k, est in res.quantities.items():
+        alt = q.get(k)
+        if alt is not None and alt.std is not None and est.std is not None \
+                and np.isfinite(alt.std) and alt.std > est.std:
+            out[k] = dataclasses.replace(est, std=float(alt.std), ci95=None)
+        else:
+            out[k] = est
+    method = "least squares with the tracker-systematics nuisance carried"
+    info = {"method": method, "clusters": None, "cov": 0.5 * (C + C.T),
+            "covs": {}, "naive_std": {k: e.std for k, e in res.quantities.items()},
+            "robust_std": {k: e.std for k, e in out.items()}, "speed_sensitivity": None,
+            "label": method,
+            "uncertainty_method": method + " (per-marker-per-segment offsets and speed terms "
+                                           "fitted beside the model: a measurement floor)"}
+    return dataclasses.replace(res, quantities=out, robust=info)

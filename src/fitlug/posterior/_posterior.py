@@ -511,7 +511,8 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     if temper["factor"] > 1.0:
         how += (f", likelihood tempered (stretched) to the {temper['method']} covariance "
                 f"({temper['note']}; slip error x {math.sqrt(temper['factor']):.3g} the "
-                "white-noise one): unexplained misfit")
+                "white-noise one): " + ("tracker systematics carried" if "nuisance" in
+                                        temper["method"] else "unexplained misfit"))
     return Posterior(estimates=estimates, samples=samples, chain=chain,
                      method=f"{use}: {desc}", check=check, seed=seed,
                      not_identifiable=unident, uncertainty_method=how, temper=temper,
