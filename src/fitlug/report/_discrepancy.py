@@ -386,6 +386,15 @@ def discrepancy_section(fit_json: dict, state=None) -> str:
                    f"{located_sentence(d)} No catalog effect earns its place, so the slip's "
                    "error bar includes the mismatch "
                    f"({_e(d.get('slip_after_uncertainty', '') or fj.get('uncertainty_method', ''))}).</div>")
+    sens = d.get("speed_sensitivity")
+    if v == "unexplained" and sens and (sens.get("shift") or {}).get("slip") is not None:
+        out.append(f"<p>Speed-profile sensitivity: refitted with a free speed profile "
+                   f"(breakpoints {_num(sens.get('spacing_s'), 2)} s apart), χ²/dof goes "
+                   f"from {_num(sens.get('chi2_per_dof_base'))} to "
+                   f"{_num(sens.get('chi2_per_dof'))} and the slip moves by "
+                   f"{_num(sens['shift']['slip'], 2)}. A misfit that does not average out "
+                   "biases the slip in a way no residual scatter shows, so this shift is "
+                   "added in quadrature to the error bar.</p>")
     final = fj.get("slip") or d.get("slip_after")
     out.append("<div class=scroll><table><tr><th></th><th>slip ± 1 σ</th><th>χ²/dof</th></tr>"
                f"<tr><td>base model</td><td>{_slip(d.get('slip_before'))}</td>"
