@@ -45,7 +45,7 @@ from ._detect import ALPHA, Detection, detect
 from ._engine import Engine
 from ._final import final_fit
 from ._locate import Location, locate, residual_map, spectrum_summary
-from ._robust import robust_result
+from ._robust import nuisance_result, robust_result
 from ._systematics import tracker_systematics
 from ._table import geometry, structured_misfit
 
@@ -127,8 +127,16 @@ class Explanation:
                           "bic": "chi2 + k ln N, noise per role fixed at the base fit's"},
             "timing_s": self.timing_s,
         }
+        speed = (getattr(self.final, "robust", None) or {}).get("speed_sensitivity")
+        if speed is not None:
+            out["speed_sensitivity"] = {
+                **speed, "note": ("the model refitted with a free speed spline "
+                                  f"(breakpoints {speed['spacing_s']:g} s apart): each "
+                                  "quantity's shift is added in quadrature to its robust "
+                                  "error")}
         if self.systematics is not None:
-            sysb = {k: v for k, v in self.systematics.items() if k != "why_not"}
+            sysb = {k: v for k, v in self.systematics.items()
+                    if k != "why_not" and not k.startswith("_")}
             if self.systematics.get("why_not") is None:
                 out["systematics"] = sysb
             else:
@@ -288,8 +296,9 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
         sysb = tracker_systematics(res, geo, alpha)
         timing["total"] = time.perf_counter() - t_start
         if sysb["why_not"] is None:  # below the tracker's floor: a measurement, not physics
-            return Explanation("none", res, res, [], [], [], det0, det0, loc0, loc0, rounds,
-                               "least squares", timing, geo, sysb)
+            final = nuisance_result(res, sysb)  # its errors carry the tracker's systematics
+            return Explanation("none", res, final, [], [], [], det0, det0, loc0, loc0, rounds,
+                               _method(final), timing, geo, sysb)
         final, method = robust_result(res, geo)
         return Explanation("unexplained", res, final, [], loc0.parts, [], det0, det0, loc0,
                            loc0, rounds, method, timing, geo, sysb)
@@ -308,13 +317,19 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
     else:
         sysb = tracker_systematics(final, geo, alpha)
         if sysb["why_not"] is None:  # what is left sits below the tracker's floor
-            verdict, located, method = "explained", loc0.parts, "least squares"
+            final = nuisance_result(final, sysb)
+            verdict, located, method = "explained", loc0.parts, _method(final)
         else:
             verdict, located = "unexplained", loc1.parts
             final, method = robust_result(final, geo)
     timing["total"] = time.perf_counter() - t_start
     return Explanation(verdict, res, final, list(accepted), located, steps, det0, det1, loc0,
                        loc1, rounds, method, timing, geo, sysb)
+
+
+def _method(res) -> str:
+    info = getattr(res, "robust", None)
+    return info["label"] if info else "least squares"
 
 
 def _start(eng, scr, chi2_cur, names):

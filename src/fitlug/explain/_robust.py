@@ -7,7 +7,10 @@ H = J^T J and s_g = J_g^T r_g the score of cluster g, lets each cluster's residu
 arbitrarily correlated: clusters by marker cover a misfit carried by a few markers
 (one marker shifting on its lug), clusters by time block a misfit shared by all
 markers at some times (a disturbance of the whole image). Each quantity takes the
-largest of the least-squares, by-marker and by-time-block standard errors.
+largest of the least-squares, by-marker and by-time-block standard errors, and then
+carries in quadrature the shift the misfit can cause through the speed profile
+(:mod:`._speed`: a refit with a free speed spline), which no sandwich sees when the
+misfit does not average out.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import numpy as np
 from ..fit import covariance
 from ..fit._result import compute_quantities
 from ._engine import _jac_block
+from ._speed import speed_sensitivity
 from ._table import Geometry
 
 BLOCK_S = 0.5
@@ -38,7 +42,7 @@ def _sandwich(J, r, labels, Hinv):
     return Hinv @ S @ Hinv * (G / (G - 1))
 
 
-def robust_result(res, geo: Geometry):
+def robust_result(res, geo: Geometry, *, sensitivity: bool = True):
     """A copy of `res` whose quantities carry cluster-robust standard errors.
 
     Returns (result, method) where method names the covariance that set the slip's error.
@@ -72,9 +76,47 @@ def robust_result(res, geo: Geometry):
     for k, est in res.quantities.items():
         best = max(qs, key=lambda n: (qs[n][k].std or 0.0))
         out[k] = dataclasses.replace(qs[best][k], ci95=None)  # interval from the new std
-    method = max(qs, key=lambda n: (qs[n]["slip"].std or 0.0))
-    info = {"method": method, "clusters": clusters[method], "cov": covs[method],
+    method = cov_method = max(qs, key=lambda n: (qs[n]["slip"].std or 0.0))
+    speed = speed_sensitivity(res) if sensitivity else None
+    if speed is not None:
+        for k, d in speed["shift"].items():
+            if k in out and out[k].std is not None and np.isfinite(out[k].std):
+                out[k] = dataclasses.replace(out[k], std=float(np.hypot(out[k].std, d)),
+                                             ci95=None)
+        method += " + speed-profile sensitivity"
+    info = {"method": cov_method, "clusters": clusters[cov_method], "cov": covs[cov_method],
             "covs": {n: (covs[n], clusters[n]) for n in qs if n != "least squares"},
             "naive_std": {k: e.std for k, e in res.quantities.items()},
-            "robust_std": {k: e.std for k, e in out.items()}}
+            "robust_std": {k: e.std for k, e in out.items()}, "speed_sensitivity": speed,
+            "label": method,
+            "uncertainty_method": f"least squares, {method} errors (unexplained misfit)"}
     return dataclasses.replace(res, quantities=out, robust=info), method
+
+
+def nuisance_result(res, sysb: dict):
+    """A copy of `res` whose quantities carry the tracker-systematics nuisance: each error
+    is the larger of the least-squares one and the one with the nuisance fitted beside the
+    model (sysb["_cov"], from explain._systematics)."""
+    C = sysb.get("_cov")
+    if C is None or not np.all(np.isfinite(C)):
+        return res
+    prob = res.problem
+    fixed_np = {k: v for k, v in res.params.items() if k not in res.packing.names}
+    q = compute_quantities(res.params, res.packing, res.flat, C, prob.lay, prob.rig.mass_kg,
+                           fixed_np, prob.rig.drawbar_pull_N)
+    out = {}
+    for k, est in res.quantities.items():
+        alt = q.get(k)
+        if alt is not None and alt.std is not None and est.std is not None \
+                and np.isfinite(alt.std) and alt.std > est.std:
+            out[k] = dataclasses.replace(est, std=float(alt.std), ci95=None)
+        else:
+            out[k] = est
+    method = "least squares with the tracker-systematics nuisance carried"
+    info = {"method": method, "clusters": None, "cov": 0.5 * (C + C.T),
+            "covs": {}, "naive_std": {k: e.std for k, e in res.quantities.items()},
+            "robust_std": {k: e.std for k, e in out.items()}, "speed_sensitivity": None,
+            "label": method,
+            "uncertainty_method": method + " (per-marker-per-segment offsets and speed terms "
+                                           "fitted beside the model: a measurement floor)"}
+    return dataclasses.replace(res, quantities=out, robust=info)

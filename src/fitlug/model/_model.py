@@ -75,6 +75,19 @@ class Layout(eqx.Module):
         # a static field is no pytree leaf, so eqx.tree_at cannot replace it
         return dataclasses.replace(self, effects=order)
 
+    def with_breaks(self, breaks) -> "Layout":
+        """The same recording with the speed spline on other breakpoints (same grid)."""
+        grid = np.asarray(self.grid)
+        mid = grid[:-1] + self.h / 2
+        br = np.asarray(breaks, dtype=float)
+        Bn, jn = _spline.banded(grid, br, 0)
+        dBn, _ = _spline.banded(grid, br, 1)
+        Bm, jm = _spline.banded(mid, br, 0)
+        dBm, _ = _spline.banded(mid, br, 1)
+        f = jnp.asarray
+        return dataclasses.replace(self, Bn=f(Bn), dBn=f(dBn), Bm=f(Bm), dBm=f(dBm), jn=f(jn),
+                                   jm=f(jm), breaks=f(br), n_coef=_spline.n_coefficients(br))
+
     def with_times(self, lug_t, lug_i, body_t, body_j) -> "Layout":
         """The same model evaluated at other sample times (inside the grid)."""
         a = [jnp.asarray(v) for v in (lug_t, lug_i, body_t, body_j)]

@@ -384,7 +384,10 @@ def tempering(res: FitResult, marg: "_Marginal | None" = None) -> dict:
     "clusters", "small_sample_factor", "extra_scale", "note"}.
     """
     info = getattr(res, "robust", None)
-    if not info or info.get("cov") is None or info.get("method") == "least squares":
+    if not info or info.get("cov") is None:
+        return {"factor": 1.0}
+    shifted = bool((info.get("speed_sensitivity") or {}).get("shift"))
+    if info.get("method") == "least squares" and not shifted:
         return {"factor": 1.0}
     if marg is None:
         marg = _Marginal(res, slip_law_parameters(res), batch=16)
@@ -431,6 +434,9 @@ def tempering(res: FitResult, marg: "_Marginal | None" = None) -> dict:
             "freedom" if G else f"errors x {math.sqrt(t_corr):.3f} for t")
     if extra > 1.0 + 1e-9:
         note += f", x {math.sqrt(extra):.3f} so that no quantity is narrower than its own"
+    if shifted:
+        note += ("; the robust errors carry the speed-profile sensitivity (the shift of "
+                 "each quantity when the speed spline is freed)")
     return {"factor": factor, "cov": S, "method": method, "clusters": G,
             "small_sample_factor": float(t_corr), "extra_scale": float(extra), "note": note}
 
@@ -505,7 +511,8 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     if temper["factor"] > 1.0:
         how += (f", likelihood tempered (stretched) to the {temper['method']} covariance "
                 f"({temper['note']}; slip error x {math.sqrt(temper['factor']):.3g} the "
-                "white-noise one): unexplained misfit")
+                "white-noise one): " + ("tracker systematics carried" if "nuisance" in
+                                        temper["method"] else "unexplained misfit"))
     return Posterior(estimates=estimates, samples=samples, chain=chain,
                      method=f"{use}: {desc}", check=check, seed=seed,
                      not_identifiable=unident, uncertainty_method=how, temper=temper,

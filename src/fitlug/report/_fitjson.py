@@ -45,7 +45,7 @@ def fit_json(res, *, input_path: str | None = None, mcmc=None, discrepancy=None,
         robust = getattr(res, "robust", None)
         uncertainty_method = (
             "posterior (emcee)" if posterior else
-            f"least squares, {robust['method']} errors (unexplained misfit)" if robust else
+            robust.get("uncertainty_method") or f"least squares, {robust['method']} errors" if robust else
             "least squares (Jacobian)")
 
     def est(name):
