@@ -134,12 +134,10 @@ def tracker_systematics(res, geo, alpha: float) -> dict | None:
     d_slip = float(g @ delta[:n_p])
     s_std = float(res.slip.std or 0.0)
     effect = abs(d_slip) / s_std if s_std > 0 else np.inf
-    # the shift's spread from the noise alone: sqrt(V1 - V0), both variances from the same
-    # scaled normal equations (unit weights: the residuals are in noise units)
-    gA = np.r_[g, np.zeros(N.shape[1])] / d
-    gJ = gA[:n_p]
-    v1 = _quad_pinv(A / d, gA)
-    v0 = _quad_pinv(J / d[:n_p], gJ)
+    # the shift's spread from the noise alone: sqrt(V1 - V0), the slip's variance with and
+    # without the nuisance (unit weights: the residuals are in noise units)
+    v1 = float(g @ cov_model @ g)
+    v0 = _quad_pinv(J / d[:n_p], g / d[:n_p])
     null_std = float(np.sqrt(max(v1 - v0, 0.0)))
     shift_z = abs(d_slip) / null_std if null_std > 0 else np.inf
     # amplitude of the systematic: what fitting the nuisance (and refitting the model with
