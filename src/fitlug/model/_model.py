@@ -77,21 +77,25 @@ class Layout(eqx.Module):
 
     def with_breaks(self, breaks) -> "Layout":
         """The same recording with the speed spline on other breakpoints (same grid)."""
-        grid = np.asarray(self.grid)
-        mid = grid[:-1] + self.h / 2
-        br = np.asarray(breaks, dtype=float)
-        Bn, jn = _spline.banded(grid, br, 0)
-        dBn, _ = _spline.banded(grid, br, 1)
-        Bm, jm = _spline.banded(mid, br, 0)
-        dBm, _ = _spline.banded(mid, br, 1)
-        f = jnp.asarray
-        return dataclasses.replace(self, Bn=f(Bn), dBn=f(dBn), Bm=f(Bm), dBm=f(dBm), jn=f(jn),
-                                   jm=f(jm), breaks=f(br), n_coef=_spline.n_coefficients(br))
+        return dataclasses.replace(self, **_speed_bases(np.asarray(self.grid), self.h, breaks))
 
     def with_times(self, lug_t, lug_i, body_t, body_j) -> "Layout":
         """The same model evaluated at other sample times (inside the grid)."""
         a = [jnp.asarray(v) for v in (lug_t, lug_i, body_t, body_j)]
         return eqx.tree_at(lambda l: (l.lug_t, l.lug_i, l.body_t, l.body_j), self, tuple(a))
+
+
+def _speed_bases(grid: np.ndarray, h: float, breaks) -> dict:
+    """The banded speed basis (and its derivative) at the nodes and interval midpoints."""
+    mid = grid[:-1] + h / 2
+    br = np.asarray(breaks, dtype=float)
+    Bn, jn = _spline.banded(grid, br, 0)
+    dBn, _ = _spline.banded(grid, br, 1)
+    Bm, jm = _spline.banded(mid, br, 0)
+    dBm, _ = _spline.banded(mid, br, 1)
+    f = jnp.asarray
+    return {"Bn": f(Bn), "dBn": f(dBn), "Bm": f(Bm), "dBm": f(dBm), "jn": f(jn), "jm": f(jm),
+            "breaks": f(br), "n_coef": _spline.n_coefficients(br)}
 
 
 def make_layout(*, breaks, t_lo, t_hi, fps, lug_t, lug_i, body_t, body_j, n_lug, n_body,
@@ -102,15 +106,7 @@ def make_layout(*, breaks, t_lo, t_hi, fps, lug_t, lug_i, body_t, body_j, n_lug,
     h = 1.0 / (float(fps) * substeps)
     G = int(np.ceil((t_hi - t_lo) / h)) + 1
     grid = t_lo + h * np.arange(G)
-    mid = grid[:-1] + h / 2
-    br = np.asarray(breaks, dtype=float)
-    Bn, jn = _spline.banded(grid, br, 0)
-    dBn, _ = _spline.banded(grid, br, 1)
-    Bm, jm = _spline.banded(mid, br, 0)
-    dBm, _ = _spline.banded(mid, br, 1)
-    f = jnp.asarray
-    lay = Layout(grid=f(grid), Bn=f(Bn), dBn=f(dBn), Bm=f(Bm), dBm=f(dBm), jn=f(jn), jm=f(jm),
-                 n_coef=_spline.n_coefficients(br), breaks=jnp.asarray(br),
+    lay = Layout(grid=jnp.asarray(grid), **_speed_bases(grid, h, breaks),
                  t_ref=jnp.asarray(float(t_ref)),
                  lug_t=jnp.asarray(lug_t, float), lug_i=jnp.asarray(lug_i, int),
                  body_t=jnp.asarray(body_t, float), body_j=jnp.asarray(body_j, int), h=h,
