@@ -1,7 +1,7 @@
 """fitlug on recordings as a real camera and tracker deliver them. Prints figures; asserts nothing.
 
     python benchmarks/bench_realism.py [--n 50] [--n-effect 10] [--rows clean,glitched,fov,all]
-        [--effects lug_ripple,...] [--workers 4] [--out results.json]
+        [--rows ...,rendered --n-rendered 4] [--effects lug_ripple,...] [--workers 4] [--out F]
 
 Recordings come from tests/independent_sim.py (MODEL.md written independently; 120 fps,
 5 s, 0.72 m of travel so the robot crosses a 637 mm picture), each with its own seed,
@@ -14,7 +14,12 @@ Rows (the transform is tests/realism.py):
   longer than 10 frames (new ids 'trkNN'), no glitches;
 - all: everything above together, written in the wide export form with the roles in
   rig.toml, read back with fitlug.io;
-- rendered: TODO (for the lead) -- video rendered and tracked by fitlug.vision; not run here.
+- rendered (only when asked for: --rows ...,rendered): the noise-free recording rendered as
+  camera frames by fitlug.vision.render_video (637 mm x 117 mm picture at 0.39 mm/px: the
+  robot crosses it; lens, motion blur, lighting gradient, vignetting, sensor noise),
+  tracked by fitlug.vision.track (what `fit-lug track` runs) and mapped to mm with the
+  calib.json the renderer wrote; about a minute per recording, so --n-rendered (default 4)
+  recordings per case instead of --n / --n-effect.
 
 Per row: failures (exceptions), false-alarm rate (clean physics, verdict other than
 'none'), the slip's bias and mean z = (s0 - truth) / std over the null recordings, and
@@ -45,6 +50,23 @@ from test_explain_independent import CASES, FPS  # noqa: E402
 
 EFFECTS = {k: v for k, v in CASES.items() if len(v) == 1}
 ROWS = ("clean", "glitched", "fov", "all")
+RENDER_SIZE = (1632, 300)  # px: 637 mm wide at 0.39 mm/px, 117 mm high (the markers' band)
+
+
+def rendered(rec, seed: int):
+    """`rec` (noise-free positions) rendered as frames, tracked and mapped back to mm."""
+    from fitlug.vision import load_calibration, render_video, to_recording, track
+
+    t = np.unique(rec.t)
+    xy = np.full((t.size, rec.n_markers, 2), np.nan)
+    row = np.searchsorted(t, rec.t)
+    xy[row, rec.marker_index, 0] = rec.x
+    xy[row, rec.marker_index, 1] = rec.y
+    with tempfile.TemporaryDirectory() as d:
+        info = render_video(d, t, list(rec.markers), list(rec.roles), xy,
+                            image_size=RENDER_SIZE, seed=seed, progress=False)
+        result = track(d, fps=float(1.0 / np.median(np.diff(t))))
+        return to_recording(result, load_calibration(info["calib"]))
 
 
 def transform(row: str, rec, rig, seed: int):
@@ -81,10 +103,14 @@ def one(task):
 
     t0 = time.perf_counter()
     eff = EFFECTS.get(effect) if effect else None
-    rec, rig, truth = isim.make(seed, fps=FPS, v_max=240.0, effects=eff)
+    noise = {"noise_lug": 0.0, "noise_body": 0.0} if row == "rendered" else {}
+    rec, rig, truth = isim.make(seed, fps=FPS, v_max=240.0, effects=eff, **noise)
     out = {"row": row, "effect": effect, "seed": seed, "truth": truth["slip"]}
     try:
-        rec2, rig2 = transform(row, rec, rig, seed)
+        if row == "rendered":  # the camera adds the noise
+            rec2, rig2 = rendered(rec, seed), rig
+        else:
+            rec2, rig2 = transform(row, rec, rig, seed)
         res = fit(rec2, rig2)
         ex = explain(res)
         fin = ex.final
@@ -115,8 +141,6 @@ def summarise(results, rows, effects):
         print(f"{row:10s} {len(null):4d} {nfail:5d} {fa:12.3f} {bias:11.2e} "
               f"{(z.mean() if len(z) else np.nan):7.2f} "
               f"{(np.sqrt(np.mean(z ** 2)) if len(z) else np.nan):6.2f}  {' '.join(det)}")
-    print(f"{'rendered':10s}  TODO (lead): render with fitlug.vision, track with "
-          "`fit-lug track`, then the same pipeline; not run by this benchmark")
     errs = [r for r in results if "error" in r]
     for r in errs[:10]:
         print(f"  failure {r['row']}/{r['effect']}/seed {r['seed']}: {r['error']}")
@@ -126,6 +150,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=50, help="null recordings per row")
     ap.add_argument("--n-effect", type=int, default=10, help="recordings per effect per row")
+    ap.add_argument("--n-rendered", type=int, default=4,
+                    help="null recordings and recordings per effect of the rendered row")
     ap.add_argument("--rows", default=",".join(ROWS))
     ap.add_argument("--effects", default=",".join(EFFECTS))
     ap.add_argument("--workers", type=int, default=1)
@@ -146,9 +172,10 @@ def main(argv=None):
         return
     tasks = []
     for row in rows:
-        tasks += [(row, None, a.seed0 + k) for k in range(a.n)]
+        n, n_eff = (a.n_rendered, a.n_rendered) if row == "rendered" else (a.n, a.n_effect)
+        tasks += [(row, None, a.seed0 + k) for k in range(n)]
         for i, e in enumerate(effects):
-            tasks += [(row, e, a.seed0 + 10000 * (i + 1) + k) for k in range(a.n_effect)]
+            tasks += [(row, e, a.seed0 + 10000 * (i + 1) + k) for k in range(n_eff)]
     # interleave rows and effects, so that a run cut short has a bit of every row
     tasks = sorted(tasks, key=lambda t: (t[2] % 10000, t[0], t[1] or ""))
     t0 = time.perf_counter()

@@ -122,6 +122,15 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
               (valid & (rec.marker_index == m) for m in body_ids)]
     breaks = place_knots(tX, X, t_lo=t_lo, t_hi=t_hi, R=geom["R"], pitch=P / N, slip=s,
                          tracks=tracks)
+    # a clamped cubic B-spline's first and last basis functions live in the first and last
+    # knot intervals only: an end interval with no sample in it (the 3-frame margin beyond
+    # the last sample can hold a whole ramp-spaced interval) leaves that speed coefficient
+    # unconstrained, a zero Jacobian column and NaN standard errors; merge it inward
+    t_first_s, t_last_s = float(t_all.min()), float(t_all.max())
+    while len(breaks) > 2 and breaks[-2] >= t_last_s:
+        breaks = np.delete(breaks, -2)
+    while len(breaks) > 2 and breaks[1] <= t_first_s:
+        breaks = np.delete(breaks, 1)
 
     lug_rows = _rows(rec, lug_ids)
     body_rows = _rows(rec, body_ids)

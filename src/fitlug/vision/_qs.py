@@ -141,6 +141,7 @@ def _model(win, rfit, x, y, p, jacobian=True):
 
 
 _SLOPES = np.array([_A + 1, _A + 2, _B + 1, _B + 2])  # the planes' slopes
+EXTRA_STEPS = 3
 
 
 def _fit(win, rfit, x, y, p, n_iter, prior=None, hold=False):
@@ -162,8 +163,15 @@ def _fit(win, rfit, x, y, p, n_iter, prior=None, hold=False):
     lam = np.full(p.shape[0], 1e-3)
     best, best_cost = p, np.full(p.shape[0], np.inf)
     best_data = weight = hess = grad = pw = at = None
-    for it in range(n_iter + 1):
-        last = it == n_iter
+    moved = np.zeros(p.shape[0], dtype=bool)  # a step after the start was accepted
+    it, extra = 0, 0
+    while True:
+        # a marker whose steps were all rejected gets up to EXTRA_STEPS more (its centre
+        # would otherwise be its start)
+        last = it >= n_iter and (moved.all() or extra >= EXTRA_STEPS or n_iter == 0)
+        if it >= n_iter and not last:
+            extra += 1
+        it += 1
         # the last evaluation only checks the last step: no Jacobian needed
         res, jac, data_cost, w = _model(win, rfit, x, y, p, jacobian=not last)
         cost = data_cost
@@ -173,6 +181,7 @@ def _fit(win, rfit, x, y, p, n_iter, prior=None, hold=False):
                 pw = 0.05 * np.einsum("mpn,mpn->mp", jac[:, 3:5], jac[:, 3:5])
             cost = cost + (pw * dev * dev).sum(axis=1)
         better = cost <= best_cost
+        moved |= better & np.isfinite(best_cost)
         if last or not better.any():
             if better.any():
                 best = np.where(better[:, None], p, best)
@@ -201,14 +210,28 @@ def _fit(win, rfit, x, y, p, n_iter, prior=None, hold=False):
         damped = hess.copy()
         damped[:, diag, diag] *= 1.0 + lam[:, None]
         damped[:, diag, diag] += 1e-9
-        g = grad
+        g = grad.copy()
         if hold:
             damped[:, _SLOPES, :] = 0.0
             damped[:, :, _SLOPES] = 0.0
             damped[:, _SLOPES, _SLOPES] = 1.0
-            g = grad.copy()
             g[:, _SLOPES] = 0.0
         step = np.linalg.solve(damped, g[..., None])[..., 0]
+        # after a rejected step the next one is taken with the blur widths held: near their
+        # lower bound (a still marker, no motion blur) the cost is flat in them, their
+        # Gauss-Newton step is huge and its clip does not shrink with the damping, so every
+        # step was rejected and the centre stayed at its start - the prediction from the
+        # previous frames (frame-to-frame correlated errors: r1 ~ 0.15-0.5 for still or
+        # slow checkers, seen as a structured misfit of the body markers in the fit)
+        held = ~better
+        if held.any():
+            dh, gh = damped[held], g[held]
+            for k in (3, 4):
+                dh[:, k, :] = 0.0
+                dh[:, :, k] = 0.0
+                dh[:, k, k] = 1.0
+                gh[:, k] = 0.0
+            step[held] = np.linalg.solve(dh, gh[..., None])[..., 0]
         step[:, :2] = np.clip(step[:, :2], -1.0, 1.0)
         step[:, 3:5] = np.clip(step[:, 3:5], -0.25, 0.25)
         p = best + step
