@@ -35,7 +35,8 @@ import numpy as np
 
 from ..fit._result import derived
 from ._detect import detect
-from ._engine import _jac_block
+from ..fit._lsq import RowChunks
+from ._engine import jacobian_of, pinv_factor
 from ._locate import locate
 from ._table import structured_misfit
 
@@ -59,40 +60,104 @@ def floor_um(rec) -> tuple[float, str]:
 
 def _design(geo):
     """Nuisance columns (S, q) in weighted-residual units per mm, and their cell labels."""
+    (off, spd, v_off, v_spd), labels = _design_sparse(geo)
+    S, q = len(geo.t), len(labels)
+    N = np.zeros((S, q))
+    rows = np.arange(S)
+    N[rows[off >= 0], off[off >= 0]] = v_off[off >= 0]
+    N[rows[spd >= 0], spd[spd >= 0]] = v_spd[spd >= 0]
+    return N, labels
+
+
+def _design_sparse(geo):
+    """:func:`_design` as at most two entries per sample (a sample lies in one cell): the
+    column of its cell's offset and of its speed term (-1 for none) and their values;
+    and the columns' cell labels."""
     vn = np.abs(geo.v) / max(float(np.max(np.abs(geo.v))), 1e-12)
-    cols, labels = [], []
+    S = len(geo.t)
+    off, spd = np.full(S, -1), np.full(S, -1)
+    labels = []
     key = (geo.marker * 5 + geo.segment) * 2 + geo.axis
-    for k in np.unique(key[geo.valid]):
-        sel = geo.valid & (key == k)
-        if sel.sum() < MIN_CELL:
+    order = np.argsort(key, kind="stable")
+    ks = key[order]
+    starts = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1]])
+    ends = np.r_[starts[1:], len(ks)]
+    for a, b in zip(starts, ends):
+        idx = order[a:b]
+        idx = idx[geo.valid[idx]]
+        if len(idx) == 0 or len(idx) < MIN_CELL:
             continue
-        w = np.where(sel, geo.weight, 0.0)
-        cols.append(w)
-        labels.append(int(k))
-        if np.ptp(vn[sel]) > 0.2:  # a speed term only where the speed changes
-            cols.append(w * vn)
-            labels.append(int(k))
-    if not cols:
-        return np.zeros((len(geo.t), 0)), np.zeros(0, int)
-    return np.stack(cols, 1), np.array(labels)
+        k = int(key[idx[0]])
+        off[idx] = len(labels)
+        labels.append(k)
+        if np.ptp(vn[idx]) > 0.2:  # a speed term only where the speed changes
+            spd[idx] = len(labels)
+            labels.append(k)
+    w = np.where(geo.valid, geo.weight, 0.0)
+    return (off, spd, w, w * vn), np.array(labels, int)
+
+
+def _nuisance_fit(res, geo, r):
+    """Least squares of the residuals r on [J, N] (the fit's Jacobian and the nuisance
+    design), columns scaled to unit norm, minimum-norm solution: (delta, r2 = r + A delta,
+    number of model columns, number of nuisance columns). Dense on short recordings; on
+    long ones from the normal equations, J^T J and J^T N accumulated over time chunks
+    and N (two entries per sample) never formed."""
+    prob = res.problem
+    fixed = {k: jnp.asarray(v, float) for k, v in res.params.items()
+             if k not in res.packing.names}
+    J = jacobian_of(res.flat, fixed, res.packing, prob.lay, prob.obs)
+    if not isinstance(J, RowChunks):
+        N, _ = _design(geo)
+        A = np.hstack([J, N])
+        d = np.sqrt(np.sum(A * A, 0))
+        d = np.where(d > 0, d, 1.0)
+        sol, *_ = np.linalg.lstsq(A / d, -r, rcond=1e-10)
+        delta = sol / d
+        return delta, r + A @ delta, J.shape[1], N.shape[1]
+    (off, spd, v_off, v_spd), labels = _design_sparse(geo)
+    q, n_p = len(labels), J.n_par
+    JJ = np.zeros((n_p, n_p))
+    JN = np.zeros((n_p, q))
+    g = np.zeros(n_p)
+    for rows, Jc in J:
+        JJ += Jc.T @ Jc
+        g += Jc.T @ r[rows]
+        for col, val in ((off, v_off), (spd, v_spd)):
+            c = col[rows]
+            use = np.flatnonzero(c >= 0)
+            if len(use) == 0:
+                continue
+            order = use[np.argsort(c[use], kind="stable")]
+            cs = c[order]
+            starts = np.flatnonzero(np.r_[True, cs[1:] != cs[:-1]])
+            JN[:, cs[starts]] += np.add.reduceat(Jc[order] * val[rows][order, None], starts,
+                                                 0).T
+    NN = np.zeros((q, q))
+    Nr = np.zeros(q)
+    for col, val in ((off, v_off), (spd, v_spd)):
+        use = col >= 0
+        NN[np.diag_indices(q)] += np.bincount(col[use], val[use] ** 2, q)
+        Nr += np.bincount(col[use], val[use] * r[use], q)
+    both = (off >= 0) & (spd >= 0)
+    cross = np.zeros((q, q))
+    np.add.at(cross, (off[both], spd[both]), v_off[both] * v_spd[both])
+    NN += cross + cross.T
+    A = np.block([[JJ, JN], [JN.T, NN]])
+    b = np.r_[g, Nr]
+    M = pinv_factor(A, 1e-14)
+    delta = -(M @ (M.T @ b))
+    dn = np.r_[delta[n_p:], 0.0]  # column -1 (no entry) takes 0
+    r2 = r + J.matvec(delta[:n_p]) + v_off * dn[off] + v_spd * dn[spd]
+    return delta, r2, n_p, q
 
 
 def tracker_systematics(res, geo, alpha: float) -> dict | None:
     """The `systematics` block when the misfit of fit `res` is tracker-like and below the
     floor with a negligible effect on the slip; else None (with the reason in `why`)."""
     prob = res.problem
-    fixed = {k: jnp.asarray(v, float) for k, v in res.params.items()
-             if k not in res.packing.names}
-    J = np.asarray(_jac_block(jnp.asarray(res.flat), fixed, res.packing, prob.lay, prob.obs))
     r = np.where(geo.valid, np.asarray(res.residuals, float), 0.0)
-    N, _ = _design(geo)
-    A = np.hstack([J, N])
-    d = np.sqrt(np.sum(A * A, 0))
-    d = np.where(d > 0, d, 1.0)
-    sol, *_ = np.linalg.lstsq(A / d, -r, rcond=1e-10)
-    delta = sol / d
-    r2 = r + A @ delta
-    n_p = J.shape[1]
+    delta, r2, n_p, n_nuis = _nuisance_fit(res, geo, r)
     # slip: moved by the nuisance, against its least-squares error
     fixed_np = {k: jnp.asarray(v, float) for k, v in res.params.items()
                 if k not in res.packing.names}
@@ -114,11 +179,11 @@ def tracker_systematics(res, geo, alpha: float) -> dict | None:
     M, _ = structured_misfit(geo, r)
     M2, _ = structured_misfit(geo, r2)
     share = float(np.clip((M - M2) / M, 0.0, 1.0)) if M > 0 else 0.0
-    det = detect(geo, r2, res.dof - N.shape[1], sigma_estimated=True, alpha=alpha)
+    det = detect(geo, r2, res.dof - n_nuis, sigma_estimated=True, alpha=alpha)
     holds = det.consistent or not locate(geo, r2, det).parts
     block = {"amplitude_um": amp, "floor_um": floor, "share_of_misfit": share,
              "slip_effect": {"delta": d_slip, "std": s_std, "in_std": effect},
-             "n_nuisance": int(N.shape[1]),
+             "n_nuisance": int(n_nuis),
              "note": (f"per-marker-per-segment offsets and speed terms (the tracker's bias "
                       f"and blur) carry {100 * share:.0f} % of the structured misfit with "
                       f"{amp:.2g} um RMS, below the tracker-systematics floor of "
