@@ -133,7 +133,7 @@ def sag_fit():
     from fitlug.fit import fit
     from fitlug.sim import Scenario, rig_of, simulate
 
-    sc = Scenario(duration_s=1.2, travel_mm=110.0, rest_s=0.15, ramp_s=0.3, lug_markers=4,
+    sc = Scenario(duration_s=1.5, travel_mm=135.0, rest_s=0.2, ramp_s=0.4, lug_markers=4,
                   effects={"belt_sag": {"sag_d": 0.3}})
     rec, truth = simulate(sc, 5)
     return fit(rec, rig_of(sc))

@@ -101,7 +101,8 @@ class NormalJacobian:
         self.base_cols = np.flatnonzero(keep)  # full column j = base column j there
         # full column index of each F column
         self.f_cols = np.r_[np.asarray(coupled_pos, int), n_cur + np.arange(F.shape[1] - nc)]
-        Ab, JbW = chunks.normal(np.hstack([F, r[:, None]]))
+        Ab, (JbF, Jbr) = chunks.normal([F, r[:, None]])
+        JbW = np.hstack([JbF, Jbr])
         A = np.zeros((self.n, self.n))
         b, f = self.base_cols, self.f_cols
         A[np.ix_(b, b)] = Ab[np.ix_(b, b)]
@@ -279,6 +280,21 @@ class Engine:
             self.evaluations += len(blk)
         return np.vstack(out)
 
+    def chi2_best(self, thetas) -> tuple:
+        """(chi^2 of each vector (inf where not finite), index of the lowest, its residuals),
+        one batch of residual vectors in memory at a time."""
+        c2 = np.empty(len(thetas))
+        k, best = 0, None
+        B = self.batch
+        for i in range(0, len(thetas), B):
+            R = self.residuals(thetas[i:i + B])
+            c = np.einsum("ij,ij->i", R, R)
+            c2[i:i + len(R)] = np.where(np.isfinite(c), c, np.inf)
+            j = i + int(np.argmin(c2[i:i + len(R)]))
+            if best is None or c2[j] < c2[k]:
+                k, best = j, R[j - i].copy()
+        return c2, k, best
+
     def base_jacobian(self, theta) -> np.ndarray:
         """Jacobian of the starting model wrt its free parameters at theta, (S, n).
 
@@ -406,10 +422,7 @@ class Engine:
                 t2 = theta.copy()
                 t2[idx] += step
                 trials.append(t2)
-            R = self.residuals(np.array(trials))
-            c2 = np.einsum("ij,ij->i", R, R)
-            c2 = np.where(np.isfinite(c2), c2, np.inf)
-            k = int(np.argmin(c2))
+            c2, k, r_k = self.chi2_best(np.array(trials))
             if c2[k] >= chi2:
                 lam_scale *= 100.0
                 if lam_scale > 1e6:
@@ -417,7 +430,7 @@ class Engine:
                     break
                 continue
             gain = chi2 - float(c2[k])
-            theta, r, chi2 = trials[k], R[k], float(c2[k])
+            theta, r, chi2 = trials[k], r_k, float(c2[k])
             stale = True
             lam_scale = max(lam_scale * (0.3 if k <= 2 else 1.0), 1e-3)
             linear = k == 0 and abs(gain - predicted) < 0.1 * predicted

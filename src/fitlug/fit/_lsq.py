@@ -432,9 +432,9 @@ def _prepare(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: ChunkPla
 
     if len(rest_idx):
         E = jnp.zeros((len(rest_idx), n_par)).at[np.arange(len(rest_idx)), rest_idx].set(1.0)
-        J_rest = jax.lax.map(rest_column, E).T  # (N, n_rest)
+        J_rest = jax.lax.map(rest_column, E)  # (n_rest, N): no transposed copy of it
     else:
-        J_rest = jnp.zeros((r.shape[0], 0))
+        J_rest = jnp.zeros((0, r.shape[0]))
 
     (nx, npsi, ncol), (ix, ipsi, icol) = _kinematic_bands(p, lay)
     # prefix sums of the increments at every window start: per-segment sums, cumulated
@@ -503,7 +503,7 @@ def _chunk_jacobian(prep: dict, lay, packing: Packing, W: int, rows, mask, ws, p
     Jc = jnp.zeros((Rn, n_par)).at[:, kin_pos].set(kin)
     Jc = Jc.at[jnp.arange(Rn), sig_pos[prep["sig_col"][rows]]].add(prep["sig_val"][rows])
     if len(rest_idx):
-        Jc = Jc.at[:, rest_idx].set(prep["J_rest"][rows])
+        Jc = Jc.at[:, rest_idx].set(prep["J_rest"][:, rows].T)
     return Jc * mask[:, None]
 
 
@@ -561,15 +561,18 @@ class RowChunks:
         return out
 
     def normal(self, V=None, with_A: bool = True):
-        """(J^T J, J^T V) with V (S, m) (or None: J^T r); J^T J is None without with_A."""
+        """(J^T J, J^T V) with V (S, m) (or None: J^T r; or a list of such: a list of
+        J^T V_i); J^T J is None without with_A."""
         A = np.zeros((self.n_par, self.n_par)) if with_A else None
         V = self.r[:, None] if V is None else V
-        g = np.zeros((self.n_par,) + V.shape[1:])
+        Vs = V if isinstance(V, list) else [V]  # several (S, m_i): J^T of each, no stacking
+        gs = [np.zeros((self.n_par,) + v.shape[1:]) for v in Vs]
         for rows, Jc in self:
             if with_A:
                 A += Jc.T @ Jc
-            g += Jc.T @ V[rows]
-        return A, g
+            for g, v in zip(gs, Vs):
+                g += Jc.T @ v[rows]
+        return A, (gs if isinstance(V, list) else gs[0])
 
 
 def _hermite_weights(tau, h):
