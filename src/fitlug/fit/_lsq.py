@@ -281,7 +281,9 @@ class ChunkPlan(eqx.Module):
     mask: jax.Array  # (C, R) 1.0 for real rows
     ws: jax.Array  # (C,) first node of each chunk's window
     seg: jax.Array  # (G - 1,) segment of each interval: number of window starts <= k
+    cb: jax.Array  # (C,) first spline coefficient of each chunk's band
     W: int = eqx.field(static=True)  # nodes per window
+    BW: int = eqx.field(static=True)  # spline coefficients a window's rows touch locally
 
 
 def chunk_plan(lay, chunk: int = CHUNK_INTERVALS, margin: int = _MARGIN) -> ChunkPlan:
@@ -305,8 +307,18 @@ def chunk_plan(lay, chunk: int = CHUNK_INTERVALS, margin: int = _MARGIN) -> Chun
     rows[cid[order], pos] = order
     mask[cid[order], pos] = 1.0
     seg = np.searchsorted(ws, np.arange(G - 1), side="right")
+    # the band of spline coefficients whose increments fall inside each window (the
+    # rest of a row's kinematic derivative is the window's prefix: rank two per chunk)
+    K = int(lay.n_coef)
+    b = int(np.asarray(lay.Bn).shape[1])
+    jn, jm = np.asarray(lay.jn), np.asarray(lay.jm)
+    lo = np.minimum(jn[ws], jm[np.minimum(ws, G - 2)])
+    hi = np.maximum(jn[ws + W - 1], jm[np.minimum(ws + W - 2, G - 2)]) + b - 1
+    lo, hi = np.clip(lo, 0, K - 1), np.clip(hi, 0, K - 1)
+    BW = int(min(K, max(int(np.max(hi - lo)) + 1, 1)))
+    cb = np.clip(lo, 0, K - BW)
     return ChunkPlan(rows=jnp.asarray(rows), mask=jnp.asarray(mask), ws=jnp.asarray(ws),
-                     seg=jnp.asarray(seg), W=W)
+                     seg=jnp.asarray(seg), cb=jnp.asarray(cb), W=W, BW=BW)
 
 
 def chunkable(p: dict, lay, packing: Packing) -> bool:
@@ -380,20 +392,82 @@ def normal_equations(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: 
     r = prep["r"]
     n_par = flat.shape[0]
 
+    sl = packing.slices()
+    kin_pos = jnp.asarray(np.r_[np.arange(sl["v"].start, sl["v"].stop), sl["s0"].start,
+                                sl["beta"].start])
+
+    # a chunk's rows are J_c = U P^T (on the kinematic columns) + L (on w local columns):
+    # U (R, 2) = (dr/dX, dr/dpsi), P (nk, 2) the window's prefix derivatives, L the band
+    # of spline coefficients inside the window, s0, beta, sigma0 and the other parameters.
+    # J_c^T J_c then costs R w^2 + nk^2 instead of R p^2 (p grows with the duration).
     def chunk(carry, xs):
         A, g = carry
+        U, P, L, pos = _chunk_factors(prep, lay, packing, plan, *xs)
         rows, mask = xs[0], xs[1]
-        Jc = _chunk_jacobian(prep, lay, packing, plan.W, *xs)
-        A2 = A + Jc.T @ Jc if with_A else A
-        if v is None:
-            return (A2, g + Jc.T @ (r[rows] * mask)), None
-        return (A2, g + (v[..., rows] * mask) @ Jc), None
+        if with_A:
+            UL = P @ (U.T @ L)  # (nk, w)
+            A = A.at[pos[:, None], pos[None, :]].add(L.T @ L)
+            A = A.at[kin_pos[:, None], pos[None, :]].add(UL)
+            A = A.at[pos[:, None], kin_pos[None, :]].add(UL.T)
+            A = A.at[kin_pos[:, None], kin_pos[None, :]].add(P @ (U.T @ U) @ P.T)
+        vc = (r[rows] if v is None else v[..., rows]) * mask
+        g = g.at[..., pos].add(vc @ L)
+        g = g.at[..., kin_pos].add((vc @ U) @ P.T)
+        return (A, g), None
 
     g0 = jnp.zeros(n_par) if v is None else jnp.zeros(v.shape[:-1] + (n_par,))
     init = (jnp.zeros((n_par, n_par)) if with_A else jnp.zeros(()), g0)
-    (A, g), _ = jax.lax.scan(chunk, init, (plan.rows, plan.mask, plan.ws, prep["preX"],
-                                           prep["preP"]))
+    (A, g), _ = jax.lax.scan(chunk, init, (plan.rows, plan.mask, plan.ws, plan.cb,
+                                           prep["preX"], prep["preP"]))
     return (A if with_A else None), g, jnp.sum(r * r)
+
+
+def _chunk_factors(prep: dict, lay, packing: Packing, plan: ChunkPlan, rows, mask, ws, cb,
+                   pX, pP):
+    """One chunk's Jacobian rows as U P^T on the kinematic columns plus L on the columns
+    `pos` (see :func:`normal_equations`); the same values as :func:`_chunk_jacobian`."""
+    sl = packing.slices()
+    K = lay.n_coef
+    nk = K + 2
+    G = lay.grid.shape[0]
+    W, BW = plan.W, plan.BW
+    rest_idx = _rest_index(packing)
+    kin_pos = jnp.asarray(np.r_[np.arange(sl["v"].start, sl["v"].stop), sl["s0"].start,
+                                sl["beta"].start])
+    sig_pos = jnp.asarray(np.arange(sl["sigma0"].start, sl["sigma0"].stop))
+    n_sig = sig_pos.shape[0]
+    ix, ipsi, icol = prep["ix"], prep["ipsi"], prep["icol"]
+    nx, npsi, ncol = prep["nx"], prep["npsi"], prep["ncol"]
+    sl_n = lambda a: jax.lax.dynamic_slice_in_dim(a, ws, W, 0)  # noqa: E731
+    sl_i = lambda a: jax.lax.dynamic_slice_in_dim(a, ws, W - 1, 0)  # noqa: E731
+    cols = jnp.concatenate([cb + jnp.arange(BW), jnp.array([K, K + 1])])  # band, s0, beta
+    DX = jnp.concatenate([jnp.zeros((1, nk)), jnp.cumsum(
+        _scatter_rows(sl_i(ix), sl_i(icol), nk), 0)])[:, cols]
+    DP = jnp.concatenate([jnp.zeros((1, nk)), jnp.cumsum(
+        _scatter_rows(sl_i(ipsi), sl_i(icol), nk), 0)])[:, cols]
+    VX = _scatter_rows(sl_n(nx), sl_n(ncol), nk)[:, cols]
+    VP = _scatter_rows(sl_n(npsi), sl_n(ncol), nk)[:, cols]
+    t = prep["t_row"][rows]
+    u = (t - lay.grid[0]) / lay.h
+    ig = jnp.clip(jnp.floor(u).astype(int), 0, G - 2)
+    tau = u - ig
+    il = jnp.clip(ig - ws, 0, W - 2)
+    w00, w10, w01, w11 = (w[:, None] for w in _hermite_weights(tau, lay.h))
+    # the Hermite weights of the two node values add up to one: the prefix factors out
+    lX = w00 * DX[il] + w10 * VX[il] + w01 * DX[il + 1] + w11 * VX[il + 1]
+    lP = w00 * DP[il] + w10 * VP[il] + w01 * DP[il + 1] + w11 * VP[il + 1]
+    aX, aP = prep["dr_dX"][rows] * mask, prep["dr_dpsi"][rows] * mask
+    U = jnp.stack([aX, aP], 1)
+    P = jnp.stack([pX - prep["refX"], pP - prep["refP"]], 1)
+    Lk = aX[:, None] * lX + aP[:, None] * lP
+    Ls = (prep["sig_col"][rows][:, None] == jnp.arange(n_sig)[None, :]) * (
+        prep["sig_val"][rows] * mask)[:, None]
+    blocks = [Lk, Ls]
+    pos = [kin_pos[cols], sig_pos]
+    if len(rest_idx):
+        blocks.append(prep["J_rest"][:, rows].T * mask[:, None])
+        pos.append(jnp.asarray(rest_idx))
+    return U, P, jnp.concatenate(blocks, 1), jnp.concatenate(pos)
 
 
 def _prepare(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: ChunkPlan) -> dict:
