@@ -29,10 +29,7 @@ BLOCK_S = 0.5
 def covariance(J) -> np.ndarray:
     """fitlug.fit.covariance of a dense Jacobian, or from J^T J of its time chunks."""
     if isinstance(J, RowChunks):
-        A = np.zeros((J.n_par, J.n_par))
-        for _, Jc in J:
-            A += Jc.T @ Jc
-        return covariance_normal(A)
+        return covariance_normal(J.normal(np.zeros((len(J.r), 0)))[0])
     return _covariance_dense(J)
 
 

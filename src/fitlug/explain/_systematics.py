@@ -117,12 +117,9 @@ def _nuisance_fit(res, geo, r):
         return delta, r + A @ delta, J.shape[1], N.shape[1]
     (off, spd, v_off, v_spd), labels = _design_sparse(geo)
     q, n_p = len(labels), J.n_par
-    JJ = np.zeros((n_p, n_p))
+    JJ, g = J.normal(r)  # J^T J, J^T r
     JN = np.zeros((n_p, q))
-    g = np.zeros(n_p)
     for rows, Jc in J:
-        JJ += Jc.T @ Jc
-        g += Jc.T @ r[rows]
         for col, val in ((off, v_off), (spd, v_spd)):
             c = col[rows]
             use = np.flatnonzero(c >= 0)

@@ -587,6 +587,11 @@ def _prepare_jit(flat, fixed, lay, obs, packing: Packing, plan: ChunkPlan):
 
 
 @eqx.filter_jit
+def _factors_jit(prep, lay, packing: Packing, plan: ChunkPlan, rows, mask, ws, cb, pX, pP):
+    return _chunk_factors(prep, lay, packing, plan, rows, mask, ws, cb, pX, pP)
+
+
+@eqx.filter_jit
 def _chunk_jit(prep, lay, packing: Packing, W: int, rows, mask, ws, pX, pP):
     return _chunk_jacobian(prep, lay, packing, W, rows, mask, ws, pX, pP)
 
@@ -606,6 +611,9 @@ class RowChunks:
         self.n_par = int(sum(packing.sizes))
         self._rows = np.asarray(self.plan.rows)
         self._mask = np.asarray(self.plan.mask) > 0
+        sl = packing.slices()
+        self._kin_pos = np.r_[np.arange(sl["v"].start, sl["v"].stop), sl["s0"].start,
+                              sl["beta"].start]
 
     @property
     def n_chunks(self) -> int:
@@ -634,19 +642,45 @@ class RowChunks:
             out[rows] = Jc @ x
         return out
 
+    def factors(self, c: int):
+        """Chunk c as (rows, U, P, L, pos): its rows are U P^T on the kinematic columns
+        plus L on the columns pos (see :func:`normal_equations`); None without rows."""
+        keep = self._mask[c]
+        if not keep.any():
+            return None
+        pl = self.plan
+        U, P, L, pos = _factors_jit(self.prep, self.lay, self.packing, pl, pl.rows[c],
+                                    pl.mask[c], pl.ws[c], pl.cb[c], self.prep["preX"][c],
+                                    self.prep["preP"][c])
+        return (self._rows[c][keep], np.asarray(U)[keep], np.asarray(P),
+                np.asarray(L)[keep], np.asarray(pos))
+
     def normal(self, V=None, with_A: bool = True):
         """(J^T J, J^T V) with V (S, m) (or None: J^T r; or a list of such: a list of
-        J^T V_i); J^T J is None without with_A."""
+        J^T V_i); J^T J is None without with_A. From the chunks' factors: R w^2 + nk^2
+        per chunk, not R p^2."""
         A = np.zeros((self.n_par, self.n_par)) if with_A else None
         V = self.r[:, None] if V is None else V
         Vs = V if isinstance(V, list) else [V]  # several (S, m_i): J^T of each, no stacking
         gs = [np.zeros((self.n_par,) + v.shape[1:]) for v in Vs]
-        for rows, Jc in self:
+        kin = self._kin_pos
+        for c in range(self.n_chunks):
+            got = self.factors(c)
+            if got is None:
+                continue
+            rows, U, P, L, pos = got
             if with_A:
-                A += Jc.T @ Jc
+                UL = P @ (U.T @ L)
+                A[np.ix_(pos, pos)] += L.T @ L
+                A[np.ix_(kin, pos)] += UL
+                A[np.ix_(pos, kin)] += UL.T
+                A[np.ix_(kin, kin)] += P @ (U.T @ U) @ P.T
             for g, v in zip(gs, Vs):
-                g += Jc.T @ v[rows]
+                vc = v[rows]
+                g[pos] += L.T @ vc
+                g[kin] += P @ (U.T @ vc)
         return A, (gs if isinstance(V, list) else gs[0])
+
 
 
 def _hermite_weights(tau, h):
