@@ -157,6 +157,8 @@ def run_size(frames: int, stages, budget: float, keep: str | None) -> list:
             r = run_stage(st, folder, frames, budget)
             r["measured"] = st in stages
             out.append(r)
+            print(f"  ... {frames} frames {st}: " + json.dumps(
+                {k: v for k, v in r.items() if k != "measured"}), file=sys.stderr, flush=True)
             if st == "simulate" and "error" in r:
                 break
     finally:
