@@ -8,7 +8,11 @@ and wall time are reported:
 
   simulate   `fit-lug simulate` of the recording (written to a temporary folder)
   lsq        the least-squares fit (`fitlug.fit.fit`: start, fit, lug count, noise refit)
-  explain    the explanation of that fit (time of `fitlug.explain.explain` alone)
+  explain    the explanation of that fit (time of `fitlug.explain.explain` alone); a clean
+             recording's explanation stops at detection
+  explain-effect  the same recording with a belt sag (catalog effect belt_sag, sag_d =
+             EFFECT_SAG_MM) simulated in the process: the explanation's search over the
+             catalog, its fits and the final fit at scale (time of explain alone)
   posterior  the posterior of the base fit (time of `sample_posterior` alone)
   whole      the default run `fit-lug fit CSV` (fit, explanation, posterior, report)
 
@@ -47,7 +51,8 @@ ROOT = os.path.dirname(HERE)
 SRC = os.path.join(ROOT, "src")
 REFERENCE = os.path.join(ROOT, "data", "reference", "trajectories.csv")
 LADDER = (650, 2000, 10000, 30000, 100000)
-STAGES = ("simulate", "lsq", "explain", "posterior", "whole")
+STAGES = ("simulate", "lsq", "explain", "explain-effect", "posterior", "whole")
+EFFECT_SAG_MM = 0.3
 GB = 1024.0 ** 3
 
 
@@ -65,6 +70,7 @@ def _worker(stage: str, folder: str, frames: int, budget: float) -> dict:
     """Run one stage in this (fresh) process; returns its timings and peak memory."""
     sys.path.insert(0, SRC)
     t0 = time.perf_counter()
+    extra = {}
     csv = os.path.join(folder, "trajectories.csv")
     rig_path = os.path.join(folder, "rig.toml")
     stage_s = None
@@ -73,6 +79,22 @@ def _worker(stage: str, folder: str, frames: int, budget: float) -> dict:
 
         rc = main(["simulate", folder, "-q", "--scenario", json.dumps(scenario_for(frames))])
         assert rc == 0, rc
+    elif stage == "explain-effect":
+        from fitlug.explain import explain
+        from fitlug.fit import fit
+        from fitlug.sim import Scenario, rig_of, simulate
+
+        sc = Scenario(**scenario_for(frames), effects={"belt_sag": {"sag_d": EFFECT_SAG_MM}})
+        rec, _ = simulate(sc, seed=1)
+        t_sim = time.perf_counter()
+        res = fit(rec, rig_of(sc))
+        t1 = time.perf_counter()
+        ex = explain(res, seed=0)
+        stage_s = time.perf_counter() - t1
+        extra = {"verdict": ex.verdict, "effects": list(ex.effects),
+                 "timing": {"simulate_in_process": round(t_sim - t0, 2),
+                            "fit": round(t1 - t_sim, 2),
+                            **{k: round(v, 2) for k, v in ex.timing_s.items()}}}
     elif stage == "whole":
         from fitlug.cli import main
 
@@ -99,7 +121,7 @@ def _worker(stage: str, folder: str, frames: int, budget: float) -> dict:
     total = time.perf_counter() - t0
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024.0  # Linux: KiB
     return {"stage": stage, "frames": frames, "time_s": stage_s if stage_s is not None else total,
-            "process_s": total, "peak_bytes": peak}
+            "process_s": total, "peak_bytes": peak, **extra}
 
 
 def run_stage(stage: str, folder: str, frames: int, budget: float, env=None,
@@ -129,12 +151,14 @@ def run_size(frames: int, stages, budget: float, keep: str | None) -> list:
     out = []
     try:
         todo = list(stages)
-        if "simulate" not in todo:
+        if any(st != "explain-effect" for st in todo) and "simulate" not in todo:
             todo.insert(0, "simulate")  # the recording is needed
         for st in todo:
             r = run_stage(st, folder, frames, budget)
             r["measured"] = st in stages
             out.append(r)
+            print(f"  ... {frames} frames {st}: " + json.dumps(
+                {k: v for k, v in r.items() if k != "measured"}), file=sys.stderr, flush=True)
             if st == "simulate" and "error" in r:
                 break
     finally:
@@ -202,7 +226,9 @@ def main(argv=None) -> int:
             for r in res:
                 print(f"  {n:>7d} frames  {r['stage']:<9s} " + (
                     r["error"] if "error" in r else
-                    f"{r['time_s']:8.2f} s  {r['peak_bytes'] / GB:6.2f} GB"), flush=True)
+                    f"{r['time_s']:8.2f} s  {r['peak_bytes'] / GB:6.2f} GB"
+                    + (f"  {r['verdict']} {r['effects']} {r['timing']}" if "verdict" in r
+                       else "")), flush=True)
 
     print()
     print(f"{'frames':>8s}  " + "  ".join(f"{s:>18s}" for s in a.stages))

@@ -14,6 +14,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 SRC = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "src")
 MEMORY_CAP_BYTES = 1.5 * 1024 ** 3
@@ -21,6 +22,7 @@ MEMORY_CAP_BYTES = 1.5 * 1024 ** 3
 _CHILD = r"""
 import json, resource, sys
 import numpy as np
+import pytest
 
 
 def peak_rss():
@@ -83,7 +85,8 @@ def test_chunked_normal_equations_equal_the_dense_jacobians():
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from test_model import _small_layout
 
-    from fitlug.fit._lsq import Packing, chunk_plan, chunkable, normal_equations, residuals
+    from fitlug.fit._lsq import (Packing, RowChunks, chunk_plan, chunkable, normal_equations,
+                                 residuals)
     from fitlug.model.effects import CATALOG
 
     effects = tuple(e for e in CATALOG if e not in ("lug_ripple", "wheel_runout"))
@@ -110,3 +113,130 @@ def test_chunked_normal_equations_equal_the_dense_jacobians():
         assert np.max(np.abs(np.asarray(A) - A0) / scale) < 1e-8, chunk
         assert np.max(np.abs(np.asarray(g) - g0)) < 1e-10 * np.max(np.abs(g0)), chunk
         assert abs(float(chi2) - r @ r) < 1e-10 * (r @ r)
+    # the same rows one time chunk at a time (RowChunks: the explanation's long path)
+    for chunk in (9,):
+        rc = RowChunks(flat, fixed, lay, obs, packing, chunk_plan(lay, chunk, 8))
+        seen = np.zeros(len(r), int)
+        for rows, Jc in rc:
+            seen[rows] += 1
+            np.testing.assert_allclose(Jc, J[rows], rtol=1e-9, atol=1e-9 * np.abs(J).max())
+        assert np.all(seen == 1), chunk
+        np.testing.assert_allclose(rc.r, r, rtol=1e-12, atol=1e-12)
+        x = rng.normal(size=J.shape[1])
+        np.testing.assert_allclose(rc.matvec(x), J @ x, rtol=1e-9,
+                                   atol=1e-9 * np.abs(J @ x).max())
+
+
+@pytest.fixture(scope="module")
+def sag_fit():
+    """A short recording with a belt sag and its base fit (dense-size, chunkable)."""
+    from fitlug.fit import fit
+    from fitlug.sim import Scenario, rig_of, simulate
+
+    sc = Scenario(duration_s=1.5, travel_mm=135.0, rest_s=0.2, ramp_s=0.4, lug_markers=4,
+                  effects={"belt_sag": {"sag_d": 0.3}})
+    rec, truth = simulate(sc, 5)
+    return fit(rec, rig_of(sc))
+
+
+def _both(monkeypatch, fn):
+    """fn() on the dense path, then on the chunked (long-recording) path."""
+    from fitlug.explain import _engine
+
+    monkeypatch.setattr(_engine, "CHUNKED_ENTRIES", 10 ** 15)
+    dense = fn()
+    monkeypatch.setattr(_engine, "CHUNKED_ENTRIES", 0)
+    return dense, fn()
+
+
+def test_explanation_engine_in_normal_form_equals_the_dense_engine(sag_fit, monkeypatch):
+    """The engine's Jacobian in normal form (J^T J, J^T r, J^T v over time chunks), its
+    screening (a linear effect and frame_drop's t* scan), its fit of
+    the sag and the final polish equal the dense engine's to rounding."""
+    from fitlug.explain import _engine
+    from fitlug.explain._candidates import screen
+    from fitlug.explain._engine import Engine
+    from fitlug.explain._final import final_fit
+    from fitlug.explain._table import geometry
+
+    res = sag_fit
+    geo = geometry(res)
+    cands = ["belt_sag", "frame_drop"]
+
+    def run():
+        eng = Engine(res)
+        th = eng.theta0
+        r = eng.residuals(th)[0]
+        J = eng.jacobian(th, ["sag_d"])
+        if isinstance(J, np.ndarray):
+            A, g, Jv = J.T @ J, J.T @ r, J.T @ geo.t
+        else:
+            A, g, Jv = J.A, J.g, J.Jt(geo.t)
+        scr = screen(eng, th, r, eng.jacobian(th, []), cands, [], geo)
+        out = eng.fit(scr["belt_sag"].theta_start, eng.free_names("belt_sag"))
+        fin = final_fit(res, eng, ["belt_sag"], out.theta)
+        return eng.chunked, A, g, Jv, scr, out, fin
+
+    d, c = _both(monkeypatch, run)
+    assert not d[0] and c[0]
+    for k in (1, 2, 3):
+        scale = np.max(np.abs(d[k]))
+        np.testing.assert_allclose(c[k], d[k], rtol=1e-8, atol=1e-10 * scale)
+    for e in cands:
+        assert c[4][e].label == d[4][e].label
+        assert c[4][e].dchi2 == pytest.approx(d[4][e].dchi2, rel=1e-6, abs=1e-6)
+        np.testing.assert_allclose(c[4][e].theta_start, d[4][e].theta_start, rtol=1e-6,
+                                   atol=1e-9)
+    assert d[4]["belt_sag"].dchi2 > 1e3  # the sag is seen
+    assert c[5].chi2 == pytest.approx(d[5].chi2, rel=1e-9)
+    np.testing.assert_allclose(c[5].theta, d[5].theta, rtol=1e-7, atol=1e-10)
+    fd, fc = d[6], c[6]
+    sd = np.sqrt(np.diag(fd.cov))
+    assert np.max(np.abs(fc.flat - fd.flat) / sd) < 1e-6
+    np.testing.assert_allclose(fc.cov, fd.cov, rtol=1e-6, atol=1e-9 * np.abs(fd.cov).max())
+    assert fc.slip.value == pytest.approx(fd.slip.value, abs=1e-6 * fd.slip.std)
+    assert _engine.CHUNKED_ENTRIES == 0
+
+
+def test_robust_errors_and_systematics_check_in_normal_form_equal_the_dense_ones(
+        sag_fit, monkeypatch):
+    """The cluster-robust sandwich (scores by cluster over time chunks) and the tracker-
+    systematics nuisance fit (J^T J, J^T N with N never formed) equal the dense ones."""
+    import jax
+    import jax.numpy as jnp
+
+    from fitlug.explain._engine import jacobian_of
+    from fitlug.fit._result import derived
+    from fitlug.explain._robust import BLOCK_S, _sandwich, covariance
+    from fitlug.explain._systematics import _nuisance_fit
+    from fitlug.explain._table import geometry
+
+    res = sag_fit  # the sag left in: a structured misfit, like an unexplained one
+    geo = geometry(res)
+    prob = res.problem
+    fixed = {k: jnp.asarray(v, float) for k, v in res.params.items()
+             if k not in res.packing.names}
+    r = np.where(geo.valid, np.asarray(res.residuals), 0.0)
+    blocks = np.floor((geo.t - geo.t_lo) / BLOCK_S).astype(int)
+
+    def run():
+        J = jacobian_of(res.flat, fixed, res.packing, prob.lay, prob.obs)
+        H = covariance(J)
+        return (H, _sandwich(J, r, geo.marker, H), _sandwich(J, r, blocks, H),
+                _nuisance_fit(res, geo, r))
+
+    d, c = _both(monkeypatch, run)
+    fixed_j = {k: jnp.asarray(v, float) for k, v in res.params.items()
+               if k not in res.packing.names}
+    g = np.asarray(jax.grad(lambda f: derived(res.packing.unpack(f, fixed_j), prob.lay,
+                                              prob.rig.mass_kg)["slip"])(jnp.asarray(res.flat)))
+    sd = np.sqrt(np.outer(np.diag(d[0]), np.diag(d[0])))
+    assert np.max(np.abs(c[0] - d[0]) / sd) < 1e-6
+    for k in (0, 1, 2):  # the slip's error from each covariance (the sandwiches' entries of
+        # directions the data barely fix carry the normal matrix's conditioning, ~1e-3)
+        assert np.sqrt(g @ c[k] @ g) == pytest.approx(np.sqrt(g @ d[k] @ g), rel=1e-7), k
+        assert np.all(np.diag(c[k]) >= 0)
+    (dd, r2d, npd, nqd), (dc, r2c, npc, nqc) = d[3], c[3]
+    assert (npd, nqd) == (npc, nqc) and nqd > 10
+    assert np.max(np.abs(r2c - r2d)) < 1e-6 * np.max(np.abs(r - r2d))
+    assert np.sum(r2d ** 2) < 0.9 * np.sum(r ** 2)  # the nuisance carries part of the sag

@@ -110,7 +110,12 @@ def screen(engine, theta, r, J, effects, extra_names, geo) -> dict:
 
     `extra_names`: the added-effect parameters of J's last columns (after the base block).
     Returns effect id -> :class:`Screened` with a full starting vector for the fit.
+    A long recording's J is the engine's NormalJacobian: screened in normal form.
     """
+    if not isinstance(J, np.ndarray):
+        from ._engine import screen_normal
+
+        return screen_normal(engine, theta, r, J, effects, extra_names, geo)
     U, s, Vt = _basis(J)
     r_perp = r - U @ (U.T @ r)
     idx = np.r_[engine.cur_idx, [engine.index(k) for k in extra_names]].astype(int)

@@ -13,6 +13,15 @@ out the added effects' small change to the base derivatives (order epsilon of th
 effect), so convergence is linear instead of quadratic for large effects; the
 minimum it converges to is the same, since the residuals are exact. Each step tries
 several damping values at once (one batched model evaluation).
+
+Long recordings (the dense Jacobian above CHUNKED_ENTRIES entries, a base model the
+chunked normal equations take: :func:`fitlug.fit._lsq.chunkable`) never form the
+Jacobian: :meth:`Engine.jacobian` returns a :class:`NormalJacobian`, which holds J^T J
+and J^T r accumulated over time chunks of the base block's rows
+(:class:`fitlug.fit._lsq.RowChunks`) and the difference columns; the fit, the screening
+(:mod:`._candidates`), the final polish, the robust errors and the systematics check use
+it through J^T J and J^T v only. Same values as the dense path to rounding
+(tests/test_scale.py); memory linear in the samples.
 """
 
 from __future__ import annotations
@@ -26,7 +35,7 @@ import numpy as np
 
 from .. import _jaxconfig  # noqa: F401
 from ..fit import residuals
-from ..fit._lsq import Packing, jacobian
+from ..fit._lsq import LARGE_ENTRIES, Packing, RowChunks, chunkable, jacobian
 from ..model import CATALOG, param_names
 
 COUPLED = ("s0", "beta", "R", "D", "e", "x_off", "y_off")
@@ -34,6 +43,135 @@ CHUNK = 8  # model evaluations per batched call (fixed, so one compilation serve
 _BASE_STEPS = {"s0": 1e-5, "beta": 1e-9, "R": 1e-4, "D": 1e-4, "e": 1e-4, "x_off": 1e-4,
                "y_off": 1e-4}
 _LAMBDAS = np.array([0.0, 1e-6, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0])
+#: dense Jacobian entries above which the engine works on chunked normal equations
+CHUNKED_ENTRIES = LARGE_ENTRIES
+#: residual entries per batched model evaluation (the batch shrinks on long recordings)
+BATCH_ENTRIES = 4_000_000
+
+
+def use_chunks(lay, packing, params) -> bool:
+    """Whether a problem's Jacobian is handled in time chunks rather than formed."""
+    n_res = 2 * (lay.lug_t.shape[0] + lay.body_t.shape[0])
+    return (n_res * sum(packing.sizes) > CHUNKED_ENTRIES
+            and chunkable(params, lay, packing))
+
+
+def jacobian_of(flat, fixed, packing, lay, obs):
+    """The dense Jacobian (numpy) of a problem, or its :class:`RowChunks` when long."""
+    if use_chunks(lay, packing, {**fixed, **packing.unpack(jnp.asarray(flat), {})}):
+        return RowChunks(jnp.asarray(flat), fixed, lay, obs, packing)
+    return np.asarray(_jac_block(jnp.asarray(flat), fixed, packing, lay, obs))
+
+
+def normal_of(J, V=None):
+    """(J^T J, J^T V) of a dense Jacobian or of its :class:`RowChunks` (V (S,) or (S, m))."""
+    if isinstance(J, RowChunks):
+        if V is None:
+            return J.normal(np.zeros((len(J.r), 0)))[0], None
+        A, g = J.normal(V if np.ndim(V) == 2 else np.asarray(V)[:, None])
+        return A, (g if np.ndim(V) == 2 else g[:, 0])
+    return J.T @ J, (None if V is None else J.T @ V)
+
+
+def pinv_factor(A, rcond: float) -> np.ndarray:
+    """M with M M^T the pseudo-inverse of A (column-scaled eigen-decomposition, eigenvalues
+    below rcond times the largest dropped): the normal-form twin of the `_basis` SVD."""
+    d = np.sqrt(np.maximum(np.diag(A), 0.0))
+    d = np.where(d > 0, d, 1.0)
+    w, V = np.linalg.eigh(A / np.outer(d, d))
+    keep = w > rcond * w.max()
+    w, V = w[keep][::-1], V[:, keep][:, ::-1]
+    return (V / np.sqrt(w)) / d[:, None]
+
+
+class NormalJacobian:
+    """The engine's Jacobian [base block | difference columns] of a long recording in
+    normal form: A = J^T J and J^T r, and J^T V of any residual-shaped columns V by a pass
+    over the time chunks (:meth:`Jt`). The base block's rows come from `chunks`; `F` holds
+    the difference columns (S, m) of the coupled parameters (they replace the base
+    columns at `coupled_pos`) and of the extra parameters (appended)."""
+
+    def __init__(self, chunks: RowChunks, F: np.ndarray, coupled_pos: list, r: np.ndarray):
+        self.chunks, self.F, self.r = chunks, F, r
+        n_cur = chunks.n_par
+        nc = len(coupled_pos)
+        self.n = n_cur + F.shape[1] - nc
+        keep = np.ones(n_cur, bool)
+        keep[coupled_pos] = False
+        self.base_cols = np.flatnonzero(keep)  # full column j = base column j there
+        # full column index of each F column
+        self.f_cols = np.r_[np.asarray(coupled_pos, int), n_cur + np.arange(F.shape[1] - nc)]
+        Ab, (JbF, Jbr) = chunks.normal([F, r[:, None]])
+        JbW = np.hstack([JbF, Jbr])
+        A = np.zeros((self.n, self.n))
+        b, f = self.base_cols, self.f_cols
+        A[np.ix_(b, b)] = Ab[np.ix_(b, b)]
+        A[np.ix_(b, f)] = JbW[b, :F.shape[1]]
+        A[np.ix_(f, b)] = JbW[b, :F.shape[1]].T
+        A[np.ix_(f, f)] = F.T @ F
+        self.A = A
+        self.g = self._assemble(JbW[:, F.shape[1]:], F.T @ r[:, None])[:, 0]  # J^T r
+        self.shape = (len(r), self.n)
+
+    def _assemble(self, JbV, FtV):
+        out = np.zeros((self.n, JbV.shape[1]))
+        out[self.base_cols] = JbV[self.base_cols]
+        out[self.f_cols] = FtV
+        return out
+
+    def Jt(self, V) -> np.ndarray:
+        """J^T V for V (S, m) (or (S,))."""
+        V = np.asarray(V, float)
+        one = V.ndim == 1
+        V2 = V[:, None] if one else V
+        _, JbV = self.chunks.normal(V2, with_A=False)
+        out = self._assemble(JbV, self.F.T @ V2)
+        return out[:, 0] if one else out
+
+    def suffix_projections(self, d, t, tu, M) -> np.ndarray:
+        """|M^T J^T (d 1[t >= tu_k])|^2 for every time tu_k (sorted unique times of the
+        samples), streamed backwards over the time chunks (the chunks hold disjoint,
+        increasing time ranges); (len(tu),)."""
+        Mb, Mf = M[self.base_cols], M[self.f_cols]
+        fi = np.searchsorted(tu, t)
+        nf = len(tu)
+        # the difference columns' part: per-frame sums of F d (small), projected per chunk
+        Zf = _frame_sums(fi, self.F * d[:, None], nf)
+        out = np.zeros(nf)
+        carry = np.zeros(M.shape[1])
+        ch = self.chunks
+        done = nf
+        for c in range(ch.n_chunks - 1, -1, -1):
+            got = ch.chunk(c)
+            if got is None:
+                continue
+            rows, Jc = got
+            f = fi[rows]
+            lo = int(f.min())
+            if f.max() >= done:
+                raise RuntimeError("time chunks out of order")
+            Zc = Zf[lo:done] @ Mf
+            Zc += _frame_sums(f - lo, Jc[:, self.base_cols] * d[rows, None], done - lo) @ Mb
+            S = np.cumsum(Zc[::-1], 0)[::-1] + carry
+            out[lo:done] = np.sum(S * S, 1)
+            carry = S[0]
+            done = lo
+        if done > 0:  # frames before the first chunk's rows: the difference columns only
+            S = np.cumsum((Zf[:done] @ Mf)[::-1], 0)[::-1] + carry
+            out[:done] = np.sum(S * S, 1)
+        return out
+
+
+def _frame_sums(fi, X, nf):
+    """Sums of the rows of X per frame index fi, (nf, X.shape[1])."""
+    out = np.zeros((nf, X.shape[1]))
+    if len(fi) == 0:
+        return out
+    order = np.argsort(fi, kind="stable")
+    fs = fi[order]
+    starts = np.flatnonzero(np.r_[True, fs[1:] != fs[:-1]])
+    out[fs[starts]] = np.add.reduceat(X[order], starts, axis=0)
+    return out
 
 
 @partial(jax.jit, static_argnames=("packing",))
@@ -81,6 +219,9 @@ class Engine:
         self.cur_positions = {k: sl.start for k, sl in res.packing.slices().items()
                               if sl.stop - sl.start == 1}
         self.evaluations = 0
+        n_res = 2 * (self.obs["lug_w"].shape[0] + self.obs["body_w"].shape[0])
+        self.batch = int(max(1, min(CHUNK, BATCH_ENTRIES // max(n_res, 1))))
+        self.chunked = use_chunks(prob.lay, res.packing, res.params)
 
     # ---- parameter bookkeeping -------------------------------------------------------
     def index(self, name: str) -> int:
@@ -130,13 +271,29 @@ class Engine:
         """Weighted residuals of the all-effects model, (B, S) for (B, P) vectors."""
         thetas = np.atleast_2d(np.asarray(thetas, float))
         out = []
-        for i in range(0, len(thetas), CHUNK):
-            blk = thetas[i:i + CHUNK]
-            pad = np.vstack([blk, np.repeat(blk[-1:], CHUNK - len(blk), 0)])
+        B = self.batch
+        for i in range(0, len(thetas), B):
+            blk = thetas[i:i + B]
+            pad = np.vstack([blk, np.repeat(blk[-1:], B - len(blk), 0)])
             r = np.asarray(_res_batch(jnp.asarray(pad), self.packing, self.lay_all, self.obs))
             out.append(r[:len(blk)])
             self.evaluations += len(blk)
         return np.vstack(out)
+
+    def chi2_best(self, thetas) -> tuple:
+        """(chi^2 of each vector (inf where not finite), index of the lowest, its residuals),
+        one batch of residual vectors in memory at a time."""
+        c2 = np.empty(len(thetas))
+        k, best = 0, None
+        B = self.batch
+        for i in range(0, len(thetas), B):
+            R = self.residuals(thetas[i:i + B])
+            c = np.einsum("ij,ij->i", R, R)
+            c2[i:i + len(R)] = np.where(np.isfinite(c), c, np.inf)
+            j = i + int(np.argmin(c2[i:i + len(R)]))
+            if best is None or c2[j] < c2[k]:
+                k, best = j, R[j - i].copy()
+        return c2, k, best
 
     def base_jacobian(self, theta) -> np.ndarray:
         """Jacobian of the starting model wrt its free parameters at theta, (S, n).
@@ -145,6 +302,15 @@ class Engine:
         (frame_drop) is applied to the sample times first, since a 10 ms shift changes the
         fine speed-spline columns by tens of percent after the lost frame.
         """
+        flat, fixed, lay = self._base_problem(theta)
+        return np.asarray(_jac_block(flat, fixed, self.cur_packing, lay, self.obs))
+
+    def base_chunks(self, theta) -> RowChunks:
+        """:meth:`base_jacobian` as time chunks of rows (long recordings)."""
+        flat, fixed, lay = self._base_problem(theta)
+        return RowChunks(flat, fixed, lay, self.obs, self.cur_packing)
+
+    def _base_problem(self, theta):
         flat = jnp.asarray(theta[self.cur_idx])
         fixed = {k: jnp.asarray(self.get(theta, k), float) for k in self.cur_fixed_names}
         lay = self.res.problem.lay
@@ -156,7 +322,7 @@ class Engine:
             for c in maps:
                 lt, bt = c.time_map(p, lt), c.time_map(p, bt)
             lay = lay.with_times(lt, lay.lug_i, bt, lay.body_j)
-        return np.asarray(_jac_block(flat, fixed, self.cur_packing, lay, self.obs))
+        return flat, fixed, lay
 
     def step_of(self, name: str) -> float:
         for cls in CATALOG.values():
@@ -166,29 +332,45 @@ class Engine:
 
     def fd_columns(self, specs, theta) -> np.ndarray:
         """Central-difference columns (S, len(specs)); spec = (settings dict, param name)."""
+        n_res = len(self.obs["lug_w"]) * 2 + len(self.obs["body_w"]) * 2
         if not specs:
-            return np.zeros((len(self.obs["lug_w"]) * 2 + len(self.obs["body_w"]) * 2, 0))
-        pts, hs = [], []
-        for settings, name in specs:
-            th = self.with_values(theta, settings)
-            h = self.step_of(name)
-            i = self.index(name)
-            for sgn in (1.0, -1.0):
-                t2 = th.copy()
-                t2[i] += sgn * h
-                pts.append(t2)
-            hs.append(h)
-        R = self.residuals(np.array(pts))
-        return np.stack([(R[2 * k] - R[2 * k + 1]) / (2 * hs[k]) for k in range(len(specs))], 1)
+            return np.zeros((n_res, 0))
+        out = np.empty((n_res, len(specs)))
+        per = max(1, self.batch // 2)  # columns per batched evaluation (memory: one batch)
+        for j0 in range(0, len(specs), per):
+            pts, hs = [], []
+            for settings, name in specs[j0:j0 + per]:
+                th = self.with_values(theta, settings)
+                h = self.step_of(name)
+                i = self.index(name)
+                for sgn in (1.0, -1.0):
+                    t2 = th.copy()
+                    t2[i] += sgn * h
+                    pts.append(t2)
+                hs.append(h)
+            R = self.residuals(np.array(pts))
+            for k in range(len(hs)):
+                out[:, j0 + k] = (R[2 * k] - R[2 * k + 1]) / (2 * hs[k])
+        return out
 
-    def jacobian(self, theta, extra: list[str]) -> np.ndarray:
+    def jacobian(self, theta, extra: list[str], r=None):
         """[base block | columns of the `extra` scalar parameters] at theta.
 
         The base block's scalar physics and geometry columns (s0, beta, R, D, e, x_off,
         y_off) are replaced by differences of the all-effects model: an effect such as
         lug_sliding changes them by tens of percent, the spline and offset columns by
         at most the effect's relative size.
+
+        Long recordings (self.chunked): a :class:`NormalJacobian` (J^T J, J^T r with `r`
+        the residuals at theta, computed when not given), never the dense matrix.
         """
+        if self.chunked:
+            coupled = [k for k in COUPLED if k in self.cur_packing.names]
+            F = self.fd_columns([({}, k) for k in coupled + list(extra)], theta)
+            if r is None:
+                r = self.residuals(theta)[0]
+            return NormalJacobian(self.base_chunks(theta), F,
+                                  [self.cur_positions[k] for k in coupled], np.asarray(r))
         Jb = np.array(self.base_jacobian(theta))
         coupled = [k for k in COUPLED if k in self.cur_packing.names]
         cols = self.fd_columns([({}, k) for k in coupled + list(extra)], theta)
@@ -216,9 +398,13 @@ class Engine:
         stale = True
         for it in range(1, max_iter + 1):
             if stale:
-                J = self.jacobian(theta, extra)
-                A = J.T @ J
-                g = J.T @ r
+                if self.chunked:
+                    NJ = self.jacobian(theta, extra, r)
+                    A, g = NJ.A, NJ.g
+                else:
+                    J = self.jacobian(theta, extra)
+                    A = J.T @ J
+                    g = J.T @ r
                 d = np.sqrt(np.diag(A))
                 d = np.where(d > 0, d, 1.0)
                 w, V = np.linalg.eigh(A / np.outer(d, d))
@@ -236,10 +422,7 @@ class Engine:
                 t2 = theta.copy()
                 t2[idx] += step
                 trials.append(t2)
-            R = self.residuals(np.array(trials))
-            c2 = np.einsum("ij,ij->i", R, R)
-            c2 = np.where(np.isfinite(c2), c2, np.inf)
-            k = int(np.argmin(c2))
+            c2, k, r_k = self.chi2_best(np.array(trials))
             if c2[k] >= chi2:
                 lam_scale *= 100.0
                 if lam_scale > 1e6:
@@ -247,7 +430,7 @@ class Engine:
                     break
                 continue
             gain = chi2 - float(c2[k])
-            theta, r, chi2 = trials[k], R[k], float(c2[k])
+            theta, r, chi2 = trials[k], r_k, float(c2[k])
             stale = True
             lam_scale = max(lam_scale * (0.3 if k <= 2 else 1.0), 1e-3)
             linear = k == 0 and abs(gain - predicted) < 0.1 * predicted
@@ -255,3 +438,149 @@ class Engine:
                 converged = True
                 break
         return LMResult(theta=theta, r=r, chi2=chi2, iterations=it, converged=converged)
+
+
+# ---------------------------------------------------------------------------------------
+# The screening of :mod:`._candidates` on a NormalJacobian (long recordings): the same
+# Gauss-Newton step per effect, with the projections orthogonal to J's columns written
+# through J^T J's pseudo-inverse M M^T (the `_basis` eigen-decomposition of the same
+# column-scaled normal matrix): x_perp . y_perp = x.y - (M^T J^T x).(M^T J^T y).
+# ---------------------------------------------------------------------------------------
+def screen_normal(engine, theta, r, NJ: NormalJacobian, effects, extra_names, geo) -> dict:
+    """:func:`fitlug.explain._candidates.screen` for a :class:`NormalJacobian`."""
+    from ._candidates import Screened, alternatives
+
+    M = pinv_factor(NJ.A, 1e-12)
+    qr = M.T @ NJ.g  # M^T J^T r
+    idx = np.r_[engine.cur_idx, [engine.index(k) for k in extra_names]].astype(int)
+
+    def gn_start(th, JtC, beta):
+        delta = -(M @ (qr + M.T @ (JtC @ beta)))  # -J^+ (r + C beta)
+        out = th.copy()
+        out[idx] += delta
+        return out
+
+    def project(C, JtC):
+        Q = M.T @ JtC
+        gram = C.T @ C - Q.T @ Q  # Cp^T Cp
+        rhs = C.T @ r - Q.T @ qr  # Cp^T r_perp
+        return gram, rhs
+
+    out = {}
+    for eid in effects:
+        if eid == "frame_drop":
+            out[eid] = _screen_frame_drop_normal(engine, theta, r, NJ, M, qr, geo, gn_start,
+                                                 project)
+            continue
+        best = None
+        for alt, th, C, JtC in _alternative_columns(engine, NJ, theta,
+                                                    alternatives(eid, engine, theta)):
+            gram, rhs = project(C, JtC)
+            norms = np.sqrt(np.maximum(np.diag(gram), 0.0))
+            ok = norms > 1e-9 * max(norms.max(), 1e-300)
+            if not ok.any():
+                continue
+            beta = np.zeros(C.shape[1])
+            beta[ok] = np.linalg.lstsq(gram[np.ix_(ok, ok)], -rhs[ok], rcond=None)[0]
+            d = float(beta @ gram @ beta)
+            if best is None or d > best[0]:
+                best = (d, alt, th, JtC, beta)
+        if best is None:
+            out[eid] = Screened(eid, 0.0, theta.copy(), theta.copy(), "no signature")
+            continue
+        d, alt, th, JtC, beta = best
+        start = gn_start(th, JtC, beta)
+        start = engine.with_values(start, alt.start(beta))
+        out[eid] = Screened(eid, d, start, th, alt.label)
+    return out
+
+
+def _alternative_columns(engine, NJ, theta, alts, per_pass: int = 4):
+    """(alternative, its settings vector, columns C, J^T C) for each alternative; J^T C of
+    a few alternatives' columns per pass over the time chunks."""
+    group = []
+
+    def flush():
+        JtC = NJ.Jt(np.hstack([g[2] for g in group]))
+        k = 0
+        for alt, th, C in group:
+            yield alt, th, C, JtC[:, k:k + C.shape[1]]
+            k += C.shape[1]
+
+    for alt in alts:
+        th = engine.with_values(theta, alt.settings)
+        group.append((alt, th, engine.fd_columns(alt.columns, th)))
+        if sum(g[2].shape[1] for g in group) >= per_pass:
+            yield from flush()
+            group = []
+    if group:
+        yield from flush()
+
+
+def _screen_frame_drop_normal(engine, theta, r, NJ, M, qr, geo, gn_start, project):
+    from ._candidates import Screened
+
+    th = engine.with_values(theta, {"drop_tstar": -1e9})
+    d = engine.fd_columns([({}, "drop_dt")], th)[:, 0]  # every sample shifted
+    t = geo.t
+    order = np.argsort(t, kind="stable")
+    ts = t[order]
+    tu, first = np.unique(ts, return_index=True)
+
+    def suffix(a):
+        c = np.cumsum(a[::-1], axis=0)[::-1]
+        return c[first]
+
+    dd = d[order]
+    cc = suffix(dd * dd)
+    rc = suffix(r[order] * dd)
+    qq = NJ.suffix_projections(d, t, tu, M)  # |U^T (d 1[t >= t_k])|^2
+    den = cc - qq
+    with np.errstate(divide="ignore", invalid="ignore"):
+        score = np.where(den > 1e-12 * max(cc.max(), 1e-300), rc ** 2 / den, 0.0)
+    score[0] = 0.0  # t* at the first frame shifts everything: no jump
+    k = int(np.argmax(score))
+    t_star = float(tu[k])
+    th = engine.with_values(theta, {"drop_tstar": t_star})
+    C = engine.fd_columns([({}, "drop_dt")], th)
+    JtC = NJ.Jt(C)
+    gram, rhs = project(C, JtC)
+    beta = np.linalg.lstsq(gram, -rhs, rcond=None)[0]
+    start = gn_start(th, JtC, beta)
+    start = engine.with_values(start, {"drop_dt": float(beta[0])})
+    return Screened("frame_drop", float(beta @ gram @ beta), start, th, f"t*={t_star:.4f} s",
+                    {"t_star_s": t_star, "jump_score": float(score[k])})
+
+
+# ---------------------------------------------------------------------------------------
+# Gauss-Newton steps and covariances of a fixed-effect-set problem (the final polish):
+# dense on short recordings, from the chunked normal equations on long ones.
+# ---------------------------------------------------------------------------------------
+def gauss_newton_step(flat, fixed, packing, lay, obs, r) -> tuple:
+    """(undamped Gauss-Newton step, its predicted chi^2 decrease) at `flat`, residuals r:
+    the minimum-norm step of the column-scaled Jacobian (singular values below 1e-12 of
+    the largest dropped), or of its chunked normal equations on a long recording."""
+    J = jacobian_of(flat, fixed, packing, lay, obs)
+    if isinstance(J, RowChunks):
+        A, g = normal_of(J, np.asarray(r))
+        M = pinv_factor(A, 1e-14)
+        q = M.T @ g
+        return -(M @ q), float(q @ q)
+    d = np.sqrt(np.sum(J * J, 0))
+    d = np.where(d > 0, d, 1.0)
+    Js = J / d
+    U, s, Vt = np.linalg.svd(Js, full_matrices=False)
+    keep = s > 1e-12 * s.max()
+    ur = U[:, keep].T @ r
+    step = -(Vt[keep].T @ (ur / s[keep])) / d
+    return step, float(ur @ ur)
+
+
+def covariance_of(flat, fixed, packing, lay, obs) -> np.ndarray:
+    """fitlug.fit.covariance of the problem's Jacobian (from J^T J on long recordings)."""
+    from ..fit._lsq import covariance, covariance_normal
+
+    J = jacobian_of(flat, fixed, packing, lay, obs)
+    if isinstance(J, RowChunks):
+        return covariance_normal(normal_of(J)[0])
+    return covariance(J)

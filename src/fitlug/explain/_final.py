@@ -19,10 +19,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..fit import FitResult, covariance, free_parameters, residuals, residual_noise, reweighted
+from ..fit import FitResult, free_parameters, residuals, residual_noise, reweighted
 from ..fit._lsq import Packing
 from ..fit._result import compute_quantities
-from ._engine import _jac_block
+from ._engine import covariance_of, gauss_newton_step
 
 MAX_STEPS = 8
 TOL = 1e-6
@@ -43,15 +43,8 @@ def _polish(prob, p: dict, free: list) -> FitResult:
     chi2 = float(r @ r)
     converged, steps = False, 0
     for steps in range(1, MAX_STEPS + 1):
-        J = np.asarray(_jac_block(jnp.asarray(flat), fixed, packing, lay, obs))
-        d = np.sqrt(np.sum(J * J, 0))
-        d = np.where(d > 0, d, 1.0)
-        Js = J / d
-        U, s, Vt = np.linalg.svd(Js, full_matrices=False)
-        keep = s > 1e-12 * s.max()
-        ur = U[:, keep].T @ r
-        step = -(Vt[keep].T @ (ur / s[keep])) / d
-        predicted = float(ur @ ur)
+        # dense SVD step, or from chunked normal equations on a long recording
+        step, predicted = gauss_newton_step(flat, fixed, packing, lay, obs, r)
         for scale in (1.0, 0.5, 0.25, 0.1):
             f2 = flat + scale * step
             r2 = np.asarray(_res(jnp.asarray(f2), fixed, packing, lay, obs))
@@ -66,8 +59,7 @@ def _polish(prob, p: dict, free: list) -> FitResult:
         if gain < TOL and predicted < TOL + 2 * gain + 1e-9 * chi2:
             converged = True
             break
-    J = np.asarray(_jac_block(jnp.asarray(flat), fixed, packing, lay, obs))
-    cov = covariance(J)
+    cov = covariance_of(flat, fixed, packing, lay, obs)
     fixed_np = {k: np.asarray(v) for k, v in fixed.items()}
     params = {**{k: np.asarray(v) for k, v in packing.unpack(jnp.asarray(flat), {}).items()},
               **fixed_np}

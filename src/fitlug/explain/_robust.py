@@ -20,13 +20,21 @@ import dataclasses
 import jax.numpy as jnp
 import numpy as np
 
-from ..fit import covariance
+from ..fit import covariance as _covariance_dense
+from ..fit._lsq import RowChunks, covariance_normal
 from ..fit._result import compute_quantities
-from ._engine import _jac_block
+from ._engine import jacobian_of
 from ._speed import speed_sensitivity
 from ._table import Geometry
 
 BLOCK_S = 0.5
+
+
+def covariance(J) -> np.ndarray:
+    """fitlug.fit.covariance of a dense Jacobian, or from J^T J of its time chunks."""
+    if isinstance(J, RowChunks):
+        return covariance_normal(J.normal(np.zeros((len(J.r), 0)))[0])
+    return _covariance_dense(J)
 
 
 def _sandwich(J, r, labels, Hinv):
@@ -34,6 +42,16 @@ def _sandwich(J, r, labels, Hinv):
     G = len(groups)
     if G < 2:
         return None
+    if isinstance(J, RowChunks):  # long recording: the scores summed chunk by chunk
+        pos = np.searchsorted(groups, labels)
+        scores = np.zeros((G, J.n_par))
+        for rows, Jc in J:
+            order = np.argsort(pos[rows], kind="stable")
+            ps = pos[rows][order]
+            starts = np.flatnonzero(np.r_[True, ps[1:] != ps[:-1]])
+            scores[ps[starts]] += np.add.reduceat((Jc * r[rows, None])[order], starts, 0)
+        S = scores.T @ scores
+        return Hinv @ S @ Hinv * (G / (G - 1))
     S = np.zeros((J.shape[1], J.shape[1]))
     for g in groups:
         sel = labels == g
@@ -55,7 +73,7 @@ def robust_result(res, geo: Geometry, *, sensitivity: bool = True):
     prob = res.problem
     fixed = {k: jnp.asarray(v, float) for k, v in res.params.items()
              if k not in res.packing.names}
-    J = np.asarray(_jac_block(jnp.asarray(res.flat), fixed, res.packing, prob.lay, prob.obs))
+    J = jacobian_of(res.flat, fixed, res.packing, prob.lay, prob.obs)  # or its time chunks
     r = np.where(geo.valid, np.asarray(res.residuals), 0.0)
     Hinv = covariance(J)
     blocks = np.floor((geo.t - geo.t_lo) / BLOCK_S).astype(int)

@@ -50,7 +50,8 @@ import numpy as np
 
 from ..fit._result import derived
 from ._detect import detect
-from ._engine import _jac_block
+from ..fit._lsq import RowChunks
+from ._engine import jacobian_of, pinv_factor
 from ._locate import locate
 from ._table import structured_misfit
 
@@ -76,29 +77,109 @@ def floor_um(rec) -> tuple[float, str]:
 
 def _design(geo):
     """Nuisance columns (S, q) in weighted-residual units per mm, and their cell labels."""
+    (off, spd, v_off, v_spd), labels = _design_sparse(geo)
+    S, q = len(geo.t), len(labels)
+    N = np.zeros((S, q))
+    rows = np.arange(S)
+    N[rows[off >= 0], off[off >= 0]] = v_off[off >= 0]
+    N[rows[spd >= 0], spd[spd >= 0]] = v_spd[spd >= 0]
+    return N, labels
+
+
+def _design_sparse(geo):
+    """:func:`_design` as at most two entries per sample (a sample lies in one cell): the
+    column of its cell's offset and of its speed term (-1 for none) and their values;
+    and the columns' cell labels."""
     vn = np.abs(geo.v) / max(float(np.max(np.abs(geo.v))), 1e-12)
-    cols, labels = [], []
+    S = len(geo.t)
+    off, spd = np.full(S, -1), np.full(S, -1)
+    labels = []
     key = (geo.marker * 5 + geo.segment) * 2 + geo.axis
-    for k in np.unique(key[geo.valid]):
-        sel = geo.valid & (key == k)
-        if sel.sum() < MIN_CELL:
+    order = np.argsort(key, kind="stable")
+    ks = key[order]
+    starts = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1]])
+    ends = np.r_[starts[1:], len(ks)]
+    for a, b in zip(starts, ends):
+        idx = order[a:b]
+        idx = idx[geo.valid[idx]]
+        if len(idx) == 0 or len(idx) < MIN_CELL:
             continue
-        w = np.where(sel, geo.weight, 0.0)
-        cols.append(w)
-        labels.append(int(k))
-        if np.ptp(vn[sel]) > 0.2:  # a speed term only where the speed changes
-            cols.append(w * vn)
-            labels.append(int(k))
-    if not cols:
-        return np.zeros((len(geo.t), 0)), np.zeros(0, int)
-    return np.stack(cols, 1), np.array(labels)
+        k = int(key[idx[0]])
+        off[idx] = len(labels)
+        labels.append(k)
+        if np.ptp(vn[idx]) > 0.2:  # a speed term only where the speed changes
+            spd[idx] = len(labels)
+            labels.append(k)
+    w = np.where(geo.valid, geo.weight, 0.0)
+    return (off, spd, w, w * vn), np.array(labels, int)
 
 
-def _quad_pinv(A: np.ndarray, g: np.ndarray, rcond: float = 1e-12) -> float:
-    """g^T (A^T A)^+ g with the eigenvalue cut of the least-squares covariance."""
-    w, V = np.linalg.eigh(A.T @ A)
+def _nuisance_fit(res, geo, r):
+    """Least squares of the residuals r on [J, N] (the fit's Jacobian and the nuisance
+    design), columns scaled to unit norm, minimum-norm solution: (delta, r2 = r + A delta,
+    number of model columns, number of nuisance columns, the model's covariance with the
+    nuisance carried, J^T J). Dense on short recordings; on
+    long ones from the normal equations, J^T J and J^T N accumulated over time chunks
+    and N (two entries per sample) never formed."""
+    prob = res.problem
+    fixed = {k: jnp.asarray(v, float) for k, v in res.params.items()
+             if k not in res.packing.names}
+    J = jacobian_of(res.flat, fixed, res.packing, prob.lay, prob.obs)
+    if not isinstance(J, RowChunks):
+        N, _ = _design(geo)
+        A = np.hstack([J, N])
+        d = np.sqrt(np.sum(A * A, 0))
+        d = np.where(d > 0, d, 1.0)
+        sol, *_ = np.linalg.lstsq(A / d, -r, rcond=1e-10)
+        delta = sol / d
+        As = A / d
+        n_p = J.shape[1]
+        cov = (np.linalg.pinv(As.T @ As, rcond=1e-12, hermitian=True)
+               / np.outer(d, d))[:n_p, :n_p]
+        return delta, r + A @ delta, n_p, N.shape[1], cov, J.T @ J
+    (off, spd, v_off, v_spd), labels = _design_sparse(geo)
+    q, n_p = len(labels), J.n_par
+    JJ, g = J.normal(r)  # J^T J, J^T r
+    JN = np.zeros((n_p, q))
+    for rows, Jc in J:
+        for col, val in ((off, v_off), (spd, v_spd)):
+            c = col[rows]
+            use = np.flatnonzero(c >= 0)
+            if len(use) == 0:
+                continue
+            order = use[np.argsort(c[use], kind="stable")]
+            cs = c[order]
+            starts = np.flatnonzero(np.r_[True, cs[1:] != cs[:-1]])
+            JN[:, cs[starts]] += np.add.reduceat(Jc[order] * val[rows][order, None], starts,
+                                                 0).T
+    NN = np.zeros((q, q))
+    Nr = np.zeros(q)
+    for col, val in ((off, v_off), (spd, v_spd)):
+        use = col >= 0
+        NN[np.diag_indices(q)] += np.bincount(col[use], val[use] ** 2, q)
+        Nr += np.bincount(col[use], val[use] * r[use], q)
+    both = (off >= 0) & (spd >= 0)
+    cross = np.zeros((q, q))
+    np.add.at(cross, (off[both], spd[both]), v_off[both] * v_spd[both])
+    NN += cross + cross.T
+    A = np.block([[JJ, JN], [JN.T, NN]])
+    b = np.r_[g, Nr]
+    M = pinv_factor(A, 1e-14)
+    delta = -(M @ (M.T @ b))
+    dn = np.r_[delta[n_p:], 0.0]  # column -1 (no entry) takes 0
+    r2 = r + J.matvec(delta[:n_p]) + v_off * dn[off] + v_spd * dn[spd]
+    cov = (M @ M.T)[:n_p, :n_p]  # the pseudo-inverse of the normal matrix, model block
+    return delta, r2, n_p, q, cov, JJ
+
+
+def _quad_pinv(JJ: np.ndarray, g: np.ndarray, rcond: float = 1e-12) -> float:
+    """g^T (J^T J)^+ g with the eigenvalue cut of the least-squares covariance (columns
+    scaled to unit norm first, as the fit's covariance is)."""
+    d = np.sqrt(np.clip(np.diag(JJ), 0.0, None))
+    d = np.where(d > 0, d, 1.0)
+    w, V = np.linalg.eigh(JJ / np.outer(d, d))
     inv = np.where(w > rcond * w.max(), 1.0 / np.where(w > 0, w, 1.0), 0.0)
-    u = V.T @ g
+    u = V.T @ (g / d)
     return float(np.sum(inv * u * u))
 
 
@@ -106,23 +187,8 @@ def tracker_systematics(res, geo, alpha: float) -> dict | None:
     """The `systematics` block when the misfit of fit `res` is tracker-like and below the
     floor with a negligible effect on the slip; else None (with the reason in `why`)."""
     prob = res.problem
-    fixed = {k: jnp.asarray(v, float) for k, v in res.params.items()
-             if k not in res.packing.names}
-    J = np.asarray(_jac_block(jnp.asarray(res.flat), fixed, res.packing, prob.lay, prob.obs))
     r = np.where(geo.valid, np.asarray(res.residuals, float), 0.0)
-    N, _ = _design(geo)
-    A = np.hstack([J, N])
-    d = np.sqrt(np.sum(A * A, 0))
-    d = np.where(d > 0, d, 1.0)
-    sol, *_ = np.linalg.lstsq(A / d, -r, rcond=1e-10)
-    delta = sol / d
-    r2 = r + A @ delta
-    n_p = J.shape[1]
-    # the model's covariance with the nuisance carried (marginalised over its columns):
-    # the errors that hold when the tracker's systematics are in the data
-    As = A / d
-    cov_model = (np.linalg.pinv(As.T @ As, rcond=1e-12, hermitian=True)
-                 / np.outer(d, d))[:n_p, :n_p]
+    delta, r2, n_p, n_nuis, cov_model, JJ = _nuisance_fit(res, geo, r)
     # slip: moved by the nuisance, against its least-squares error
     fixed_np = {k: jnp.asarray(v, float) for k, v in res.params.items()
                 if k not in res.packing.names}
@@ -137,7 +203,7 @@ def tracker_systematics(res, geo, alpha: float) -> dict | None:
     # the shift's spread from the noise alone: sqrt(V1 - V0), the slip's variance with and
     # without the nuisance (unit weights: the residuals are in noise units)
     v1 = float(g @ cov_model @ g)
-    v0 = _quad_pinv(J / d[:n_p], g / d[:n_p])
+    v0 = _quad_pinv(JJ, g)
     null_std = float(np.sqrt(max(v1 - v0, 0.0)))
     shift_z = abs(d_slip) / null_std if null_std > 0 else np.inf
     # amplitude of the systematic: what fitting the nuisance (and refitting the model with
@@ -150,12 +216,12 @@ def tracker_systematics(res, geo, alpha: float) -> dict | None:
     M, _ = structured_misfit(geo, r)
     M2, _ = structured_misfit(geo, r2)
     share = float(np.clip((M - M2) / M, 0.0, 1.0)) if M > 0 else 0.0
-    det = detect(geo, r2, res.dof - N.shape[1], sigma_estimated=True, alpha=alpha)
+    det = detect(geo, r2, res.dof - n_nuis, sigma_estimated=True, alpha=alpha)
     holds = det.consistent or not locate(geo, r2, det).parts
     block = {"amplitude_um": amp, "floor_um": floor, "share_of_misfit": share,
              "slip_effect": {"delta": d_slip, "std": s_std, "in_std": effect,
                              "noise_std": null_std, "z": shift_z},
-             "n_nuisance": int(N.shape[1]),
+             "n_nuisance": int(n_nuis),
              "note": (f"per-marker-per-segment offsets and speed terms (the tracker's bias "
                       f"and blur) carry {100 * share:.0f} % of the structured misfit with "
                       f"{amp:.2g} um RMS, below the tracker-systematics floor of "

@@ -281,7 +281,9 @@ class ChunkPlan(eqx.Module):
     mask: jax.Array  # (C, R) 1.0 for real rows
     ws: jax.Array  # (C,) first node of each chunk's window
     seg: jax.Array  # (G - 1,) segment of each interval: number of window starts <= k
+    cb: jax.Array  # (C,) first spline coefficient of each chunk's band
     W: int = eqx.field(static=True)  # nodes per window
+    BW: int = eqx.field(static=True)  # spline coefficients a window's rows touch locally
 
 
 def chunk_plan(lay, chunk: int = CHUNK_INTERVALS, margin: int = _MARGIN) -> ChunkPlan:
@@ -305,8 +307,18 @@ def chunk_plan(lay, chunk: int = CHUNK_INTERVALS, margin: int = _MARGIN) -> Chun
     rows[cid[order], pos] = order
     mask[cid[order], pos] = 1.0
     seg = np.searchsorted(ws, np.arange(G - 1), side="right")
+    # the band of spline coefficients whose increments fall inside each window (the
+    # rest of a row's kinematic derivative is the window's prefix: rank two per chunk)
+    K = int(lay.n_coef)
+    b = int(np.asarray(lay.Bn).shape[1])
+    jn, jm = np.asarray(lay.jn), np.asarray(lay.jm)
+    lo = np.minimum(jn[ws], jm[np.minimum(ws, G - 2)])
+    hi = np.maximum(jn[ws + W - 1], jm[np.minimum(ws + W - 2, G - 2)]) + b - 1
+    lo, hi = np.clip(lo, 0, K - 1), np.clip(hi, 0, K - 1)
+    BW = int(min(K, max(int(np.max(hi - lo)) + 1, 1)))
+    cb = np.clip(lo, 0, K - BW)
     return ChunkPlan(rows=jnp.asarray(rows), mask=jnp.asarray(mask), ws=jnp.asarray(ws),
-                     seg=jnp.asarray(seg), W=W)
+                     seg=jnp.asarray(seg), cb=jnp.asarray(cb), W=W, BW=BW)
 
 
 def chunkable(p: dict, lay, packing: Packing) -> bool:
@@ -376,6 +388,92 @@ def normal_equations(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: 
 
     With `v` (a residual-shaped vector, or (m, N) for m of them) the second output is J^T v
     instead ((p,) or (m, p)); with_A=False skips J^T J (returned as None)."""
+    prep = _prepare(flat, fixed, lay, obs, packing, plan)
+    r = prep["r"]
+    n_par = flat.shape[0]
+
+    sl = packing.slices()
+    kin_pos = jnp.asarray(np.r_[np.arange(sl["v"].start, sl["v"].stop), sl["s0"].start,
+                                sl["beta"].start])
+
+    # a chunk's rows are J_c = U P^T (on the kinematic columns) + L (on w local columns):
+    # U (R, 2) = (dr/dX, dr/dpsi), P (nk, 2) the window's prefix derivatives, L the band
+    # of spline coefficients inside the window, s0, beta, sigma0 and the other parameters.
+    # J_c^T J_c then costs R w^2 + nk^2 instead of R p^2 (p grows with the duration).
+    def chunk(carry, xs):
+        A, g = carry
+        U, P, L, pos = _chunk_factors(prep, lay, packing, plan, *xs)
+        rows, mask = xs[0], xs[1]
+        if with_A:
+            UL = P @ (U.T @ L)  # (nk, w)
+            A = A.at[pos[:, None], pos[None, :]].add(L.T @ L)
+            A = A.at[kin_pos[:, None], pos[None, :]].add(UL)
+            A = A.at[pos[:, None], kin_pos[None, :]].add(UL.T)
+            A = A.at[kin_pos[:, None], kin_pos[None, :]].add(P @ (U.T @ U) @ P.T)
+        vc = (r[rows] if v is None else v[..., rows]) * mask
+        g = g.at[..., pos].add(vc @ L)
+        g = g.at[..., kin_pos].add((vc @ U) @ P.T)
+        return (A, g), None
+
+    g0 = jnp.zeros(n_par) if v is None else jnp.zeros(v.shape[:-1] + (n_par,))
+    init = (jnp.zeros((n_par, n_par)) if with_A else jnp.zeros(()), g0)
+    (A, g), _ = jax.lax.scan(chunk, init, (plan.rows, plan.mask, plan.ws, plan.cb,
+                                           prep["preX"], prep["preP"]))
+    return (A if with_A else None), g, jnp.sum(r * r)
+
+
+def _chunk_factors(prep: dict, lay, packing: Packing, plan: ChunkPlan, rows, mask, ws, cb,
+                   pX, pP):
+    """One chunk's Jacobian rows as U P^T on the kinematic columns plus L on the columns
+    `pos` (see :func:`normal_equations`); the same values as :func:`_chunk_jacobian`."""
+    sl = packing.slices()
+    K = lay.n_coef
+    nk = K + 2
+    G = lay.grid.shape[0]
+    W, BW = plan.W, plan.BW
+    rest_idx = _rest_index(packing)
+    kin_pos = jnp.asarray(np.r_[np.arange(sl["v"].start, sl["v"].stop), sl["s0"].start,
+                                sl["beta"].start])
+    sig_pos = jnp.asarray(np.arange(sl["sigma0"].start, sl["sigma0"].stop))
+    n_sig = sig_pos.shape[0]
+    ix, ipsi, icol = prep["ix"], prep["ipsi"], prep["icol"]
+    nx, npsi, ncol = prep["nx"], prep["npsi"], prep["ncol"]
+    sl_n = lambda a: jax.lax.dynamic_slice_in_dim(a, ws, W, 0)  # noqa: E731
+    sl_i = lambda a: jax.lax.dynamic_slice_in_dim(a, ws, W - 1, 0)  # noqa: E731
+    cols = jnp.concatenate([cb + jnp.arange(BW), jnp.array([K, K + 1])])  # band, s0, beta
+    DX = jnp.concatenate([jnp.zeros((1, nk)), jnp.cumsum(
+        _scatter_rows(sl_i(ix), sl_i(icol), nk), 0)])[:, cols]
+    DP = jnp.concatenate([jnp.zeros((1, nk)), jnp.cumsum(
+        _scatter_rows(sl_i(ipsi), sl_i(icol), nk), 0)])[:, cols]
+    VX = _scatter_rows(sl_n(nx), sl_n(ncol), nk)[:, cols]
+    VP = _scatter_rows(sl_n(npsi), sl_n(ncol), nk)[:, cols]
+    t = prep["t_row"][rows]
+    u = (t - lay.grid[0]) / lay.h
+    ig = jnp.clip(jnp.floor(u).astype(int), 0, G - 2)
+    tau = u - ig
+    il = jnp.clip(ig - ws, 0, W - 2)
+    w00, w10, w01, w11 = (w[:, None] for w in _hermite_weights(tau, lay.h))
+    # the Hermite weights of the two node values add up to one: the prefix factors out
+    lX = w00 * DX[il] + w10 * VX[il] + w01 * DX[il + 1] + w11 * VX[il + 1]
+    lP = w00 * DP[il] + w10 * VP[il] + w01 * DP[il + 1] + w11 * VP[il + 1]
+    aX, aP = prep["dr_dX"][rows] * mask, prep["dr_dpsi"][rows] * mask
+    U = jnp.stack([aX, aP], 1)
+    P = jnp.stack([pX - prep["refX"], pP - prep["refP"]], 1)
+    Lk = aX[:, None] * lX + aP[:, None] * lP
+    Ls = (prep["sig_col"][rows][:, None] == jnp.arange(n_sig)[None, :]) * (
+        prep["sig_val"][rows] * mask)[:, None]
+    blocks = [Lk, Ls]
+    pos = [kin_pos[cols], sig_pos]
+    if len(rest_idx):
+        blocks.append(prep["J_rest"][:, rows].T * mask[:, None])
+        pos.append(jnp.asarray(rest_idx))
+    return U, P, jnp.concatenate(blocks, 1), jnp.concatenate(pos)
+
+
+def _prepare(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: ChunkPlan) -> dict:
+    """What every time chunk's Jacobian rows need (all of it linear in the samples): the
+    residuals, their derivatives along X and psi, the columns of the few non-kinematic
+    parameters, the banded kinematic derivatives and their prefix sums per chunk."""
     from ..model._model import _true_times
 
     sl = packing.slices()
@@ -400,9 +498,7 @@ def normal_equations(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: 
     sig_val = jnp.concatenate([dr_dpsi[:2 * n_l], jnp.zeros(2 * n_b)])
 
     # the remaining parameters: one forward derivative each through the whole model
-    rest = [k for k in packing.names if k not in KINEMATIC and k != "sigma0"]
-    rest_idx = (np.concatenate([np.arange(sl[k].start, sl[k].stop) for k in rest])
-                if rest else np.zeros(0, np.int64))
+    rest_idx = _rest_index(packing)
 
     def rest_column(e):
         return jax.jvp(lambda f: residuals(packing.unpack(f, fixed), lay, obs), (flat,),
@@ -410,12 +506,9 @@ def normal_equations(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: 
 
     if len(rest_idx):
         E = jnp.zeros((len(rest_idx), n_par)).at[np.arange(len(rest_idx)), rest_idx].set(1.0)
-        J_rest = jax.lax.map(rest_column, E).T  # (N, n_rest)
+        J_rest = jax.lax.map(rest_column, E)  # (n_rest, N): no transposed copy of it
     else:
-        J_rest = jnp.zeros((r.shape[0], 0))
-
-    kin_pos = np.r_[np.arange(sl["v"].start, sl["v"].stop), sl["s0"].start, sl["beta"].start]
-    sig_pos = jnp.asarray(np.arange(sl["sigma0"].start, sl["sigma0"].stop))
+        J_rest = jnp.zeros((0, r.shape[0]))
 
     (nx, npsi, ncol), (ix, ipsi, icol) = _kinematic_bands(p, lay)
     # prefix sums of the increments at every window start: per-segment sums, cumulated
@@ -439,44 +532,155 @@ def normal_equations(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: 
     hw0 = _hermite_weights(tau0, lay.h)
     refX = hw0[0] * X0 + hw0[1] * vX[0] + hw0[2] * (X0 + inc0X) + hw0[3] * vX[1]
     refP = hw0[0] * P0 + hw0[1] * vP[0] + hw0[2] * (P0 + inc0P) + hw0[3] * vP[1]
+    return {"r": r, "dr_dX": dr_dX, "dr_dpsi": dr_dpsi, "t_row": t_row, "sig_col": sig_col,
+            "sig_val": sig_val, "J_rest": J_rest, "nx": nx, "npsi": npsi, "ncol": ncol,
+            "ix": ix, "ipsi": ipsi, "icol": icol, "preX": preX, "preP": preP, "refX": refX,
+            "refP": refP}
 
-    W = plan.W
 
-    def chunk(carry, xs):
-        A, g = carry
-        rows, mask, ws, pX, pP = xs
-        sl_n = lambda a: jax.lax.dynamic_slice_in_dim(a, ws, W, 0)  # noqa: E731
-        sl_i = lambda a: jax.lax.dynamic_slice_in_dim(a, ws, W - 1, 0)  # noqa: E731
-        DX = pX + jnp.concatenate([jnp.zeros((1, nk)), jnp.cumsum(
-            _scatter_rows(sl_i(ix), sl_i(icol), nk), 0)])
-        DP = pP + jnp.concatenate([jnp.zeros((1, nk)), jnp.cumsum(
-            _scatter_rows(sl_i(ipsi), sl_i(icol), nk), 0)])
-        VX = _scatter_rows(sl_n(nx), sl_n(ncol), nk)
-        VP = _scatter_rows(sl_n(npsi), sl_n(ncol), nk)
-        t = t_row[rows]
-        u = (t - lay.grid[0]) / lay.h
-        ig = jnp.clip(jnp.floor(u).astype(int), 0, G - 2)
-        tau = u - ig
-        il = jnp.clip(ig - ws, 0, W - 2)
-        w00, w10, w01, w11 = (w[:, None] for w in _hermite_weights(tau, lay.h))
-        dX = w00 * DX[il] + w10 * VX[il] + w01 * DX[il + 1] + w11 * VX[il + 1] - refX
-        dP = w00 * DP[il] + w10 * VP[il] + w01 * DP[il + 1] + w11 * VP[il + 1] - refP
-        kin = dr_dX[rows][:, None] * dX + dr_dpsi[rows][:, None] * dP
-        Rn = rows.shape[0]
-        Jc = jnp.zeros((Rn, n_par)).at[:, kin_pos].set(kin)
-        Jc = Jc.at[jnp.arange(Rn), sig_pos[sig_col[rows]]].add(sig_val[rows])
-        if len(rest_idx):
-            Jc = Jc.at[:, rest_idx].set(J_rest[rows])
-        Jc = Jc * mask[:, None]
-        A2 = A + Jc.T @ Jc if with_A else A
-        if v is None:
-            return (A2, g + Jc.T @ (r[rows] * mask)), None
-        return (A2, g + (v[..., rows] * mask) @ Jc), None
+def _rest_index(packing: Packing) -> np.ndarray:
+    sl = packing.slices()
+    rest = [k for k in packing.names if k not in KINEMATIC and k != "sigma0"]
+    return (np.concatenate([np.arange(sl[k].start, sl[k].stop) for k in rest])
+            if rest else np.zeros(0, np.int64))
 
-    g0 = jnp.zeros(n_par) if v is None else jnp.zeros(v.shape[:-1] + (n_par,))
-    init = (jnp.zeros((n_par, n_par)) if with_A else jnp.zeros(()), g0)
-    (A, g), _ = jax.lax.scan(chunk, init, (plan.rows, plan.mask, plan.ws, preX, preP))
-    return (A if with_A else None), g, jnp.sum(r * r)
+
+def _chunk_jacobian(prep: dict, lay, packing: Packing, W: int, rows, mask, ws, pX, pP):
+    """The Jacobian rows (R, p) of one time chunk (rows `rows`, zero where mask is 0)."""
+    sl = packing.slices()
+    n_par = sum(packing.sizes)
+    nk = lay.n_coef + 2
+    G = lay.grid.shape[0]
+    rest_idx = _rest_index(packing)
+    kin_pos = np.r_[np.arange(sl["v"].start, sl["v"].stop), sl["s0"].start, sl["beta"].start]
+    sig_pos = jnp.asarray(np.arange(sl["sigma0"].start, sl["sigma0"].stop))
+    ix, ipsi, icol = prep["ix"], prep["ipsi"], prep["icol"]
+    nx, npsi, ncol = prep["nx"], prep["npsi"], prep["ncol"]
+    sl_n = lambda a: jax.lax.dynamic_slice_in_dim(a, ws, W, 0)  # noqa: E731
+    sl_i = lambda a: jax.lax.dynamic_slice_in_dim(a, ws, W - 1, 0)  # noqa: E731
+    DX = pX + jnp.concatenate([jnp.zeros((1, nk)), jnp.cumsum(
+        _scatter_rows(sl_i(ix), sl_i(icol), nk), 0)])
+    DP = pP + jnp.concatenate([jnp.zeros((1, nk)), jnp.cumsum(
+        _scatter_rows(sl_i(ipsi), sl_i(icol), nk), 0)])
+    VX = _scatter_rows(sl_n(nx), sl_n(ncol), nk)
+    VP = _scatter_rows(sl_n(npsi), sl_n(ncol), nk)
+    t = prep["t_row"][rows]
+    u = (t - lay.grid[0]) / lay.h
+    ig = jnp.clip(jnp.floor(u).astype(int), 0, G - 2)
+    tau = u - ig
+    il = jnp.clip(ig - ws, 0, W - 2)
+    w00, w10, w01, w11 = (w[:, None] for w in _hermite_weights(tau, lay.h))
+    dX = w00 * DX[il] + w10 * VX[il] + w01 * DX[il + 1] + w11 * VX[il + 1] - prep["refX"]
+    dP = w00 * DP[il] + w10 * VP[il] + w01 * DP[il + 1] + w11 * VP[il + 1] - prep["refP"]
+    kin = prep["dr_dX"][rows][:, None] * dX + prep["dr_dpsi"][rows][:, None] * dP
+    Rn = rows.shape[0]
+    Jc = jnp.zeros((Rn, n_par)).at[:, kin_pos].set(kin)
+    Jc = Jc.at[jnp.arange(Rn), sig_pos[prep["sig_col"][rows]]].add(prep["sig_val"][rows])
+    if len(rest_idx):
+        Jc = Jc.at[:, rest_idx].set(prep["J_rest"][:, rows].T)
+    return Jc * mask[:, None]
+
+
+@eqx.filter_jit
+def _prepare_jit(flat, fixed, lay, obs, packing: Packing, plan: ChunkPlan):
+    return _prepare(flat, fixed, lay, obs, packing, plan)
+
+
+@eqx.filter_jit
+def _factors_jit(prep, lay, packing: Packing, plan: ChunkPlan, rows, mask, ws, cb, pX, pP):
+    return _chunk_factors(prep, lay, packing, plan, rows, mask, ws, cb, pX, pP)
+
+
+@eqx.filter_jit
+def _chunk_jit(prep, lay, packing: Packing, W: int, rows, mask, ws, pX, pP):
+    return _chunk_jacobian(prep, lay, packing, W, rows, mask, ws, pX, pP)
+
+
+class RowChunks:
+    """The exact Jacobian (:func:`jacobian`'s values) of a chunkable problem, time chunk by
+    time chunk: iterating yields (rows, J_rows) in numpy, rows the residual indices and
+    J_rows their (len(rows), p) Jacobian rows; memory is one chunk's rows plus what the
+    chunks share (linear in the samples). `r` holds the weighted residuals."""
+
+    def __init__(self, flat, fixed: dict, lay, obs: dict, packing: Packing,
+                 plan: ChunkPlan | None = None):
+        self.plan = chunk_plan(lay) if plan is None else plan
+        self.lay, self.packing = lay, packing
+        self.prep = _prepare_jit(jnp.asarray(flat), fixed, lay, obs, packing, self.plan)
+        self.r = np.asarray(self.prep["r"])
+        self.n_par = int(sum(packing.sizes))
+        self._rows = np.asarray(self.plan.rows)
+        self._mask = np.asarray(self.plan.mask) > 0
+        sl = packing.slices()
+        self._kin_pos = np.r_[np.arange(sl["v"].start, sl["v"].stop), sl["s0"].start,
+                              sl["beta"].start]
+
+    @property
+    def n_chunks(self) -> int:
+        return int(self._rows.shape[0])
+
+    def chunk(self, c: int):
+        """(rows, J_rows) of chunk c, or None when it holds no rows."""
+        keep = self._mask[c]
+        if not keep.any():
+            return None
+        pl = self.plan
+        Jc = _chunk_jit(self.prep, self.lay, self.packing, pl.W, pl.rows[c], pl.mask[c],
+                        pl.ws[c], self.prep["preX"][c], self.prep["preP"][c])
+        return self._rows[c][keep], np.asarray(Jc)[keep]
+
+    def __iter__(self):
+        for c in range(self.n_chunks):
+            got = self.chunk(c)
+            if got is not None:
+                yield got
+
+    def matvec(self, x) -> np.ndarray:
+        """J x, (S,)."""
+        out = np.zeros(len(self.r))
+        for rows, Jc in self:
+            out[rows] = Jc @ x
+        return out
+
+    def factors(self, c: int):
+        """Chunk c as (rows, U, P, L, pos): its rows are U P^T on the kinematic columns
+        plus L on the columns pos (see :func:`normal_equations`); None without rows."""
+        keep = self._mask[c]
+        if not keep.any():
+            return None
+        pl = self.plan
+        U, P, L, pos = _factors_jit(self.prep, self.lay, self.packing, pl, pl.rows[c],
+                                    pl.mask[c], pl.ws[c], pl.cb[c], self.prep["preX"][c],
+                                    self.prep["preP"][c])
+        return (self._rows[c][keep], np.asarray(U)[keep], np.asarray(P),
+                np.asarray(L)[keep], np.asarray(pos))
+
+    def normal(self, V=None, with_A: bool = True):
+        """(J^T J, J^T V) with V (S, m) (or None: J^T r; or a list of such: a list of
+        J^T V_i); J^T J is None without with_A. From the chunks' factors: R w^2 + nk^2
+        per chunk, not R p^2."""
+        A = np.zeros((self.n_par, self.n_par)) if with_A else None
+        V = self.r[:, None] if V is None else V
+        Vs = V if isinstance(V, list) else [V]  # several (S, m_i): J^T of each, no stacking
+        gs = [np.zeros((self.n_par,) + v.shape[1:]) for v in Vs]
+        kin = self._kin_pos
+        for c in range(self.n_chunks):
+            got = self.factors(c)
+            if got is None:
+                continue
+            rows, U, P, L, pos = got
+            if with_A:
+                UL = P @ (U.T @ L)
+                A[np.ix_(pos, pos)] += L.T @ L
+                A[np.ix_(kin, pos)] += UL
+                A[np.ix_(pos, kin)] += UL.T
+                A[np.ix_(kin, kin)] += P @ (U.T @ U) @ P.T
+            for g, v in zip(gs, Vs):
+                vc = v[rows]
+                g[pos] += L.T @ vc
+                g[kin] += P @ (U.T @ vc)
+        return A, (gs if isinstance(V, list) else gs[0])
+
 
 
 def _hermite_weights(tau, h):
