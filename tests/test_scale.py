@@ -236,7 +236,10 @@ def test_robust_errors_and_systematics_check_in_normal_form_equal_the_dense_ones
         # directions the data barely fix carry the normal matrix's conditioning, ~1e-3)
         assert np.sqrt(g @ c[k] @ g) == pytest.approx(np.sqrt(g @ d[k] @ g), rel=1e-7), k
         assert np.all(np.diag(c[k]) >= 0)
-    (dd, r2d, npd, nqd), (dc, r2c, npc, nqc) = d[3], c[3]
+    (dd, r2d, npd, nqd, covd, JJd), (dc, r2c, npc, nqc, covc, JJc) = d[3], c[3]
     assert (npd, nqd) == (npc, nqc) and nqd > 10
+    # the model's covariance with the nuisance carried: the slip's error agrees
+    assert np.sqrt(g @ covc @ g) == pytest.approx(np.sqrt(g @ covd @ g), rel=1e-6)
+    assert np.sqrt(g @ covd @ g) >= np.sqrt(g @ d[0] @ g) * (1 - 1e-9)  # never narrower
     assert np.max(np.abs(r2c - r2d)) < 1e-6 * np.max(np.abs(r - r2d))
     assert np.sum(r2d ** 2) < 0.9 * np.sum(r ** 2)  # the nuisance carries part of the sag
