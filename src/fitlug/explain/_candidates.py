@@ -157,15 +157,16 @@ def screen(engine, theta, r, J, effects, extra_names, geo) -> dict:
     return out
 
 
-def _screen_frame_drop(engine, theta, r, U, geo, gn_start):
-    """t* as the frame where a time shift of all later samples best fits the residual jump."""
+def frame_drop_tstar(engine, theta, r, geo, projected) -> tuple[float, float]:
+    """(t*, its jump score): the frame where a time shift of all later samples best fits
+    the residual jump. `projected(d, order, suffix, tu)` gives |U^T (d 1[t >= t_k])|^2 for
+    each unique frame time t_k (U: an orthonormal basis of the current model's columns),
+    from the dense basis or the chunked normal equations."""
     th = engine.with_values(theta, {"drop_tstar": -1e9})
     d = engine.fd_columns([({}, "drop_dt")], th)[:, 0]  # every sample shifted
-    t = geo.t
-    order = np.argsort(t, kind="stable")
-    ts = t[order]
+    order = np.argsort(geo.t, kind="stable")
     # suffix sums over samples with t >= t_k, for each unique frame time t_k
-    tu, first = np.unique(ts, return_index=True)
+    tu, first = np.unique(geo.t[order], return_index=True)
 
     def suffix(a):
         c = np.cumsum(a[::-1], axis=0)[::-1]
@@ -174,13 +175,21 @@ def _screen_frame_drop(engine, theta, r, U, geo, gn_start):
     dd = d[order]
     cc = suffix(dd * dd)
     rc = suffix(r[order] * dd)
-    qa = suffix(U[order] * dd[:, None])
-    den = cc - np.sum(qa * qa, 1)
+    den = cc - projected(d, order, suffix, tu)
     with np.errstate(divide="ignore", invalid="ignore"):
         score = np.where(den > 1e-12 * max(cc.max(), 1e-300), rc ** 2 / den, 0.0)
     score[0] = 0.0  # t* at the first frame shifts everything: no jump
     k = int(np.argmax(score))
-    t_star = float(tu[k])
+    return float(tu[k]), float(score[k])
+
+
+def _screen_frame_drop(engine, theta, r, U, geo, gn_start):
+    """t* (:func:`frame_drop_tstar`), then one Gauss-Newton step of drop_dt there."""
+    def projected(d, order, suffix, tu):
+        qa = suffix(U[order] * d[order][:, None])
+        return np.sum(qa * qa, 1)
+
+    t_star, jump = frame_drop_tstar(engine, theta, r, geo, projected)
     th = engine.with_values(theta, {"drop_tstar": t_star})
     C = engine.fd_columns([({}, "drop_dt")], th)
     Cp = C - U @ (U.T @ C)
@@ -189,7 +198,7 @@ def _screen_frame_drop(engine, theta, r, U, geo, gn_start):
     start = gn_start(th, C, beta)
     start = engine.with_values(start, {"drop_dt": float(beta[0])})
     return Screened("frame_drop", float(np.sum((Cp @ beta) ** 2)), start, th, f"t*={t_star:.4f} s",
-                    {"t_star_s": t_star, "jump_score": float(score[k])})
+                    {"t_star_s": t_star, "jump_score": jump})
 
 
 def physical(eid: str, p: dict) -> str | None:

@@ -518,29 +518,11 @@ def _alternative_columns(engine, NJ, theta, alts, per_pass: int = 4):
 
 
 def _screen_frame_drop_normal(engine, theta, r, NJ, M, qr, geo, gn_start, project):
-    from ._candidates import Screened
+    from ._candidates import Screened, frame_drop_tstar
 
-    th = engine.with_values(theta, {"drop_tstar": -1e9})
-    d = engine.fd_columns([({}, "drop_dt")], th)[:, 0]  # every sample shifted
-    t = geo.t
-    order = np.argsort(t, kind="stable")
-    ts = t[order]
-    tu, first = np.unique(ts, return_index=True)
-
-    def suffix(a):
-        c = np.cumsum(a[::-1], axis=0)[::-1]
-        return c[first]
-
-    dd = d[order]
-    cc = suffix(dd * dd)
-    rc = suffix(r[order] * dd)
-    qq = NJ.suffix_projections(d, t, tu, M)  # |U^T (d 1[t >= t_k])|^2
-    den = cc - qq
-    with np.errstate(divide="ignore", invalid="ignore"):
-        score = np.where(den > 1e-12 * max(cc.max(), 1e-300), rc ** 2 / den, 0.0)
-    score[0] = 0.0  # t* at the first frame shifts everything: no jump
-    k = int(np.argmax(score))
-    t_star = float(tu[k])
+    t_star, jump = frame_drop_tstar(
+        engine, theta, r, geo,
+        lambda d, order, suffix, tu: NJ.suffix_projections(d, geo.t, tu, M))  # |U^T d_k|^2
     th = engine.with_values(theta, {"drop_tstar": t_star})
     C = engine.fd_columns([({}, "drop_dt")], th)
     JtC = NJ.Jt(C)
@@ -549,7 +531,7 @@ def _screen_frame_drop_normal(engine, theta, r, NJ, M, qr, geo, gn_start, projec
     start = gn_start(th, JtC, beta)
     start = engine.with_values(start, {"drop_dt": float(beta[0])})
     return Screened("frame_drop", float(beta @ gram @ beta), start, th, f"t*={t_star:.4f} s",
-                    {"t_star_s": t_star, "jump_score": float(score[k])})
+                    {"t_star_s": t_star, "jump_score": jump})
 
 
 # ---------------------------------------------------------------------------------------

@@ -60,7 +60,7 @@ def _sandwich(J, r, labels, Hinv):
     return Hinv @ S @ Hinv * (G / (G - 1))
 
 
-def robust_result(res, geo: Geometry, *, sensitivity: bool = True):
+def robust_result(res, geo: Geometry):
     """A copy of `res` whose quantities carry cluster-robust standard errors.
 
     Returns (result, method) where method names the covariance that set the slip's error.
@@ -95,20 +95,27 @@ def robust_result(res, geo: Geometry, *, sensitivity: bool = True):
         best = max(qs, key=lambda n: (qs[n][k].std or 0.0))
         out[k] = dataclasses.replace(qs[best][k], ci95=None)  # interval from the new std
     method = cov_method = max(qs, key=lambda n: (qs[n]["slip"].std or 0.0))
-    speed = speed_sensitivity(res) if sensitivity else None
+    speed = speed_sensitivity(res)
     if speed is not None:
         for k, d in speed["shift"].items():
             if k in out and out[k].std is not None and np.isfinite(out[k].std):
                 out[k] = dataclasses.replace(out[k], std=float(np.hypot(out[k].std, d)),
                                              ci95=None)
         method += " + speed-profile sensitivity"
-    info = {"method": cov_method, "clusters": clusters[cov_method], "cov": covs[cov_method],
-            "covs": {n: (covs[n], clusters[n]) for n in qs if n != "least squares"},
-            "naive_std": {k: e.std for k, e in res.quantities.items()},
-            "robust_std": {k: e.std for k, e in out.items()}, "speed_sensitivity": speed,
-            "label": method,
-            "uncertainty_method": f"least squares, {method} errors (unexplained misfit)"}
-    return dataclasses.replace(res, quantities=out, robust=info), method
+    return _widened(res, out, method=cov_method, clusters=clusters[cov_method],
+                    cov=covs[cov_method],
+                    covs={n: (covs[n], clusters[n]) for n in qs if n != "least squares"},
+                    speed_sensitivity=speed, label=method,
+                    uncertainty_method=f"least squares, {method} errors (unexplained misfit)"
+                    ), method
+
+
+def _widened(res, out: dict, **info):
+    """`res` with the quantities `out` and, in res.robust, what the posterior needs to
+    widen itself consistently (`info` plus each quantity's naive and widened error)."""
+    info.update(naive_std={k: e.std for k, e in res.quantities.items()},
+                robust_std={k: e.std for k, e in out.items()})
+    return dataclasses.replace(res, quantities=out, robust=info)
 
 
 def nuisance_result(res, sysb: dict):
@@ -131,10 +138,8 @@ def nuisance_result(res, sysb: dict):
         else:
             out[k] = est
     method = "least squares with the tracker-systematics nuisance carried"
-    info = {"method": method, "clusters": None, "cov": 0.5 * (C + C.T),
-            "covs": {}, "naive_std": {k: e.std for k, e in res.quantities.items()},
-            "robust_std": {k: e.std for k, e in out.items()}, "speed_sensitivity": None,
-            "label": method,
-            "uncertainty_method": method + " (per-marker-per-segment offsets and speed terms "
-                                           "fitted beside the model: a measurement floor)"}
-    return dataclasses.replace(res, quantities=out, robust=info)
+    return _widened(res, out, method=method, clusters=None, cov=0.5 * (C + C.T), covs={},
+                    speed_sensitivity=None, label=method,
+                    uncertainty_method=method + " (per-marker-per-segment offsets and speed "
+                                                "terms fitted beside the model: a "
+                                                "measurement floor)")

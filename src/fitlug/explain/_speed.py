@@ -24,9 +24,11 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax.numpy as jnp
 import numpy as np
 
 from ..model import _spline
+from ..model._model import band_dot
 
 SPACING_S = 0.03  # resolves a motion up to ~8 Hz (4 breakpoints a period)
 MAX_COEF = 600  # a longer recording gets wider spacing (cost of the dense refit)
@@ -52,37 +54,29 @@ def speed_sensitivity(res) -> dict | None:
     br = free_speed_breaks(lay)
     if len(br) - 1 + _spline.DEGREE <= lay.n_coef:  # not freer than the base layout
         return None
-    lay2 = lay.with_breaks(br)
-    grid = np.asarray(lay.grid)
     # the base speed profile, projected on the free basis: the refit starts at the base fit
-    Bo, jo = np.asarray(lay.Bn), np.asarray(lay.jn)
-    vo = np.asarray(res.params["v"], float)
-    speed = np.sum(Bo * vo[jo[:, None] + np.arange(Bo.shape[1])], axis=1)
+    speed = np.asarray(band_dot(lay.Bn, lay.jn, jnp.asarray(res.params["v"], float)))
     p = {k: np.asarray(v, float) for k, v in res.params.items()}
-    p["v"] = _spline.fit_banded(grid, speed, br)
-    prob2 = dataclasses.replace(prob, lay=lay2)
+    p["v"] = _spline.fit_banded(np.asarray(lay.grid), speed, br)
+    prob2 = dataclasses.replace(prob, lay=lay.with_breaks(br))
     try:
         with np.errstate(all="ignore"):  # its own covariance is not used (and may be singular)
-            res2 = fit_problem(prob2, p, free=_free_names(res, lay2), max_steps=100,
+            res2 = fit_problem(prob2, p, free=list(res.packing.names), max_steps=100,
                                require_convergence=False)
     except Exception:  # noqa: BLE001 - a failed sensitivity refit leaves the errors as they are
         return None
     if not np.isfinite(res2.chi2) or res2.chi2 > res.chi2 * (1 + 1e-6):
         return None
     shift = {}
-    for q in res.quantities:
-        a, b = res.quantities.get(q), res2.quantities.get(q)
-        if a is None or b is None or a.value is None or b.value is None:
+    for q, a in res.quantities.items():
+        b = res2.quantities.get(q)
+        if b is None or a.value is None or b.value is None:
             continue
         d = float(b.value) - float(a.value)
         if np.isfinite(d):
             shift[q] = abs(d)
-    return {"spacing_s": float(br[1] - br[0]), "n_coef": int(lay2.n_coef),
+    return {"spacing_s": float(br[1] - br[0]), "n_coef": int(prob2.lay.n_coef),
             "n_coef_base": int(lay.n_coef), "chi2_per_dof": float(res2.chi2_per_dof),
             "chi2_per_dof_base": float(res.chi2_per_dof), "shift": shift,
             "converged": bool(res2.converged)}
 
-
-def _free_names(res, lay2):
-    """The free parameters of `res`, under the free layout (same names)."""
-    return list(res.packing.names)
