@@ -229,6 +229,9 @@ def main():
     ap.add_argument("--n", type=int, default=50, help="recordings per row (default 50)")
     ap.add_argument("--workers", type=int, default=1, help="processes (spawn context)")
     ap.add_argument("--rows", default=",".join(ROWS), help="comma-separated subset of rows")
+    ap.add_argument("--start", type=int, default=0,
+                    help="first recording index per row (seeds SEED0[row] + start + i): "
+                         "a second run adds new recordings to an earlier one's log")
     ap.add_argument("--budget", type=float, default=60.0, help="sampler time budget, s")
     ap.add_argument("--log", help="append one JSON line per recording to this file")
     ap.add_argument("--from-log", help="summarise the recordings in this log, no new fits")
@@ -242,7 +245,7 @@ def main():
     if unknown:
         ap.error(f"unknown rows {sorted(unknown)}; known: {', '.join(ROWS)}")
     # rows interleaved, so that a run cut short has a bit of every row
-    tasks = [(row, SEED0[row] + i, args.budget) for i in range(args.n) for row in rows]
+    tasks = [(row, SEED0[row] + args.start + i, args.budget) for i in range(args.n) for row in rows]
     results = []
     t0 = time.perf_counter()
 
