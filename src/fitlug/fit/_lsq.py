@@ -32,6 +32,7 @@ import numpy as np
 import optimistix as optx
 
 from ..model import KINEMATIC, positions, predict, sampled_kinematics
+from ..model._physics import beta_max
 
 
 def residuals(p: dict, lay, obs: dict):
@@ -175,8 +176,21 @@ def _solve(flat0, fixed, lay, obs, packing: Packing, max_steps: int, rtol: float
     scale = _column_scale(jacobian(flat0, fixed, lay, obs, packing)) * _START_GAIN
     atol = atol / _START_GAIN
 
+    bounded = "s0" in packing.names and "beta" in packing.names
+
     def fn(z, _):
-        return r_of_flat(flat0 + z * scale)
+        f = flat0 + z * scale
+        r = r_of_flat(f)
+        if not bounded:
+            return r
+        # the solver (not the returned residuals, J or chi^2) is kept inside the slip law's
+        # physical range, the posterior's prior: stiff one-sided penalties, zero inside it,
+        # so that a recording that fixes beta fits exactly as without them
+        p = packing.unpack(f, fixed)
+        b, bm = p["beta"], beta_max(p["s0"])
+        ref = jnp.abs(bm) + 1e-12
+        return jnp.concatenate([r, jnp.ravel(1e3 * jax.nn.relu(b - bm) / ref),
+                                jnp.ravel(1e3 * jax.nn.relu(-b) / ref)])
 
     # the damped Gauss-Newton step from the normal equations (Cholesky of J^T J + lambda I,
     # columns scaled to unit norm) costs half the QR of [J; sqrt(lambda) I] per step, same
@@ -244,6 +258,14 @@ def least_squares(p0: dict, free, lay, obs, *, max_steps: int = 200, rtol: float
                      converged=bool(ok), steps=int(steps), packing=packing)
 
 
+def _physical(p) -> bool:
+    """Whether the slip law of `p` lies in its physical range (the solver's bounds)."""
+    if "s0" not in p or "beta" not in p:
+        return True
+    b = float(np.ravel(p["beta"])[0])
+    return 0.0 <= b <= float(np.ravel(beta_max(p["s0"]))[0])
+
+
 @eqx.filter_jit
 def _residuals_jacobian(flat, fixed, lay, obs, packing: Packing):
     return residuals(packing.unpack(flat, fixed), lay, obs), jacobian(flat, fixed, lay, obs,
@@ -264,17 +286,19 @@ def gauss_newton_polish(out: LsqOutput, lay, obs, *, tol: float, max_iter: int =
              if k not in out.packing.names}
     flat, J, r = np.asarray(out.flat, float), np.asarray(out.J, float), np.asarray(out.r, float)
     chi2, dec, steps = float(r @ r), np.inf, out.steps
-    for _ in range(max_iter):
-        d = 1.0 / np.maximum(np.linalg.norm(J, axis=0), 1e-300)
+    for it in range(max_iter + 1):
+        n = np.linalg.norm(J, axis=0)
+        d = np.where(n > 0, 1.0 / np.where(n > 0, n, 1.0), 0.0)
         z = np.linalg.lstsq(J * d, r, rcond=rcond)[0]
         dec = float(((J * d).T @ r) @ z)
-        if not np.isfinite(dec) or dec < tol:
+        if not np.isfinite(dec) or dec < tol or it == max_iter:
             break
         step, t, moved = -z * d, 1.0, False
         while t > 1.0 / 256:
             r_t, J_t = _residuals_jacobian(flat + t * step, fixed, lay, obs, out.packing)
             r_t = np.asarray(r_t)
-            if np.all(np.isfinite(r_t)) and float(r_t @ r_t) < chi2:
+            if (np.all(np.isfinite(r_t)) and float(r_t @ r_t) < chi2
+                    and _physical(out.packing.unpack(jnp.asarray(flat + t * step), fixed))):
                 flat, J, r, chi2, moved = flat + t * step, np.asarray(J_t), r_t, float(r_t @ r_t), True
                 break
             t /= 2
@@ -288,7 +312,10 @@ def gauss_newton_polish(out: LsqOutput, lay, obs, *, tol: float, max_iter: int =
 
 def covariance(J: np.ndarray, rcond: float = 1e-12) -> np.ndarray:
     """(J^T J)^-1 with a pseudo-inverse for directions the data do not constrain."""
-    s = 1.0 / np.maximum(np.sqrt(np.sum(J * J, 0)), 1e-300)
+    n = np.sqrt(np.sum(J * J, 0))
+    # a parameter that does not act here (a zero column: an effect's parameter at a
+    # degenerate state) gets the pseudo-inverse's zero, not 0 * inf
+    s = np.where(n > 0, 1.0 / np.where(n > 0, n, 1.0), 0.0)
     A = (J * s).T @ (J * s)
     w, V = np.linalg.eigh(A)
     inv = np.where(w > rcond * w.max(), 1.0 / np.where(w > 0, w, 1.0), 0.0)
@@ -808,7 +835,7 @@ def covariance_normal(A: np.ndarray, rcond: float = 1e-12) -> np.ndarray:
     """:func:`covariance` from the normal matrix J^T J instead of J (same pseudo-inverse)."""
     A = np.asarray(A)
     d = np.sqrt(np.maximum(np.diag(A), 0.0))
-    s = 1.0 / np.maximum(d, 1e-300)
+    s = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)  # zero column: as covariance()
     As = A * np.outer(s, s)
     w, V = np.linalg.eigh(As)
     inv = np.where(w > rcond * w.max(), 1.0 / np.where(w > 0, w, 1.0), 0.0)

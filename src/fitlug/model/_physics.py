@@ -11,6 +11,19 @@ from __future__ import annotations
 
 
 G = 9.81  # m/s^2
+#: the physical range of the slip law: k > 0 (beta > 0) and a rolling resistance (plus
+#: drawbar pull over weight) s0 / (1000 g beta) of at least C_RR_MIN. A rubber track on any
+#: ground resists rolling by more (steel on rail: ~0.001). Without it a cruise-only
+#: recording, which cannot fix beta, let beta wander to 1e4 times any physical value, where
+#: it traded with the speed spline's acceleration and shifted s0 by several of its errors
+#: (bench_coverage's cruise row: seed 37007 in the posterior, seeds 37014/37026/37027 in
+#: the least squares, which crawled along that valley for 300 steps)
+C_RR_MIN = 0.001
+
+
+def beta_max(s0):
+    """The largest physical slip slope beta for steady slip s0 (C_rr + F_d/(m g) >= C_RR_MIN)."""
+    return s0 / (1000.0 * G * C_RR_MIN)
 
 
 def reference_slip(n: int, delta_l_mm, L_mm):

@@ -44,7 +44,7 @@ import numpy as np
 
 from .. import _jaxconfig  # noqa: F401
 from .._errors import FitError
-from ..model._physics import G as GRAVITY
+from ..model._physics import C_RR_MIN, G as GRAVITY
 from ..model.effects import CATALOG
 from ..fit._lsq import (LARGE_ENTRIES, chunk_plan, chunkable, jacobian, normal_equations,
                         residuals)
@@ -57,12 +57,6 @@ CHECK_SIGMA = 2.0
 REPORTED = ("slip", "delta_l_mm", "stiffness_N_per_mm", "rolling_resistance", "k_over_m")
 _NONNEG = {"s0": "C_rr >= 0", "slide_mu": "F_max > 0"}
 _POSITIVE = {"beta": "k > 0"}
-# rolling resistance (plus drawbar pull over weight) s0 / (1000 g beta) of at least 0.001:
-# a rubber track on any ground resists rolling by more (steel on rail: ~0.001). Without it
-# a cruise-only recording, which cannot fix beta, let beta wander to 1e4 times any
-# physical value, where it traded with the speed spline's acceleration and shifted s0 by
-# several of its errors (bench_coverage's cruise row, seed 37007).
-C_RR_MIN = 0.001
 
 
 def slip_law_parameters(res: FitResult) -> list[str]:
@@ -248,7 +242,8 @@ class _Marginal:
         # projection onto span(J_eta)^perp through the normal equations, with the same
         # column scaling and eigenvalue cut as the least-squares covariance (an SVD of the
         # tall J costs ~100x more); F = J_t^T P J_t, the Schur complement of J^T J
-        s = 1.0 / np.maximum(np.sqrt(np.maximum(np.diag(Aee), 0.0)), 1e-300)
+        n = np.sqrt(np.maximum(np.diag(Aee), 0.0))
+        s = np.where(n > 0, 1.0 / np.where(n > 0, n, 1.0), 0.0)  # zero column: no share
         M = Aee * np.outer(s, s)
         w, V = np.linalg.eigh(M)
         inv = np.where(w > 1e-12 * w.max(), 1.0 / np.where(w > 0, w, 1.0), 0.0)
