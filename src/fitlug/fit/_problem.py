@@ -225,7 +225,8 @@ def _init_speed(lay, obs, cx0):
     if lay.grid.shape[0] * lay.n_coef > _DENSE_INIT_ENTRIES:  # long recordings: by chunks
         from ..model._model import fit_body_speed
 
-        return fit_body_speed(lay, lay.body_t, lay.body_j, obs["body_x"], obs["body_w"])
+        return fit_body_speed(lay, lay.body_t, lay.body_j, obs["body_x"], obs["body_w"],
+                              smooth=SPEED_START_SMOOTH)
     Bn, _, Bm, _ = lay.dense_bases()
     h = lay.h
     # integrated basis at nodes (Simpson, cumulative), then Hermite at the body times

@@ -335,10 +335,12 @@ def integrated_basis_rows(lay: Layout, t, chunk: int = 4096):
         carry = Inode[-1]
 
 
-def fit_body_speed(lay: Layout, t, j, x, w):
+def fit_body_speed(lay: Layout, t, j, x, w, smooth: float | None = None):
     """Speed-spline coefficients and body offsets cx minimising
-    sum w^2 (x - X(t) - cx_j)^2 (X(t_ref) = 0, base model with zero slip): normal
-    equations accumulated by time chunks, memory independent of the recording's length."""
+    sum w^2 (x - X(t) - cx_j)^2 (X(t_ref) = 0, base model with zero slip), plus
+    sum (second difference of the coefficients / smooth)^2 when `smooth` (mm/s) is given:
+    normal equations accumulated by time chunks, memory independent of the recording's
+    length."""
     K, nb = lay.n_coef, lay.n_body
     t, j, x, w = (np.asarray(a) for a in (t, j, x, w))
     ref = np.zeros(K)
@@ -353,6 +355,11 @@ def fit_body_speed(lay: Layout, t, j, x, w):
         M *= w[sel, None]
         A += M.T @ M
         b += M.T @ (x[sel] * w[sel])
+    if smooth is not None and K > 2:
+        D2 = np.zeros((K - 2, K))
+        i = np.arange(K - 2)
+        D2[i, i], D2[i, i + 1], D2[i, i + 2] = 1.0, -2.0, 1.0
+        A[:K, :K] += D2.T @ D2 / smooth ** 2
     d = np.sqrt(np.maximum(np.diag(A), 0.0))
     s = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 1.0)
     sol = np.linalg.lstsq(A * np.outer(s, s), b * s, rcond=None)[0] * s
