@@ -130,6 +130,10 @@ def test_speed_modulation_headline_interval_holds_the_truth(speed_mod):
     sens = doc["discrepancy"]["speed_sensitivity"]
     assert sens["chi2_per_dof"] < 0.5 * sens["chi2_per_dof_base"], sens  # it follows the motion
     assert "speed-profile sensitivity" in doc["uncertainty_method"]
+    # only the shift's excess over its own scatter counts as bias; here it is nearly all bias
+    for q, d in sens["shift"].items():
+        assert 0.0 <= d <= sens["shift_raw"][q], (q, d, sens["shift_raw"][q])
+    assert sens["shift"]["slip"] > 0.9 * sens["shift_raw"]["slip"], sens
     for q in ("slip", "delta_l_mm"):
         e = doc[q]
         assert e["ci95"][0] <= truth[q] <= e["ci95"][1], (q, e, truth[q])

@@ -131,9 +131,11 @@ class Explanation:
         if speed is not None:
             out["speed_sensitivity"] = {
                 **speed, "note": ("the model refitted with a free speed spline "
-                                  f"(breakpoints {speed['spacing_s']:g} s apart): each "
-                                  "quantity's shift is added in quadrature to its robust "
-                                  "error")}
+                                  f"(breakpoints {speed['spacing_s']:g} s apart): "
+                                  "shift_raw is each quantity's change between the fits, "
+                                  "shift its excess over the change's own scatter "
+                                  "(sqrt(max(0, d^2 - (V_free - V_base)))), added in "
+                                  "quadrature to its robust error")}
         if self.systematics is not None:
             sysb = {k: v for k, v in self.systematics.items()
                     if k != "why_not" and not k.startswith("_")}
