@@ -36,11 +36,13 @@ MAX_SAMPLES = 40000
 MAX_CURVE_POINTS = 20000
 
 
-def _raw_residuals(prob, p):
-    """Data minus model (mm) per role and axis, NaN where the sample is missing."""
-    from ..model import predict
+def _raw_residuals(prob, p, model=None):
+    """Data minus model (mm) per role and axis, NaN where the sample is missing.
 
-    lx, ly, bx, by = (np.asarray(a) for a in predict(p, prob.lay))
+    model: the model positions (lug_x, lug_y, body_x, body_y) when already evaluated."""
+    if model is None:
+        model = _predict_jit()(p, prob.lay)
+    lx, ly, bx, by = (np.asarray(a) for a in model)
     o = {k: np.asarray(v) for k, v in prob.obs.items()}
     vl, vb = o["lug_w"] > 0, o["body_w"] > 0
     nan = np.nan
@@ -51,11 +53,45 @@ def _raw_residuals(prob, p):
             "body_res_y": np.where(vb, o["body_y"] - by, nan)}
 
 
+_JITTED = {}
+
+
+def _predict_jit():
+    """:func:`fitlug.model.predict`, compiled (op by op it costs seconds on every run)."""
+    if "predict" not in _JITTED:
+        import equinox as eqx
+
+        from ..model import predict
+
+        _JITTED["predict"] = eqx.filter_jit(predict)
+    return _JITTED["predict"]
+
+
+def _model_state(p, lay, fine, lay_c):
+    """Every model array of the state in one compiled call: positions at the samples,
+    path segments, belt travel at the lug samples, kinematics on the fine grid, the lug
+    curves (positions on lay_c) and the belt length."""
+    from ..model import belt_length, kinematics, predict, segments
+    from ..model._model import _true_times  # frame_drop: psi at the true times
+
+    kin = kinematics(p, lay, fine)
+    return {"model": predict(p, lay), "seg": segments(p, lay),
+            "psi_l": kinematics(p, lay, _true_times(p, lay, lay.lug_t))["psi"],
+            "fine": {k: kin[k] for k in ("X", "v", "psi", "v_t", "s")},
+            "curve": predict(p, lay_c)[:2], "P": belt_length(p["R"], p["D"])}
+
+
+def _model_state_jit():
+    if "state" not in _JITTED:
+        import equinox as eqx
+
+        _JITTED["state"] = eqx.filter_jit(_model_state)
+    return _JITTED["state"]
+
+
 def state_arrays(res, posterior=None, explanation=None) -> tuple[dict, dict]:
     """(arrays, meta) of a fit, its posterior and explanation (see the module docstring)."""
     import jax.numpy as jnp
-
-    from ..model import belt_length, kinematics, predict, segments
 
     prob, lay = res.problem, res.problem.lay
     p = {k: jnp.asarray(v) for k, v in res.params.items()}
@@ -64,23 +100,9 @@ def state_arrays(res, posterior=None, explanation=None) -> tuple[dict, dict]:
          "lug_x": o["lug_x"], "lug_y": o["lug_y"], "lug_valid": o["lug_w"] > 0,
          "body_t": np.asarray(lay.body_t), "body_j": np.asarray(lay.body_j),
          "body_x": o["body_x"], "body_y": o["body_y"], "body_valid": o["body_w"] > 0}
-    a.update(_raw_residuals(prob, p))
-    a["lug_seg"] = np.asarray(segments(p, lay)).astype(np.int8)
-    P = float(belt_length(p["R"], p["D"]))
-    from ..model._model import _true_times  # frame_drop: psi at the true times
-
-    kin_l = kinematics(p, lay, _true_times(p, lay, lay.lug_t))
-    a["lug_u"] = np.mod(np.asarray(p["sigma0"])[a["lug_i"]] + np.asarray(kin_l["psi"]), P)
-
     t_lo = float(min(a["lug_t"].min(), a["body_t"].min()))
     t_hi = float(max(a["lug_t"].max(), a["body_t"].max()))
     fine = np.linspace(t_lo, t_hi, FINE_POINTS)
-    kin = kinematics(p, lay, fine)
-    a.update({"fine_t": fine, "fine_X": np.asarray(kin["X"]), "fine_v": np.asarray(kin["v"]),
-              "fine_psi": np.asarray(kin["psi"]), "fine_vt": np.asarray(kin["v_t"]),
-              "fine_s": np.asarray(kin["s"])})
-    a["body_X_data"] = a["body_x"] - np.asarray(p["cx"])[a["body_j"]]
-
     # the model's lug paths between frames, for smooth curves
     dt = np.median(np.diff(np.unique(a["lug_t"]))) / CURVE_OVERSAMPLE
     dt = max(dt, (t_hi - t_lo) / MAX_CURVE_POINTS)
@@ -88,7 +110,18 @@ def state_arrays(res, posterior=None, explanation=None) -> tuple[dict, dict]:
     ci = np.repeat(np.arange(lay.n_lug), len(ct))
     ct = np.tile(ct, lay.n_lug)
     lay_c = lay.with_times(ct, ci, lay.body_t[:1], lay.body_j[:1])
-    cx, cy, _, _ = predict(p, lay_c)
+    m = _model_state_jit()(p, lay, jnp.asarray(fine), lay_c)
+
+    a.update(_raw_residuals(prob, p, m["model"]))
+    a["lug_seg"] = np.asarray(m["seg"]).astype(np.int8)
+    P = float(m["P"])
+    a["lug_u"] = np.mod(np.asarray(p["sigma0"])[a["lug_i"]] + np.asarray(m["psi_l"]), P)
+    kin = m["fine"]
+    a.update({"fine_t": fine, "fine_X": np.asarray(kin["X"]), "fine_v": np.asarray(kin["v"]),
+              "fine_psi": np.asarray(kin["psi"]), "fine_vt": np.asarray(kin["v_t"]),
+              "fine_s": np.asarray(kin["s"])})
+    a["body_X_data"] = a["body_x"] - np.asarray(p["cx"])[a["body_j"]]
+    cx, cy = m["curve"]
     a.update({"curve_t": ct, "curve_i": ci, "curve_x": np.asarray(cx), "curve_y": np.asarray(cy)})
 
     meta = {"markers": list(prob.rec.markers), "lug_ids": [int(m) for m in prob.lug_ids],
