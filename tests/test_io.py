@@ -678,3 +678,21 @@ def test_wide_rows_in_any_order(tmp_path):
     with pytest.raises(InputError, match=r":4: time going backwards for every marker: frame 1 "
                                          r"at 0\.01 s here, frame 2 at 0\.005 s on line 2"):
         read_trajectories(_write(tmp_path, backwards, "b.csv"))
+
+
+def test_stage_functions_stay_callable_once_their_packages_are_imported():
+    """`fitlug.fit(rec, rig)` (the README's call) failed with "'module' object is not
+    callable" once anything had imported the sub-package fitlug.fit (fitlug.explain does):
+    the import system binds the name to the module."""
+    import importlib
+
+    import fitlug
+
+    for name in ("fit", "explain", "campaign"):
+        mod = importlib.import_module(f"fitlug.{name}")
+        assert callable(getattr(fitlug, name)), name
+        assert callable(mod), name
+    with pytest.raises(Exception) as direct:
+        fitlug.fit.fit(None)
+    with pytest.raises(type(direct.value)):
+        fitlug.fit(None)

@@ -16,3 +16,7 @@ from ._run import (
     resolve_sources as resolve_sources,
     write_campaign as write_campaign,
 )
+
+from .._callable import make_callable as _make_callable
+
+_make_callable(__name__)  # `fitlug.campaign(...)` calls the function even when bound to this module

@@ -4,3 +4,7 @@ from ._detect import ALPHA as ALPHA, Detection as Detection, detect as detect
 from ._explain import Explanation as Explanation, Step as Step, explain as explain
 from ._locate import Location as Location, locate as locate
 from ._table import Geometry as Geometry, geometry as geometry
+
+from .._callable import make_callable as _make_callable
+
+_make_callable(__name__)  # `fitlug.explain(...)` calls the function even when bound to this module

@@ -12,3 +12,7 @@ from ._lsq import covariance as covariance, least_squares as least_squares, resi
 from ._noise import estimate_noise as estimate_noise
 from ._problem import Problem as Problem, build_problem as build_problem
 from ._result import Estimate as Estimate, FitResult as FitResult, derived as derived
+
+from .._callable import make_callable as _make_callable
+
+_make_callable(__name__)  # `fitlug.fit(...)` calls the function even when bound to this module
