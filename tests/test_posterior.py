@@ -1,6 +1,6 @@
 """The posterior of the slip law: calibrated against known truth, and the sampler itself.
 
-Statistical tests with fixed seeds (emcee's own integration tests are the model): 20
+Statistical tests with fixed seeds (emcee's own integration tests are the model): 16
 simulated recordings with known slip and rolling resistance, each fitted and sampled; the
 intervals must cover the truth as often as they claim, within bounds that a sampler with
 intervals twice too wide or too narrow fails. The ensemble driver is checked on
@@ -25,7 +25,7 @@ from fitlug.sim import Scenario, rig_of, simulate
 
 # short recordings (300 frames, 6 lug + 2 body markers): ~4 s per fit on 2 cores
 SHORT = Scenario(duration_s=3.0, travel_mm=300, rest_s=0.3, ramp_s=0.8, lug_markers=6)
-SEEDS = tuple(range(7100, 7120))
+SEEDS = tuple(range(7100, 7116))  # 16 recordings (CI time: each compiles its own)
 QUANTITIES = ("slip", "rolling_resistance", "stiffness_N_per_mm")
 
 
@@ -62,18 +62,18 @@ def test_intervals_cover_the_truth(runs):
             for level in hits:
                 lo, hi = _interval(post.samples[q], level)
                 hits[level] += lo <= truth[q] <= hi
-        # binomial(20, 0.9): P(<= 13) = 0.002; binomial(20, 0.95): P(<= 15) = 0.016
-        assert hits[0.9] >= 14, (q, hits)
-        assert hits[0.95] >= 16, (q, hits)
+        # binomial(16, 0.9): P(<= 11) = 0.017; binomial(16, 0.95): P(<= 12) = 0.007
+        assert hits[0.9] >= 12, (q, hits)
+        assert hits[0.95] >= 13, (q, hits)
 
 
 def test_errors_scaled_by_the_posterior_std_are_standard_normal(runs):
-    # mean z^2 over 20 is chi2_20 / 20: [0.37, 2.0] holds 99 %; intervals 2x too wide
+    # mean z^2 over 16 is chi2_16 / 16: [0.32, 2.14] holds 99 %; intervals 2x too wide
     # give ~0.25, 2x too narrow ~4
     for q in QUANTITIES:
         z = np.array([(np.median(p.samples[q]) - t[q]) / np.std(p.samples[q])
                       for t, _, p in runs])
-        assert 0.37 <= np.mean(z ** 2) <= 2.0, (q, z)
+        assert 0.32 <= np.mean(z ** 2) <= 2.14, (q, z)
         # probability integral transform: the truth's quantile in the posterior is uniform
         pit = [np.mean(p.samples[q] < t[q]) for t, _, p in runs]
         assert stats.kstest(pit, "uniform").pvalue > 0.01, (q, pit)
