@@ -491,6 +491,26 @@ def normal_equations(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: 
     return (A if with_A else None), g, jnp.sum(r * r)
 
 
+def _window_nodes(prep: dict, lay, rows, ws, W: int, nk: int):
+    """d(X, psi)/d theta (kinematic columns) at the W nodes of a chunk's window, summed from
+    the window's first node (the prefix before it is the caller's), their time derivatives
+    at the nodes, and each row's window interval and Hermite weights:
+    ((DX, DP, VX, VP), il, (w00, w10, w01, w11))."""
+    sl_n = lambda a: jax.lax.dynamic_slice_in_dim(a, ws, W, 0)  # noqa: E731
+    sl_i = lambda a: jax.lax.dynamic_slice_in_dim(a, ws, W - 1, 0)  # noqa: E731
+    zero = jnp.zeros((1, nk))
+    icol, ncol = sl_i(prep["icol"]), sl_n(prep["ncol"])
+    DX = jnp.concatenate([zero, jnp.cumsum(_scatter_rows(sl_i(prep["ix"]), icol, nk), 0)])
+    DP = jnp.concatenate([zero, jnp.cumsum(_scatter_rows(sl_i(prep["ipsi"]), icol, nk), 0)])
+    VX = _scatter_rows(sl_n(prep["nx"]), ncol, nk)
+    VP = _scatter_rows(sl_n(prep["npsi"]), ncol, nk)
+    u = (prep["t_row"][rows] - lay.grid[0]) / lay.h
+    ig = jnp.clip(jnp.floor(u).astype(int), 0, lay.grid.shape[0] - 2)
+    il = jnp.clip(ig - ws, 0, W - 2)
+    weights = tuple(w[:, None] for w in _hermite_weights(u - ig, lay.h))
+    return (DX, DP, VX, VP), il, weights
+
+
 def _chunk_factors(prep: dict, lay, packing: Packing, plan: ChunkPlan, rows, mask, ws, cb,
                    pX, pP):
     """One chunk's Jacobian rows as U P^T on the kinematic columns plus L on the columns
@@ -498,30 +518,15 @@ def _chunk_factors(prep: dict, lay, packing: Packing, plan: ChunkPlan, rows, mas
     sl = packing.slices()
     K = lay.n_coef
     nk = K + 2
-    G = lay.grid.shape[0]
     W, BW = plan.W, plan.BW
     rest_idx = _rest_index(packing)
     kin_pos = jnp.asarray(np.r_[np.arange(sl["v"].start, sl["v"].stop), sl["s0"].start,
                                 sl["beta"].start])
     sig_pos = jnp.asarray(np.arange(sl["sigma0"].start, sl["sigma0"].stop))
     n_sig = sig_pos.shape[0]
-    ix, ipsi, icol = prep["ix"], prep["ipsi"], prep["icol"]
-    nx, npsi, ncol = prep["nx"], prep["npsi"], prep["ncol"]
-    sl_n = lambda a: jax.lax.dynamic_slice_in_dim(a, ws, W, 0)  # noqa: E731
-    sl_i = lambda a: jax.lax.dynamic_slice_in_dim(a, ws, W - 1, 0)  # noqa: E731
     cols = jnp.concatenate([cb + jnp.arange(BW), jnp.array([K, K + 1])])  # band, s0, beta
-    DX = jnp.concatenate([jnp.zeros((1, nk)), jnp.cumsum(
-        _scatter_rows(sl_i(ix), sl_i(icol), nk), 0)])[:, cols]
-    DP = jnp.concatenate([jnp.zeros((1, nk)), jnp.cumsum(
-        _scatter_rows(sl_i(ipsi), sl_i(icol), nk), 0)])[:, cols]
-    VX = _scatter_rows(sl_n(nx), sl_n(ncol), nk)[:, cols]
-    VP = _scatter_rows(sl_n(npsi), sl_n(ncol), nk)[:, cols]
-    t = prep["t_row"][rows]
-    u = (t - lay.grid[0]) / lay.h
-    ig = jnp.clip(jnp.floor(u).astype(int), 0, G - 2)
-    tau = u - ig
-    il = jnp.clip(ig - ws, 0, W - 2)
-    w00, w10, w01, w11 = (w[:, None] for w in _hermite_weights(tau, lay.h))
+    (DX, DP, VX, VP), il, (w00, w10, w01, w11) = _window_nodes(prep, lay, rows, ws, W, nk)
+    DX, DP, VX, VP = (a[:, cols] for a in (DX, DP, VX, VP))
     # the Hermite weights of the two node values add up to one: the prefix factors out
     lX = w00 * DX[il] + w10 * VX[il] + w01 * DX[il + 1] + w11 * VX[il + 1]
     lP = w00 * DP[il] + w10 * VP[il] + w01 * DP[il + 1] + w11 * VP[il + 1]
@@ -619,26 +624,11 @@ def _chunk_jacobian(prep: dict, lay, packing: Packing, W: int, rows, mask, ws, p
     sl = packing.slices()
     n_par = sum(packing.sizes)
     nk = lay.n_coef + 2
-    G = lay.grid.shape[0]
     rest_idx = _rest_index(packing)
     kin_pos = np.r_[np.arange(sl["v"].start, sl["v"].stop), sl["s0"].start, sl["beta"].start]
     sig_pos = jnp.asarray(np.arange(sl["sigma0"].start, sl["sigma0"].stop))
-    ix, ipsi, icol = prep["ix"], prep["ipsi"], prep["icol"]
-    nx, npsi, ncol = prep["nx"], prep["npsi"], prep["ncol"]
-    sl_n = lambda a: jax.lax.dynamic_slice_in_dim(a, ws, W, 0)  # noqa: E731
-    sl_i = lambda a: jax.lax.dynamic_slice_in_dim(a, ws, W - 1, 0)  # noqa: E731
-    DX = pX + jnp.concatenate([jnp.zeros((1, nk)), jnp.cumsum(
-        _scatter_rows(sl_i(ix), sl_i(icol), nk), 0)])
-    DP = pP + jnp.concatenate([jnp.zeros((1, nk)), jnp.cumsum(
-        _scatter_rows(sl_i(ipsi), sl_i(icol), nk), 0)])
-    VX = _scatter_rows(sl_n(nx), sl_n(ncol), nk)
-    VP = _scatter_rows(sl_n(npsi), sl_n(ncol), nk)
-    t = prep["t_row"][rows]
-    u = (t - lay.grid[0]) / lay.h
-    ig = jnp.clip(jnp.floor(u).astype(int), 0, G - 2)
-    tau = u - ig
-    il = jnp.clip(ig - ws, 0, W - 2)
-    w00, w10, w01, w11 = (w[:, None] for w in _hermite_weights(tau, lay.h))
+    (DX, DP, VX, VP), il, (w00, w10, w01, w11) = _window_nodes(prep, lay, rows, ws, W, nk)
+    DX, DP = pX + DX, pP + DP
     dX = w00 * DX[il] + w10 * VX[il] + w01 * DX[il + 1] + w11 * VX[il + 1] - prep["refX"]
     dP = w00 * DP[il] + w10 * VP[il] + w01 * DP[il + 1] + w11 * VP[il + 1] - prep["refP"]
     kin = prep["dr_dX"][rows][:, None] * dX + prep["dr_dpsi"][rows][:, None] * dP
