@@ -258,6 +258,13 @@ def least_squares(p0: dict, free, lay, obs, *, max_steps: int = 200, rtol: float
                      converged=bool(ok), steps=int(steps), packing=packing)
 
 
+def inverse_norms(n: np.ndarray) -> np.ndarray:
+    """1 / n for the column scaling of a pseudo-inverse, 0 where a column is zero (a
+    parameter that does not act here, e.g. an effect's at a degenerate state: it gets the
+    pseudo-inverse's zero, not 0 * inf = NaN in every entry)."""
+    return np.where(n > 0, 1.0 / np.where(n > 0, n, 1.0), 0.0)
+
+
 def _physical(p) -> bool:
     """Whether the slip law of `p` lies in its physical range (the solver's bounds)."""
     if "s0" not in p or "beta" not in p:
@@ -287,8 +294,7 @@ def gauss_newton_polish(out: LsqOutput, lay, obs, *, tol: float, max_iter: int =
     flat, J, r = np.asarray(out.flat, float), np.asarray(out.J, float), np.asarray(out.r, float)
     chi2, dec, steps = float(r @ r), np.inf, out.steps
     for it in range(max_iter + 1):
-        n = np.linalg.norm(J, axis=0)
-        d = np.where(n > 0, 1.0 / np.where(n > 0, n, 1.0), 0.0)
+        d = inverse_norms(np.linalg.norm(J, axis=0))
         z = np.linalg.lstsq(J * d, r, rcond=rcond)[0]
         dec = float(((J * d).T @ r) @ z)
         if not np.isfinite(dec) or dec < tol or it == max_iter:
@@ -312,10 +318,7 @@ def gauss_newton_polish(out: LsqOutput, lay, obs, *, tol: float, max_iter: int =
 
 def covariance(J: np.ndarray, rcond: float = 1e-12) -> np.ndarray:
     """(J^T J)^-1 with a pseudo-inverse for directions the data do not constrain."""
-    n = np.sqrt(np.sum(J * J, 0))
-    # a parameter that does not act here (a zero column: an effect's parameter at a
-    # degenerate state) gets the pseudo-inverse's zero, not 0 * inf
-    s = np.where(n > 0, 1.0 / np.where(n > 0, n, 1.0), 0.0)
+    s = inverse_norms(np.sqrt(np.sum(J * J, 0)))
     A = (J * s).T @ (J * s)
     w, V = np.linalg.eigh(A)
     inv = np.where(w > rcond * w.max(), 1.0 / np.where(w > 0, w, 1.0), 0.0)
@@ -824,8 +827,7 @@ def _cho_solve(L, b):
 def covariance_normal(A: np.ndarray, rcond: float = 1e-12) -> np.ndarray:
     """:func:`covariance` from the normal matrix J^T J instead of J (same pseudo-inverse)."""
     A = np.asarray(A)
-    d = np.sqrt(np.maximum(np.diag(A), 0.0))
-    s = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)  # zero column: as covariance()
+    s = inverse_norms(np.sqrt(np.maximum(np.diag(A), 0.0)))
     As = A * np.outer(s, s)
     w, V = np.linalg.eigh(As)
     inv = np.where(w > rcond * w.max(), 1.0 / np.where(w > 0, w, 1.0), 0.0)

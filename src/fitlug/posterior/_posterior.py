@@ -44,10 +44,10 @@ import numpy as np
 
 from .. import _jaxconfig  # noqa: F401
 from .._errors import FitError
-from ..model._physics import C_RR_MIN, G as GRAVITY
+from ..model._physics import C_RR_MIN, beta_max
 from ..model.effects import CATALOG
-from ..fit._lsq import (LARGE_ENTRIES, chunk_plan, chunkable, jacobian, normal_equations,
-                        residuals)
+from ..fit._lsq import (LARGE_ENTRIES, chunk_plan, chunkable, inverse_norms, jacobian,
+                        normal_equations, residuals)
 from ._identify import not_identifiable
 from ._mcmc import Chain, autocorr_time, run_ensemble
 from ..fit._result import Estimate, FitResult, derived
@@ -242,8 +242,7 @@ class _Marginal:
         # projection onto span(J_eta)^perp through the normal equations, with the same
         # column scaling and eigenvalue cut as the least-squares covariance (an SVD of the
         # tall J costs ~100x more); F = J_t^T P J_t, the Schur complement of J^T J
-        n = np.sqrt(np.maximum(np.diag(Aee), 0.0))
-        s = np.where(n > 0, 1.0 / np.where(n > 0, n, 1.0), 0.0)  # zero column: no share
+        s = inverse_norms(np.sqrt(np.maximum(np.diag(Aee), 0.0)))  # zero column: no share
         M = Aee * np.outer(s, s)
         w, V = np.linalg.eigh(M)
         inv = np.where(w > 1e-12 * w.max(), 1.0 / np.where(w > 0, w, 1.0), 0.0)
@@ -340,7 +339,7 @@ def _log_prior(th, names):
             ok &= th[..., i] >= 0
     if "s0" in names and "beta" in names:
         s0, beta = th[..., names.index("s0")], th[..., names.index("beta")]
-        ok &= s0 >= 1000.0 * GRAVITY * C_RR_MIN * beta
+        ok &= beta <= beta_max(s0)
     return jnp.where(ok, 0.0, -jnp.inf)
 
 
@@ -561,7 +560,7 @@ def _start(marg: _Marginal, walkers: int, rng) -> np.ndarray:
         w, V = np.linalg.eigh(0.5 * (Cc + Cc.T))
         root = V * np.sqrt(np.clip(w, 0.0, None))
         s0_top = max(float(marg.theta_hat[i0]) + 3.0 * math.sqrt(max(C[i0, i0], 0.0)), 1e-6)
-        cap = s0_top / (1000.0 * GRAVITY * C_RR_MIN)
+        cap = beta_max(s0_top)
         for _ in range(8):
             beta = rng.uniform(0.0, cap, 4096)
             th = np.empty((4096, d))
