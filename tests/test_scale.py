@@ -200,14 +200,15 @@ def test_explanation_engine_in_normal_form_equals_the_dense_engine(sag_fit, monk
 
 def test_robust_errors_and_systematics_check_in_normal_form_equal_the_dense_ones(
         sag_fit, monkeypatch):
-    """The cluster-robust sandwich (scores by cluster over time chunks) and the tracker-
-    systematics nuisance fit (J^T J, J^T N with N never formed) equal the dense ones."""
+    """The robust sandwiches (scores by marker and by time window, over time chunks) and
+    the tracker-systematics nuisance fit (J^T J, J^T N with N never formed) equal the
+    dense ones."""
     import jax
     import jax.numpy as jnp
 
     from fitlug.explain._engine import jacobian_of
     from fitlug.fit._result import derived
-    from fitlug.explain._robust import BLOCK_S, _sandwich, covariance
+    from fitlug.explain._robust import _in_time, _sandwich, covariance
     from fitlug.explain._systematics import _nuisance_fit
     from fitlug.explain._table import geometry
 
@@ -217,12 +218,11 @@ def test_robust_errors_and_systematics_check_in_normal_form_equal_the_dense_ones
     fixed = {k: jnp.asarray(v, float) for k, v in res.params.items()
              if k not in res.packing.names}
     r = np.where(geo.valid, np.asarray(res.residuals), 0.0)
-    blocks = np.floor((geo.t - geo.t_lo) / BLOCK_S).astype(int)
 
     def run():
         J = jacobian_of(res.flat, fixed, res.packing, prob.lay, prob.obs)
         H = covariance(J)
-        return (H, _sandwich(J, r, geo.marker, H), _sandwich(J, r, blocks, H),
+        return (H, _sandwich(J, r, geo.marker, H), _in_time(J, r, geo.t, geo.t_lo, H)[0],
                 _nuisance_fit(res, geo, r))
 
     d, c = _both(monkeypatch, run)

@@ -2,15 +2,26 @@
 
 Least-squares errors assume white residuals. When the residuals keep a systematic part
 that no catalog effect explains, the slip can be biased by far more than those errors.
-The cluster-robust (sandwich) covariance H^-1 (sum_g s_g s_g^T) H^-1 G/(G-1), with
-H = J^T J and s_g = J_g^T r_g the score of cluster g, lets each cluster's residuals be
-arbitrarily correlated: clusters by marker cover a misfit carried by a few markers
-(one marker shifting on its lug), clusters by time block a misfit shared by all
-markers at some times (a disturbance of the whole image). Each quantity takes the
-largest of the least-squares, by-marker and by-time-block standard errors, and then
-carries in quadrature the shift the misfit can cause through the speed profile
-(:mod:`._speed`: a refit with a free speed spline), which no sandwich sees when the
-misfit does not average out.
+The robust (sandwich) covariance H^-1 Omega H^-1, with H = J^T J and Omega an estimate of
+the variance of the total score J^T r, lets the residuals be correlated in two ways:
+
+- by marker: Omega = sum_g s_g s_g^T G/(G-1), s_g = J_g^T r_g the score of marker g
+  (cluster-robust; covers a misfit carried by a few markers, e.g. one marker shifting on
+  its lug, however long it lasts);
+- in time: Omega = 4/3 sum_w s_w s_w^T G/(G-1), s_w the score of the samples in a Hann
+  window w of WINDOW_S, the windows overlapping by half (a Welch-type long-run variance
+  of the score; covers a misfit shared by all markers at some times, a disturbance of the
+  whole image). The two window families sum to one at every time (sin^2 + cos^2), and
+  their squared weights average 3/4, hence 4/3. Rectangular time blocks were used before:
+  a coherent disturbance (a camera vibration) leaks through their edges into every
+  block's score, and the errors of k and C_rr came out 5-8x too wide
+  (benchmarks/bench_coverage.py, vibration row).
+
+Each quantity takes the largest of the least-squares, by-marker and in-time standard
+errors (the largest of three noisy variance estimates is also what covers the small
+number of clusters: bench_coverage's out-of-catalog rows), and then carries in quadrature
+the shift the misfit can cause through the speed profile (:mod:`._speed`: a refit with a
+free speed spline), which no sandwich sees when the misfit does not average out.
 """
 
 from __future__ import annotations
@@ -27,7 +38,8 @@ from ._engine import jacobian_of
 from ._speed import speed_sensitivity
 from ._table import Geometry
 
-BLOCK_S = 0.5
+WINDOW_S = 0.5  # s, the Hann windows of the in-time sandwich
+TIME = f"robust in time (Hann windows of {WINDOW_S:g} s)"
 
 
 def covariance(J) -> np.ndarray:
@@ -37,27 +49,63 @@ def covariance(J) -> np.ndarray:
     return _covariance_dense(J)
 
 
+def _scores(J, r, labels, weights=None) -> np.ndarray:
+    """(G, p): sum over the rows of each cluster of weight * J_row * r_row, the clusters
+    being the distinct `labels` (rows with r = 0 add nothing)."""
+    groups, pos = np.unique(labels, return_inverse=True)
+    w = r if weights is None else r * weights
+    scores = np.zeros((len(groups), J.n_par if isinstance(J, RowChunks) else J.shape[1]))
+    if isinstance(J, RowChunks):  # long recording: the scores summed chunk by chunk
+        for rows, Jc in J:
+            _add_by(scores, pos[rows], Jc * w[rows, None])
+    else:
+        _add_by(scores, pos, np.asarray(J) * w[:, None])
+    return scores
+
+
+def _add_by(out, pos, X):
+    order = np.argsort(pos, kind="stable")
+    ps = pos[order]
+    if not len(ps):
+        return
+    starts = np.flatnonzero(np.r_[True, ps[1:] != ps[:-1]])
+    out[ps[starts]] += np.add.reduceat(X[order], starts, 0)
+
+
 def _sandwich(J, r, labels, Hinv):
-    groups = np.unique(labels)
-    G = len(groups)
+    """Cluster-robust covariance, clusters = distinct labels (None below 2 clusters)."""
+    scores = _scores(J, r, labels)
+    scores = scores[np.any(scores != 0, axis=1)]  # clusters with no valid sample
+    G = len(scores)
     if G < 2:
         return None
-    if isinstance(J, RowChunks):  # long recording: the scores summed chunk by chunk
-        pos = np.searchsorted(groups, labels)
-        scores = np.zeros((G, J.n_par))
-        for rows, Jc in J:
-            order = np.argsort(pos[rows], kind="stable")
-            ps = pos[rows][order]
-            starts = np.flatnonzero(np.r_[True, ps[1:] != ps[:-1]])
-            scores[ps[starts]] += np.add.reduceat((Jc * r[rows, None])[order], starts, 0)
-        S = scores.T @ scores
-        return Hinv @ S @ Hinv * (G / (G - 1))
-    S = np.zeros((J.shape[1], J.shape[1]))
-    for g in groups:
-        sel = labels == g
-        s = J[sel].T @ r[sel]
-        S += np.outer(s, s)
-    return Hinv @ S @ Hinv * (G / (G - 1))
+    return Hinv @ (scores.T @ scores) @ Hinv * (G / (G - 1))
+
+
+def windows_in_time(t, t_lo: float, window_s: float = WINDOW_S):
+    """The two half-overlapping families of Hann windows: [(labels, weights), ...] with
+    the weights of a sample summing to one over the families."""
+    ph = (np.asarray(t, float) - t_lo) / window_s
+    out = []
+    for off in (0.0, 0.5):
+        q = ph + off
+        g = np.floor(q)
+        out.append((g.astype(int), np.sin(np.pi * (q - g)) ** 2))
+    return out
+
+
+def _in_time(J, r, t, t_lo: float, Hinv, window_s: float = WINDOW_S):
+    """Robust covariance for a misfit correlated in time (all markers together), from the
+    scores of half-overlapping Hann windows; (cov, number of windows of one family)."""
+    meat, G = 0.0, None
+    for labels, w in windows_in_time(t, t_lo, window_s):
+        sc = _scores(J, r, labels, w)
+        sc = sc[np.any(sc != 0, axis=1)]
+        meat = meat + sc.T @ sc
+        G = len(sc) if G is None else min(G, len(sc))
+    if not G or G < 2:
+        return None, G
+    return Hinv @ meat @ Hinv * (4.0 / 3.0) * (G / (G - 1)), G
 
 
 def robust_result(res, geo: Geometry):
@@ -76,13 +124,15 @@ def robust_result(res, geo: Geometry):
     J = jacobian_of(res.flat, fixed, res.packing, prob.lay, prob.obs)  # or its time chunks
     r = np.where(geo.valid, np.asarray(res.residuals), 0.0)
     Hinv = covariance(J)
-    blocks = np.floor((geo.t - geo.t_lo) / BLOCK_S).astype(int)
+    valid = np.asarray(geo.valid, bool)
+    in_time, n_win = _in_time(J, r, geo.t, geo.t_lo, Hinv)
     covs = {"least squares": res.cov,
-            "cluster-robust by marker": _sandwich(J, r, geo.marker, Hinv),
-            "cluster-robust by time block": _sandwich(J, r, blocks, Hinv)}
+            "cluster-robust by marker": _sandwich(J, r, np.where(valid, geo.marker, -1), Hinv)
+            if len(np.unique(geo.marker[valid])) >= 2 else None,
+            TIME: in_time}
     clusters = {"least squares": None,
-                "cluster-robust by marker": int(len(np.unique(geo.marker[geo.valid]))),
-                "cluster-robust by time block": int(len(np.unique(blocks[geo.valid])))}
+                "cluster-robust by marker": int(len(np.unique(geo.marker[valid]))),
+                TIME: n_win}
     fixed_np = {k: v for k, v in res.params.items() if k not in res.packing.names}
     qs = {}
     for name, C in covs.items():
