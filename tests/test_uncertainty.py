@@ -266,3 +266,84 @@ def test_tracker_systematics_are_carried_in_the_errors():
     assert "_cov" not in doc["discrepancy"]["systematics"]
     assert tempering(ex.final)["factor"] > 2.0  # the posterior is widened to match
     jax.clear_caches()
+
+
+def _toy_regression(fps=100.0, duration=3.0, markers=4):
+    """A linear model like the track's: smooth columns in time (a ramp of 0.8 s at each
+    end of the motion), the same for every marker up to a gain."""
+    t1 = np.arange(0.0, duration, 1.0 / fps)
+    ramp = np.clip((t1 - 0.3) / 0.8, 0, 1) - np.clip((t1 - (duration - 1.1)) / 0.8, 0, 1)
+    X = np.stack([np.ones_like(t1), t1 / duration, ramp], 1)
+    gain = np.repeat(np.linspace(0.5, 1.5, markers), len(t1))
+    return np.tile(t1, markers), np.tile(X, (markers, 1)) * gain[:, None], \
+        np.repeat(np.arange(markers), len(t1))
+
+
+def test_robust_windows_in_time_weigh_every_sample_once():
+    from fitlug.explain._robust import windows_in_time
+
+    t = np.linspace(0.013, 7.3, 2001)
+    fams = windows_in_time(t, 0.0, 0.5)
+    assert len(fams) == 2
+    np.testing.assert_allclose(fams[0][1] + fams[1][1], 1.0, atol=1e-12)
+    for labels, w in fams:  # one window is 0.5 s: at most 0.5 s between its first and last
+        for g in np.unique(labels):
+            assert np.ptp(t[labels == g]) <= 0.5 + 1e-12
+
+
+def test_robust_covariances_are_unbiased_for_white_noise():
+    """On residuals of white noise, the in-time (Hann windows) and by-marker sandwiches
+    estimate the least-squares variance: their Monte Carlo mean over 300 draws is within
+    the estimators' leverage bias (~0.8-1.0) and far from a wrong normalisation (4/3
+    left out: 0.6)."""
+    from fitlug.explain._robust import _in_time, _sandwich
+
+    t, J, marker = _toy_regression()
+    Hinv = np.linalg.inv(J.T @ J)
+    P = J @ Hinv @ J.T
+    rng = np.random.default_rng(7)
+    g = np.array([0.0, 0.0, 1.0])  # the ramp's coefficient, like k from the accelerations
+    ratios_t, ratios_m = [], []
+    for _ in range(300):
+        e = rng.normal(size=len(t))
+        r = e - P @ e
+        ratios_t.append(g @ _in_time(J, r, t, 0.0, Hinv)[0] @ g / (g @ Hinv @ g))
+        ratios_m.append(g @ _sandwich(J, r, marker, Hinv) @ g / (g @ Hinv @ g))
+    assert 0.75 <= np.mean(ratios_t) <= 1.1, np.mean(ratios_t)
+    assert 0.75 <= np.mean(ratios_m) <= 1.1, np.mean(ratios_m)
+
+
+def test_robust_in_time_covers_a_disturbance_shared_by_all_markers():
+    """A common disturbance (the image wandering, correlated over 0.05 s) biases the ramp's
+    coefficient beyond the least-squares error. The in-time sandwich holds most of the
+    true spread of the estimates (Monte Carlo over 300 draws: >= 0.5; the rest is the part
+    of the disturbance the fit absorbs, which no residual shows), more than rectangular
+    blocks of the same length did (0.46 in this set-up), and far more than least squares
+    or the by-marker sandwich, which take the markers as independent."""
+    from fitlug.explain._robust import _in_time, _sandwich
+
+    t, J, marker = _toy_regression()
+    Hinv = np.linalg.inv(J.T @ J)
+    P = J @ Hinv @ J.T
+    PHI = np.exp(-1 / (100.0 * 0.05))
+    rng = np.random.default_rng(8)
+    g = np.array([0.0, 0.0, 1.0])
+    n1 = int(np.sum(marker == 0))
+    err, est_t, est_m, est_b, ls = [], [], [], [], []
+    for _ in range(300):
+        walk = np.zeros(n1)  # AR(1), correlation time 0.05 s, the same for every marker
+        walk[0] = rng.normal()
+        for i in range(1, n1):
+            walk[i] = PHI * walk[i - 1] + np.sqrt(1 - PHI ** 2) * rng.normal()
+        e = np.tile(walk, 4) + rng.normal(size=len(t))
+        r = e - P @ e
+        err.append(g @ Hinv @ J.T @ e)
+        est_t.append(g @ _in_time(J, r, t, 0.0, Hinv)[0] @ g)
+        est_m.append(g @ _sandwich(J, r, marker, Hinv) @ g)
+        est_b.append(g @ _sandwich(J, r, np.floor(t / 0.5).astype(int), Hinv) @ g)
+        ls.append(np.sum(r ** 2) / (len(r) - 3) * (g @ Hinv @ g))
+    true = np.mean(np.square(err))
+    got = np.mean(est_t) / true
+    assert got >= 0.5, got
+    assert np.mean(est_b) / true < 0.85 * got
+    assert np.mean(ls) / true < 0.5 * got and np.mean(est_m) / true < 0.5 * got

@@ -12,10 +12,12 @@ the variance of the total score J^T r, lets the residuals be correlated in two w
   window w of WINDOW_S, the windows overlapping by half (a Welch-type long-run variance
   of the score; covers a misfit shared by all markers at some times, a disturbance of the
   whole image). The two window families sum to one at every time (sin^2 + cos^2), and
-  their squared weights average 3/4, hence 4/3. Rectangular time blocks were used before:
-  a coherent disturbance (a camera vibration) leaks through their edges into every
-  block's score, and the errors of k and C_rr came out 5-8x too wide
-  (benchmarks/bench_coverage.py, vibration row).
+  their squared weights average 3/4, hence 4/3. Rectangular blocks of the same length,
+  used before, hold less of a disturbance correlated over a few frames (0.46 against
+  0.64 of the true variance: tests/test_uncertainty.py). A disturbance coherent over the
+  whole recording (a camera vibration at one frequency) is the opposite case: its scores
+  cancel from window to window, which no local estimate sees, and the errors of k and
+  C_rr it affects little come out several times too wide.
 
 Each quantity takes the largest of the least-squares, by-marker and in-time standard
 errors (the largest of three noisy variance estimates is also what covers the small

@@ -777,10 +777,23 @@ def _solve_chunked(flat0, fixed, lay, obs, packing: Packing, plan: ChunkPlan, ma
     nothing, and one compilation of the pass serves every step. Returns
     (flat, J^T J, r, converged, steps)."""
     flat = np.asarray(flat0, float)
+    bound = _bound_penalty(packing)
 
     def ne(f):
         A, g, c2 = _normal_jit(jnp.asarray(f), fixed, lay, obs, packing, plan)
-        return np.asarray(A), np.asarray(g), float(c2)
+        A, g, c2 = np.array(A), np.array(g), float(c2)
+        if bound is not None:  # the physical range, as _solve keeps it (zero inside)
+            pr, pj = bound(f)
+            A += pj.T @ pj
+            g += pj.T @ pr
+            c2 += float(pr @ pr)
+        return A, g, c2
+
+    def chi2(f):
+        c2 = float(_chi2_jit(jnp.asarray(f), fixed, lay, obs, packing))
+        if bound is not None:
+            c2 += float(np.sum(bound(f)[0] ** 2))
+        return c2
 
     A, g, c2 = ne(flat)
     d = np.sqrt(np.maximum(np.diag(A), 0.0))
@@ -798,7 +811,7 @@ def _solve_chunked(flat0, fixed, lay, obs, packing: Packing, plan: ChunkPlan, ma
             lam, nu = lam * nu, nu * 2.0
             continue
         new = flat + dz * s
-        c2n = float(_chi2_jit(jnp.asarray(new), fixed, lay, obs, packing))
+        c2n = chi2(new)
         pred = -(2.0 * gs @ dz + dz @ As @ dz)
         actual = c2 - c2n
         rho = actual / pred if pred > 0 else -1.0
@@ -814,8 +827,40 @@ def _solve_chunked(flat0, fixed, lay, obs, packing: Packing, plan: ChunkPlan, ma
             A, g, c2 = ne(flat)
         else:
             lam, nu = lam * nu, nu * 2.0
+    if bound is not None:  # J^T J of the data alone, as returned by the dense solver
+        A -= bound(flat)[1].T @ bound(flat)[1]
     r = np.asarray(_residuals_jit(jnp.asarray(flat), fixed, lay, obs, packing))
     return flat, A, r, done, k
+
+
+def _bound_penalty(packing: Packing):
+    """The stiff one-sided penalties that keep _solve inside the slip law's physical range
+    (0 < beta <= beta_max(s0)), for the chunked solver: f -> (residuals (2,), Jacobian
+    (2, n)) in numpy; None when s0 and beta are not both fitted."""
+    if not ("s0" in packing.names and "beta" in packing.names):
+        return None
+    sl = packing.slices()
+    i_s, i_b = sl["s0"].start, sl["beta"].start
+    if sl["s0"].stop - i_s != 1 or sl["beta"].stop - i_b != 1:
+        return None
+    n = sum(packing.sizes)
+
+    def pen(f):
+        s0, b = float(f[i_s]), float(f[i_b])
+        bm = float(beta_max(s0))
+        dbm = float(beta_max(1.0))  # beta_max is linear in s0
+        ref = abs(bm) + 1e-12
+        r = np.array([1e3 * max(b - bm, 0.0) / ref, 1e3 * max(-b, 0.0) / ref])
+        J = np.zeros((2, n))
+        if b > bm:  # d/d(beta) and d/d(s0) of 1e3 (b - bm)/|bm| (ref's own slope kept)
+            J[0, i_b] = 1e3 / ref
+            J[0, i_s] = 1e3 * (-dbm * ref - (b - bm) * np.sign(bm) * dbm) / ref ** 2
+        if b < 0:
+            J[1, i_b] = -1e3 / ref
+            J[1, i_s] = 1e3 * b * np.sign(bm) * dbm / ref ** 2
+        return r, J
+
+    return pen
 
 
 def _cho_solve(L, b):
