@@ -1,0 +1,113 @@
+"""Traced and lowered programs kept on disk across processes (JAX's public jax.export).
+
+JAX's persistent compilation cache skips XLA's compilation in a new process, but not the
+tracing and lowering of the Python function, which for the Levenberg-Marquardt solver
+(optimistix, lineax) takes several seconds every time fitlug starts: the biggest single
+cost of a warm run on a short recording. :func:`call` exports such a function once per
+argument signature (jax.export: a serialised StableHLO module with a compatibility
+guarantee), keeps it under the cache directory, and in later processes deserialises it
+and calls it; the compilation of the deserialised module is then found in the persistent
+compilation cache. The numbers are the same bit for bit (tests/test_exported.py).
+
+The key is the function's name, its static arguments' repr, the shapes and dtypes of its
+array arguments, the versions of jax and jaxlib, and the identity (path, size, mtime) of
+fitlug's own source files, so an edited or upgraded installation exports afresh. Anything
+unusual (a tracer or a non-array leaf among the arguments, an export or a read that fails,
+FITLUG_NO_EXPORT_CACHE=1) falls back to calling the function as it is.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+
+import jax
+import numpy as np
+
+from . import _jaxconfig
+
+_MEMO: dict = {}  # key -> jitted call of the deserialised module, or None (fall back)
+_MEMO_MAX = 16  # signatures kept in a process (a campaign fits many recordings in one)
+_SOURCE: list = []
+
+
+def _source_identity() -> str:
+    if not _SOURCE:
+        root = os.path.dirname(os.path.abspath(__file__))
+        h = hashlib.sha256()
+        for dirpath, dirnames, files in os.walk(root):
+            dirnames.sort()
+            for f in sorted(files):
+                if f.endswith(".py"):
+                    st = os.stat(os.path.join(dirpath, f))
+                    h.update(f"{os.path.relpath(os.path.join(dirpath, f), root)}:"
+                             f"{st.st_size}:{st.st_mtime_ns};".encode())
+        _SOURCE.append(h.hexdigest())
+    return _SOURCE[0]
+
+
+def cache_dir() -> str:
+    return os.path.join(os.path.dirname(_jaxconfig._cache_dir()), "exported")
+
+
+def _enabled() -> bool:
+    return (os.environ.get("FITLUG_NO_EXPORT_CACHE") != "1"
+            and os.environ.get("FITLUG_NO_JAX_CACHE") != "1")
+
+
+def call(name: str, fn, static: tuple, *args):
+    """fn(*args, *static), through an exported module kept on disk.
+
+    fn must return a flat tuple of arrays; `args` are pytrees of arrays (traced), `static`
+    the trailing arguments fixed at trace time (their repr is part of the key).
+    """
+    leaves, treedef = jax.tree_util.tree_flatten(args)
+    if not _enabled() or not all(isinstance(x, (jax.Array, np.ndarray)) for x in leaves) \
+            or any(isinstance(x, jax.core.Tracer) for x in leaves):
+        return fn(*args, *static)
+    import jaxlib
+
+    sig = repr((name, static, str(treedef), [(x.shape, str(x.dtype)) for x in leaves],
+                jax.__version__, jaxlib.__version__, jax.default_backend(),
+                _source_identity()))
+    key = hashlib.sha256(sig.encode()).hexdigest()[:32]
+    f = _MEMO.get(key, False)
+    if f is False:
+        while len(_MEMO) >= _MEMO_MAX:
+            _MEMO.pop(next(iter(_MEMO)))
+        f = _MEMO[key] = _load_or_export(name, key, fn, static, treedef, leaves)
+    if f is None:
+        return fn(*args, *static)
+    return f(*leaves)
+
+
+def _load_or_export(name, key, fn, static, treedef, leaves):
+    from jax import export
+
+    path = os.path.join(cache_dir(), f"{name}-{key}.jaxexport")
+    exp = None
+    if os.path.exists(path):
+        try:
+            with open(path, "rb") as fh:
+                exp = export.deserialize(bytearray(fh.read()))
+        except Exception:  # a truncated or foreign file: export afresh
+            exp = None
+    if exp is None:
+        def flat_fn(*xs):
+            out = fn(*jax.tree_util.tree_unflatten(treedef, xs), *static)
+            return tuple(out)
+
+        try:
+            exp = export.export(jax.jit(flat_fn))(*leaves)
+            blob = exp.serialize()
+        except Exception:  # e.g. a host callback in the program: not exportable
+            return None
+        try:
+            os.makedirs(cache_dir(), exist_ok=True)
+            tmp = f"{path}.{os.getpid()}.tmp"
+            with open(tmp, "wb") as fh:
+                fh.write(blob)
+            os.replace(tmp, path)
+        except OSError:  # read-only cache: the module still serves this process
+            pass
+    return jax.jit(exp.call)

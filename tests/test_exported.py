@@ -1,0 +1,72 @@
+"""fitlug._exported: the solver through a module exported to disk gives the same numbers,
+bit for bit, as calling it, whether the module was just exported or read back; anything
+unusual falls back to the plain call."""
+
+from __future__ import annotations
+
+import os
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from fitlug import _exported
+from fitlug.fit import _lsq
+from fitlug.fit._problem import build_problem
+from fitlug.sim import Scenario, rig_of, simulate
+
+
+@pytest.fixture(scope="module")
+def solver_args():
+    sc = Scenario(duration_s=1.5, travel_mm=150, rest_s=0.2, ramp_s=0.4)
+    rec, _ = simulate(sc, 5)
+    prob = build_problem(rec, rig_of(sc))
+    from fitlug.fit._fit import free_parameters
+
+    packing = _lsq.Packing.of(prob.p0, free_parameters(prob.lay))
+    fixed = {k: jnp.asarray(v, float) for k, v in prob.p0.items() if k not in packing.names}
+    args, static = (packing.pack(prob.p0), fixed, prob.lay, prob.obs), (packing, 200, 1e-8, 1e-6)
+    return args, static, _lsq._solve(*args, *static)
+
+
+def _same(a, b):
+    return all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(a, b))
+
+
+def test_exported_solver_equals_the_plain_call_exported_and_read_back(solver_args, tmp_path,
+                                                                       monkeypatch):
+    args, static, direct = solver_args
+    monkeypatch.setattr(_exported, "cache_dir", lambda: str(tmp_path))
+    monkeypatch.setattr(_exported, "_MEMO", {})
+    fresh = _exported.call("lsq_solve", _lsq._solve, static, *args)
+    files = os.listdir(tmp_path)
+    assert len(files) == 1 and files[0].endswith(".jaxexport")
+    assert _same(fresh, direct)
+    monkeypatch.setattr(_exported, "_MEMO", {})  # as a new process: read from disk
+    monkeypatch.setattr(jax.export, "export", _fail)  # and never exported again
+    back = _exported.call("lsq_solve", _lsq._solve, static, *args)
+    assert _same(back, direct)
+
+
+def _fail(*a, **k):
+    raise AssertionError("exported again instead of read back")
+
+
+def test_exported_falls_back_on_a_damaged_file_and_when_disabled(solver_args, tmp_path,
+                                                                 monkeypatch):
+    args, static, direct = solver_args
+    monkeypatch.setattr(_exported, "cache_dir", lambda: str(tmp_path))
+    monkeypatch.setattr(_exported, "_MEMO", {})
+    _exported.call("lsq_solve", _lsq._solve, static, *args)
+    (path,) = [os.path.join(tmp_path, f) for f in os.listdir(tmp_path)]
+    with open(path, "wb") as fh:
+        fh.write(b"not a module")
+    monkeypatch.setattr(_exported, "_MEMO", {})
+    assert _same(_exported.call("lsq_solve", _lsq._solve, static, *args), direct)
+    assert os.path.getsize(path) > 1000  # exported afresh over the damaged file
+    monkeypatch.setenv("FITLUG_NO_EXPORT_CACHE", "1")
+    calls = []
+    assert _same(_exported.call("x", lambda *a: calls.append(1) or _lsq._solve(*a), static,
+                                *args), direct)
+    assert calls == [1]
