@@ -38,6 +38,11 @@ def run(args) -> int:
                            "(tens of seconds)")
     from ..fit import fit
 
+    if not (args.no_report and args.no_mcmc):
+        from ..report import _preload
+
+        _preload.start()  # the report's imports, while the fit runs
+
     res = fit(rec, rig)
     final, expl = res, None
     if not args.no_explain:
@@ -79,6 +84,8 @@ def run(args) -> int:
     os.makedirs(out, exist_ok=True)
     write_json(os.path.join(out, "fit.json"), doc)
     report = None
+    if not (args.no_report and args.no_mcmc):
+        _preload.wait()
     if post is not None:
         post.save(os.path.join(out, "posterior.nc"))
     if not args.no_report:
