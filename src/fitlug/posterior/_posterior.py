@@ -42,7 +42,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _jaxconfig  # noqa: F401
+from .. import _exported, _jaxconfig  # noqa: F401
 from .._errors import FitError
 from ..model._physics import C_RR_MIN, beta_max
 from ..model.effects import CATALOG
@@ -176,6 +176,10 @@ def _jacobian(flat, fixed, lay, obs, packing):
     return jacobian(flat, fixed, lay, obs, packing)  # structured: same values as jacfwd
 
 
+def _jacobian_tuple(flat, fixed, lay, obs, packing):
+    return (_jacobian(flat, fixed, lay, obs, packing),)
+
+
 @eqx.filter_jit
 def _exact_chi2(thetas, flat, idx, fixed, lay, obs, packing, Je, Minv):
     """|P r(theta, eta_hat)|^2 for a batch of theta, (m, d) -> (m,)."""
@@ -227,7 +231,10 @@ class _Marginal:
             JtJ = np.asarray(_normal(self._args[0], self._args[2], *self._args[3:],
                                      self._plan))
         else:
-            J = np.asarray(_jacobian(self._args[0], self._args[2], *self._args[3:]))
+            # through a module exported to disk: a new process skips its tracing
+            (J,) = _exported.call("posterior_jacobian", _jacobian_tuple, (res.packing,),
+                                  self._args[0], self._args[2], prob.lay, prob.obs)
+            J = np.asarray(J)
             JtJ = None
         n_par = len(res.flat)
         rest = np.setdiff1d(np.arange(n_par), self.idx)
