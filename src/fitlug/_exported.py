@@ -47,7 +47,9 @@ def _source_identity() -> str:
 
 
 def cache_dir() -> str:
-    return os.path.join(os.path.dirname(_jaxconfig._cache_dir()), "exported")
+    """A folder inside the compile cache's (JAX's own cache reads only its *-cache files),
+    so that FITLUG_CACHE_DIR moves or empties both."""
+    return os.path.join(_jaxconfig._cache_dir(), "exported")
 
 
 def _enabled() -> bool:
