@@ -193,23 +193,31 @@ def slip_and_phases(rel, geom, tX, X, P):
         u = _project(xr - geom["x_off"], y - geom["y_off"], geom["R"], geom["D"], geom["e"])
         us.append((t, u))
 
+    Xt = [(u, np.interp(t, tX, X)) for t, u in us]  # belt travel at each sample
+
     def spread(s):
-        tot = 0.0
+        """Total circular spread of the belt coordinates and each marker's mean phase, for
+        every slip in the array s at once."""
+        s = np.atleast_1d(np.asarray(s, float))[:, None]
+        tot = np.zeros(s.shape[0])
         phases = []
-        for t, u in us:
-            z = np.exp(2j * np.pi * (u - np.interp(t, tX, X) / (1 - s)) / P)
-            mz = z.mean()
-            tot += 1 - abs(mz)
+        for u, xt in Xt:
+            mz = np.empty(s.shape[0], complex)
+            step = max(1, 2_000_000 // max(len(u), 1))  # bounded memory on long recordings
+            for a in range(0, s.shape[0], step):
+                sa = s[a:a + step]
+                mz[a:a + step] = np.exp(2j * np.pi * (u[None, :] - xt[None, :] / (1 - sa))
+                                        / P).mean(axis=1)
+            tot += 1 - np.abs(mz)
             phases.append(np.angle(mz))
         return tot, phases
 
     grid = np.linspace(-0.1, 0.5, 241)
-    vals = [spread(s)[0] for s in grid]
-    k = int(np.argmin(vals))
+    k = int(np.argmin(spread(grid)[0]))
     lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
     fine = np.linspace(lo, hi, 41)
-    s = float(fine[int(np.argmin([spread(x)[0] for x in fine]))])
-    phases = spread(s)[1]
+    s = float(fine[int(np.argmin(spread(fine)[0]))])
+    phases = [p[0] for p in spread(s)[1]]
     sigma0 = np.mod(np.array(phases) * P / (2 * np.pi), P)
     return s, sigma0
 
