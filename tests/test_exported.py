@@ -5,6 +5,7 @@ unusual falls back to the plain call."""
 from __future__ import annotations
 
 import os
+import time
 
 import jax
 import jax.numpy as jnp
@@ -39,7 +40,14 @@ def test_exported_solver_equals_the_plain_call_exported_and_read_back(solver_arg
     args, static, direct = solver_args
     monkeypatch.setattr(_exported, "cache_dir", lambda: str(tmp_path))
     monkeypatch.setattr(_exported, "_MEMO", {})
+    stale, recent = tmp_path / "lsq_solve-0ld.jaxexport", tmp_path / "lsq_solve-n3w.jaxexport"
+    for f, age_days in ((stale, 40), (recent, 2)):
+        f.write_bytes(b"x")
+        t = time.time() - age_days * 86400
+        os.utime(f, (t, t))
     fresh = _exported.call("lsq_solve", _lsq._solve, static, *args)
+    assert not stale.exists() and recent.exists()  # modules unused for 30 days are pruned
+    recent.unlink()
     files = os.listdir(tmp_path)
     assert len(files) == 1 and files[0].endswith(".jaxexport")
     assert _same(fresh, direct)

@@ -28,6 +28,7 @@ from . import _jaxconfig
 
 _MEMO: dict = {}  # key -> jitted call of the deserialised module, or None (fall back)
 _MEMO_MAX = 16  # signatures kept in a process (a campaign fits many recordings in one)
+STALE_DAYS = 30  # a module unused this long is removed when a new one is written
 _SOURCE: list = []
 
 
@@ -92,6 +93,7 @@ def _load_or_export(name, key, fn, static, treedef, leaves):
         try:
             with open(path, "rb") as fh:
                 exp = export.deserialize(bytearray(fh.read()))
+            os.utime(path)  # in use: not stale
         except Exception:  # a truncated or foreign file: export afresh
             exp = None
     if exp is None:
@@ -110,6 +112,22 @@ def _load_or_export(name, key, fn, static, treedef, leaves):
             with open(tmp, "wb") as fh:
                 fh.write(blob)
             os.replace(tmp, path)
+            _prune(name)
         except OSError:  # read-only cache: the module still serves this process
             pass
     return jax.jit(exp.call)
+
+
+def _prune(name: str) -> None:
+    """Remove this function's modules unused for STALE_DAYS (every new shape of recording,
+    and every edit of fitlug's source, writes a new one of ~100-200 KB)."""
+    import glob
+    import time
+
+    old = time.time() - STALE_DAYS * 86400
+    for f in glob.glob(os.path.join(cache_dir(), f"{name}-*.jaxexport")):
+        try:
+            if os.path.getmtime(f) < old:
+                os.remove(f)
+        except OSError:
+            pass
