@@ -38,7 +38,8 @@ def run(args) -> int:
                            "(tens of seconds)")
     from ..fit import fit
 
-    if not (args.no_report and args.no_mcmc):
+    preload = not (args.no_report and args.no_mcmc)  # posterior.nc or the report follows
+    if preload:
         from ..report import _preload
 
         _preload.start()  # the report's imports, while the fit runs
@@ -84,7 +85,7 @@ def run(args) -> int:
     os.makedirs(out, exist_ok=True)
     write_json(os.path.join(out, "fit.json"), doc)
     report = None
-    if not (args.no_report and args.no_mcmc):
+    if preload:
         _preload.wait()
     if post is not None:
         post.save(os.path.join(out, "posterior.nc"))

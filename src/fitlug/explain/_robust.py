@@ -126,14 +126,13 @@ def robust_result(res, geo: Geometry):
     J = jacobian_of(res.flat, fixed, res.packing, prob.lay, prob.obs)  # or its time chunks
     r = np.where(geo.valid, np.asarray(res.residuals), 0.0)
     Hinv = covariance(J)
-    valid = np.asarray(geo.valid, bool)
     in_time, n_win = _in_time(J, r, geo.t, geo.t_lo, Hinv)
+    # r is zero where a sample is invalid: a marker without a valid sample is no cluster
     covs = {"least squares": res.cov,
-            "cluster-robust by marker": _sandwich(J, r, np.where(valid, geo.marker, -1), Hinv)
-            if len(np.unique(geo.marker[valid])) >= 2 else None,
+            "cluster-robust by marker": _sandwich(J, r, geo.marker, Hinv),
             TIME: in_time}
     clusters = {"least squares": None,
-                "cluster-robust by marker": int(len(np.unique(geo.marker[valid]))),
+                "cluster-robust by marker": int(len(np.unique(geo.marker[geo.valid]))),
                 TIME: n_win}
     fixed_np = {k: v for k, v in res.params.items() if k not in res.packing.names}
     qs = {}

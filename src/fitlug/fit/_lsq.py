@@ -185,13 +185,8 @@ def _solve(flat0, fixed, lay, obs, packing: Packing, max_steps: int, rtol: float
         if not bounded:
             return r
         # the solver (not the returned residuals, J or chi^2) is kept inside the slip law's
-        # physical range, the posterior's prior: stiff one-sided penalties, zero inside it,
-        # so that a recording that fixes beta fits exactly as without them
-        p = packing.unpack(f, fixed)
-        b, bm = p["beta"], beta_max(p["s0"])
-        ref = jnp.abs(bm) + 1e-12
-        return jnp.concatenate([r, jnp.ravel(1e3 * jax.nn.relu(b - bm) / ref),
-                                jnp.ravel(1e3 * jax.nn.relu(-b) / ref)])
+        # physical range: see bound_residuals
+        return jnp.concatenate([r, bound_residuals(packing.unpack(f, fixed))])
 
     # the damped Gauss-Newton step from the normal equations (Cholesky of J^T J + lambda I,
     # columns scaled to unit norm) costs half the QR of [J; sqrt(lambda) I] per step, same
@@ -780,12 +775,16 @@ def _solve_chunked(flat0, fixed, lay, obs, packing: Packing, plan: ChunkPlan, ma
     nothing, and one compilation of the pass serves every step. Returns
     (flat, J^T J, r, converged, steps)."""
     flat = np.asarray(flat0, float)
-    bound = _bound_penalty(packing)
+    bounded = "s0" in packing.names and "beta" in packing.names
+
+    def bound(f):  # the physical range, as _solve keeps it (zero inside)
+        pr, pj = _bound_jit(jnp.asarray(f), fixed, packing)
+        return np.asarray(pr), np.asarray(pj)
 
     def ne(f):
         A, g, c2 = _normal_jit(jnp.asarray(f), fixed, lay, obs, packing, plan)
         A, g, c2 = np.array(A), np.array(g), float(c2)
-        if bound is not None:  # the physical range, as _solve keeps it (zero inside)
+        if bounded:
             pr, pj = bound(f)
             A += pj.T @ pj
             g += pj.T @ pr
@@ -794,7 +793,7 @@ def _solve_chunked(flat0, fixed, lay, obs, packing: Packing, plan: ChunkPlan, ma
 
     def chi2(f):
         c2 = float(_chi2_jit(jnp.asarray(f), fixed, lay, obs, packing))
-        if bound is not None:
+        if bounded:
             c2 += float(np.sum(bound(f)[0] ** 2))
         return c2
 
@@ -830,40 +829,30 @@ def _solve_chunked(flat0, fixed, lay, obs, packing: Packing, plan: ChunkPlan, ma
             A, g, c2 = ne(flat)
         else:
             lam, nu = lam * nu, nu * 2.0
-    if bound is not None:  # J^T J of the data alone, as returned by the dense solver
-        A -= bound(flat)[1].T @ bound(flat)[1]
+    if bounded:  # J^T J of the data alone, as returned by the dense solver
+        pj = bound(flat)[1]
+        A -= pj.T @ pj
     r = np.asarray(_residuals_jit(jnp.asarray(flat), fixed, lay, obs, packing))
     return flat, A, r, done, k
 
 
-def _bound_penalty(packing: Packing):
-    """The stiff one-sided penalties that keep _solve inside the slip law's physical range
-    (0 < beta <= beta_max(s0)), for the chunked solver: f -> (residuals (2,), Jacobian
-    (2, n)) in numpy; None when s0 and beta are not both fitted."""
-    if not ("s0" in packing.names and "beta" in packing.names):
-        return None
-    sl = packing.slices()
-    i_s, i_b = sl["s0"].start, sl["beta"].start
-    if sl["s0"].stop - i_s != 1 or sl["beta"].stop - i_b != 1:
-        return None
-    n = sum(packing.sizes)
+def bound_residuals(p: dict):
+    """The stiff one-sided penalties that keep the solvers inside the slip law's physical
+    range, the posterior's prior (0 < beta <= beta_max(s0)): zero inside it, so that a
+    recording that fixes beta fits exactly as without them."""
+    b, bm = p["beta"], beta_max(p["s0"])
+    ref = jnp.abs(bm) + 1e-12
+    return jnp.concatenate([jnp.ravel(1e3 * jax.nn.relu(b - bm) / ref),
+                            jnp.ravel(1e3 * jax.nn.relu(-b) / ref)])
 
-    def pen(f):
-        s0, b = float(f[i_s]), float(f[i_b])
-        bm = float(beta_max(s0))
-        dbm = float(beta_max(1.0))  # beta_max is linear in s0
-        ref = abs(bm) + 1e-12
-        r = np.array([1e3 * max(b - bm, 0.0) / ref, 1e3 * max(-b, 0.0) / ref])
-        J = np.zeros((2, n))
-        if b > bm:  # d/d(beta) and d/d(s0) of 1e3 (b - bm)/|bm| (ref's own slope kept)
-            J[0, i_b] = 1e3 / ref
-            J[0, i_s] = 1e3 * (-dbm * ref - (b - bm) * np.sign(bm) * dbm) / ref ** 2
-        if b < 0:
-            J[1, i_b] = -1e3 / ref
-            J[1, i_s] = 1e3 * b * np.sign(bm) * dbm / ref ** 2
-        return r, J
 
-    return pen
+@eqx.filter_jit
+def _bound_jit(flat, fixed, packing: Packing):
+    """bound_residuals of the free vector and their Jacobian (2, n), for the chunked solver."""
+    def f(x):
+        return bound_residuals(packing.unpack(x, fixed))
+
+    return f(flat), jax.jacfwd(f)(flat)
 
 
 def _cho_solve(L, b):

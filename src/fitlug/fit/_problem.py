@@ -253,10 +253,10 @@ def _init_speed(lay, obs, cx0):
     # there were free to cancel in pairs (+-3e7 mm/s, seen in bench_realism's fov row); a
     # weak curvature penalty (1 unit of chi per SPEED_START_SMOOTH mm/s of second
     # difference, against ~10 per mm/s that one body sample carries) interpolates the gap
+    from ..model._model import second_differences
+
     K = A.shape[1]
-    D2 = np.zeros((max(K - 2, 0), K + lay.n_body))
-    i = np.arange(K - 2)
-    D2[i, i], D2[i, i + 1], D2[i, i + 2] = 1.0, -2.0, 1.0
+    D2 = np.hstack([second_differences(K), np.zeros((max(K - 2, 0), lay.n_body))])
     M = np.vstack([M, D2 / SPEED_START_SMOOTH])
     rhs = np.concatenate([np.asarray(obs["body_x"]) * w, np.zeros(D2.shape[0])])
     sol = np.linalg.lstsq(M, rhs, rcond=None)[0]

@@ -335,6 +335,14 @@ def integrated_basis_rows(lay: Layout, t, chunk: int = 4096):
         carry = Inode[-1]
 
 
+def second_differences(K: int) -> np.ndarray:
+    """(K - 2, K): the second differences of K spline coefficients (a curvature penalty)."""
+    D2 = np.zeros((max(K - 2, 0), K))
+    i = np.arange(K - 2)
+    D2[i, i], D2[i, i + 1], D2[i, i + 2] = 1.0, -2.0, 1.0
+    return D2
+
+
 def fit_body_speed(lay: Layout, t, j, x, w, smooth: float | None = None):
     """Speed-spline coefficients and body offsets cx minimising
     sum w^2 (x - X(t) - cx_j)^2 (X(t_ref) = 0, base model with zero slip), plus
@@ -356,9 +364,7 @@ def fit_body_speed(lay: Layout, t, j, x, w, smooth: float | None = None):
         A += M.T @ M
         b += M.T @ (x[sel] * w[sel])
     if smooth is not None and K > 2:
-        D2 = np.zeros((K - 2, K))
-        i = np.arange(K - 2)
-        D2[i, i], D2[i, i + 1], D2[i, i + 2] = 1.0, -2.0, 1.0
+        D2 = second_differences(K)
         A[:K, :K] += D2.T @ D2 / smooth ** 2
     d = np.sqrt(np.maximum(np.diag(A), 0.0))
     s = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 1.0)

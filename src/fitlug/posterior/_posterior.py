@@ -391,8 +391,9 @@ def tempering(res: FitResult, marg: "_Marginal | None" = None) -> dict:
     sum), each scaled up until every reported quantity (slip, dl', C_rr, k/m) is at least
     as wide as its robust least-squares error (delta method), and each rescaled per
     parameter first so that a quantity of one parameter alone (slip, k/m) gets exactly its
-    target, the tightest is used (least sum over the quantities of log(variance / target)). The likelihood is stretched to that covariance
-    (_Marginal.widened): its shape and the priors are kept. No small-sample t factor is
+    target, the tightest is used (least sum over the quantities of log(variance /
+    target)). The likelihood is stretched to that covariance (_Marginal.widened): its
+    shape and the priors are kept. No small-sample t factor is
     put on top: the largest of three variance estimates already covers the few clusters
     (bench_coverage's out-of-catalog rows: with t_{G-1} factors on top, the posterior
     intervals held the truth in 150 of 150 recordings).
@@ -443,7 +444,7 @@ def tempering(res: FitResult, marg: "_Marginal | None" = None) -> dict:
                      for q, want2 in target.items())
         if best is None or excess < best[0]:
             best = (excess, name, S * extra, G, extra)
-    var, method, S, G, extra = best
+    _, method, S, G, extra = best
     naive = float(g @ marg.cov @ g)
     factor = float(g @ S @ g) / naive if naive > 0 else float("inf")
     note = f"{G} clusters" if G else "the robust covariances added"
