@@ -136,6 +136,9 @@ class Explanation:
                                   "shift its excess over the change's own scatter "
                                   "(sqrt(max(0, d^2 - (V_free - V_base)))), added in "
                                   "quadrature to its robust error")}
+        motion = (getattr(self.final, "robust", None) or {}).get("image_motion")
+        if motion is not None:
+            out["image_motion"] = motion
         if self.systematics is not None:
             sysb = {k: v for k, v in self.systematics.items()
                     if k != "why_not" and not k.startswith("_")}
@@ -301,7 +304,7 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
             final = nuisance_result(res, sysb)  # its errors carry the tracker's systematics
             return Explanation("none", res, final, [], [], [], det0, det0, loc0, loc0, rounds,
                                _method(final), timing, geo, sysb)
-        final, method = robust_result(res, geo)
+        final, method = robust_result(res, geo, alpha)
         return Explanation("unexplained", res, final, [], loc0.parts, [], det0, det0, loc0,
                            loc0, rounds, method, timing, geo, sysb)
 
@@ -323,7 +326,7 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
             verdict, located, method = "explained", loc0.parts, _method(final)
         else:
             verdict, located = "unexplained", loc1.parts
-            final, method = robust_result(final, geo)
+            final, method = robust_result(final, geo, alpha)
     timing["total"] = time.perf_counter() - t_start
     return Explanation(verdict, res, final, list(accepted), located, steps, det0, det1, loc0,
                        loc1, rounds, method, timing, geo, sysb)

@@ -36,7 +36,9 @@ import numpy as np
 from ..fit import covariance as _covariance_dense
 from ..fit._lsq import RowChunks, covariance_normal
 from ..fit._result import compute_quantities
+from ._detect import ALPHA
 from ._engine import jacobian_of
+from ._image_motion import image_motion
 from ._speed import speed_sensitivity
 from ._table import Geometry
 
@@ -110,7 +112,7 @@ def _in_time(J, r, t, t_lo: float, Hinv, window_s: float = WINDOW_S):
     return Hinv @ meat @ Hinv * (4.0 / 3.0) * (G / (G - 1)), G
 
 
-def robust_result(res, geo: Geometry):
+def robust_result(res, geo: Geometry, alpha: float = ALPHA):
     """A copy of `res` whose quantities carry cluster-robust standard errors.
 
     Returns (result, method) where method names the covariance that set the slip's error.
@@ -125,6 +127,12 @@ def robust_result(res, geo: Geometry):
              if k not in res.packing.names}
     J = jacobian_of(res.flat, fixed, res.packing, prob.lay, prob.obs)  # or its time chunks
     r = np.where(geo.valid, np.asarray(res.residuals), 0.0)
+    motion = image_motion(res, geo, J, r, alpha=alpha, sigma_estimated=prob.noise_source in (
+        "differences", "residual differences"))
+    if motion is not None:  # a camera that shook: the misfit is held, no sandwich needed
+        done = motion_result(res, motion)
+        if done is not None:
+            return done
     Hinv = covariance(J)
     in_time, n_win = _in_time(J, r, geo.t, geo.t_lo, Hinv)
     # r is zero where a sample is invalid: a marker without a valid sample is no cluster
@@ -194,3 +202,61 @@ def nuisance_result(res, sysb: dict):
                     uncertainty_method=method + " (per-marker-per-segment offsets and speed "
                                                 "terms fitted beside the model: a "
                                                 "measurement floor)")
+
+
+def motion_result(res, motion: dict):
+    """The fit of `res`'s recording with a common image motion (explain._image_motion)
+    taken out of the data and the model refitted (the located misfit removed), its
+    errors the larger of the refit's least-squares ones and those with the motion's
+    own uncertainty carried (the model's covariance with the motion fitted beside it);
+    (result, method) as robust_result's."""
+    from ..fit import fit_problem
+
+    prob = res.problem
+    m = motion["motion_mm"]  # the fitted displacement of every sample, in the residuals' order
+    S_l, S_b = len(prob.lug_rows), len(prob.body_rows)
+    obs = dict(prob.obs)
+    for key, (a, b) in zip(("lug_x", "lug_y", "body_x", "body_y"),
+                           ((0, S_l), (S_l, 2 * S_l), (2 * S_l, 2 * S_l + S_b),
+                            (2 * S_l + S_b, 2 * S_l + 2 * S_b))):
+        # residual = (model - obs) w, and the motion adds w m to it: obs - m is the image
+        # without the motion
+        obs[key] = jnp.asarray(np.asarray(obs[key]) - m[a:b], float)
+    prob2 = dataclasses.replace(prob, obs=obs)
+    try:
+        res2 = fit_problem(prob2, res.params, free=list(res.packing.names), max_steps=100,
+                           require_convergence=False)
+    except Exception:  # noqa: BLE001 - a failed refit leaves the robust errors to decide
+        return None
+    if not np.isfinite(res2.chi2) or not res2.chi2 < res.chi2:
+        return None
+    fixed_np = {k: v for k, v in res2.params.items() if k not in res2.packing.names}
+    C = motion["cov"]
+    q = compute_quantities(res2.params, res2.packing, res2.flat, C, prob.lay,
+                           prob.rig.mass_kg, fixed_np, prob.rig.drawbar_pull_N)
+    out, shift = {}, {}
+    for k, est in res2.quantities.items():
+        alt = q.get(k)
+        if k in res.quantities and est.value is not None \
+                and res.quantities[k].value is not None:
+            shift[k] = float(est.value) - float(res.quantities[k].value)
+        if alt is not None and alt.std is not None and est.std is not None \
+                and np.isfinite(alt.std) and alt.std > est.std:
+            out[k] = dataclasses.replace(est, std=float(alt.std), ci95=None)
+        else:
+            out[k] = est
+    freqs = ", ".join(f"{ln['frequency_hz']:.3g}" for ln in motion["lines"])
+    label = f"least squares with a common image motion at {freqs} Hz taken out"
+    info = {"lines": motion["lines"], "chi2_per_dof_before": float(res.chi2_per_dof),
+            "chi2_per_dof_after": float(res2.chi2_per_dof), "shift": shift,
+            "note": ("every marker, the lugs standing on the ground too, moves by one "
+                     f"displacement at {freqs} Hz: the camera moved (no catalog physics). "
+                     "Fitted beside the model (a sine and a cosine per axis and line) it "
+                     "holds the whole misfit; it is taken out of the data and the model "
+                     "refitted, each error the larger of the refit's and the one with the "
+                     "motion's own uncertainty carried")}
+    return _widened(res2, out, method=label, clusters=None, cov=C,
+                    covs={label: (C, None)}, speed_sensitivity=None, label=label,
+                    image_motion=info,
+                    uncertainty_method=label + " (unexplained misfit: a camera motion)"
+                    ), label
