@@ -136,9 +136,9 @@ class Explanation:
                                   "shift its excess over the change's own scatter "
                                   "(sqrt(max(0, d^2 - (V_free - V_base)))), added in "
                                   "quadrature to its robust error")}
-        motion = (getattr(self.final, "robust", None) or {}).get("image_motion")
-        if motion is not None:
-            out["image_motion"] = motion
+        nuis = (getattr(self.final, "robust", None) or {}).get("nuisance")
+        if nuis is not None:  # a measurement nuisance taken out (explain._nuisance)
+            out[nuis[0]] = nuis[1]
         if self.systematics is not None:
             sysb = {k: v for k, v in self.systematics.items()
                     if k != "why_not" and not k.startswith("_")}

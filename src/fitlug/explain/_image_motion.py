@@ -1,36 +1,19 @@
-"""A camera that shakes: a common image motion at a few frequencies, carried as a nuisance.
+"""A camera that shakes: a common image motion at a few frequencies, a nuisance kind.
 
 A camera on a test rig vibrates with the floor or the motor: the whole image moves, every
 marker by the same small displacement d(t), the lug markers in contact with the ground as
 much as the body markers. No physics in MODEL.md's catalog moves a lug that stands on the
 ground, so such a recording ends 'unexplained' (it is outside the catalog). Its located
 misfit is coherent over the whole recording: the scores of the in-time sandwich cancel
-from window to window, and the robust errors of explain._robust come out several times
-too wide (bench_coverage's vibration row: rms z 0.59 for s0, 0.14 for k).
+from window to window, and the robust errors of explain._robust came out several times
+too wide (bench_coverage's vibration row: rms z 0.59 for s0, 0.14 for k), while the base
+fit's slip lay ~3 least-squares errors from the truth (the motion biases it).
 
-When the verdict is 'unexplained', this module asks whether the misfit is such a motion:
-
-1. the common mode: per frame and axis the weighted mean residual of all markers
-   (what a common displacement of the image leaves), and its periodogram (zero-padded
-   FFT on the frame grid, x and y powers summed) between MIN_CYCLES periods per recording
-   and 0.45 times the frame rate; the peak, refined on a fine grid, is a candidate line;
-2. the line, a sine and a cosine per axis (4 columns, every sample weighted as its
-   residual), is fitted beside every parameter of the model (one linear least-squares step
-   with the model's exact Jacobian, as the tracker-systematics nuisance is); it must lower
-   chi^2 by more than the largest of the periodogram's bins would through the noise alone
-   (family-wise false-alarm FALSE_ALARM over the frequencies searched, chi^2 with 4
-   degrees);
-3. up to MAX_LINES lines (a vibration that is not a pure sine has harmonics), until the
-   residuals pass detection (fitlug.explain.detect) or nothing is located in them: the
-   motion must hold the whole misfit, else nothing changes (a marker knocked on its lug, a
-   speed modulation and tracker systematics leave structure a common motion cannot carry).
-
-Then the verdict stays 'unexplained' (a camera motion is no catalog physics), but the
-motion is taken out of the data and the model refitted (explain._robust.motion_result):
-the headline is that refit, and each error the larger of its least-squares one and the
-one with the motion's own uncertainty carried (the model's covariance with the motion
-fitted beside it). On bench_coverage's vibration recordings the base fit's slip lay ~3
-least-squares errors from the truth (the motion biases it), the refit's ~0.3.
+A term is a line: the common mode (per frame and axis the weighted mean residual of all
+markers, what a common displacement of the image leaves), its periodogram (zero-padded FFT
+on the frame grid, x and y powers summed) between MIN_CYCLES periods per recording and
+0.9 times the Nyquist frequency, the peak refined on a fine grid; its columns a sine and a
+cosine per axis. :func:`fitlug.explain._nuisance.search` fits, tests and takes it out.
 """
 
 from __future__ import annotations
@@ -38,22 +21,15 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import stats
-
-from ..fit._lsq import RowChunks
-from ._detect import detect
-from ._engine import normal_of, pinv_factor
-from ._locate import locate
 
 MIN_CYCLES = 2.0  # a line needs two periods in the recording (slower trades with X(t))
 F_MAX_NYQUIST = 0.9  # of the Nyquist frequency
 PAD = 4  # zero padding of the periodogram
-FALSE_ALARM = 1e-3  # family-wise, over the frequencies searched
 MAX_LINES = 3
 REFINE = 41  # points of the fine grid over +-1 coarse bin
 
 
-def _frames(geo):
+def frames(geo):
     """Frame index of every sample and the number of frames."""
     k = np.rint((np.asarray(geo.t, float) - geo.t_lo) * geo.fps).astype(np.int64)
     k = np.clip(k, 0, None)
@@ -92,7 +68,7 @@ def _line_power(s, W, t, f):
 def find_line(geo, r, exclude=()):
     """(frequency, its common-mode power, number of independent frequencies searched) of
     the strongest line of the common image motion in residuals r, or None."""
-    k, n = _frames(geo)
+    k, n = frames(geo)
     if n < 16:
         return None
     s, W = _common_mode(geo, r, k, n)
@@ -130,62 +106,41 @@ def _columns(geo, freqs):
     return np.stack(cols, axis=1)
 
 
-def _joint_fit(J, r, N):
-    """One linear least-squares step of [J, N] on r: (delta, r2, model covariance with the
-    nuisance carried)."""
-    n_p = J.n_par if isinstance(J, RowChunks) else J.shape[1]
-    JJ, JN = normal_of(J, N)
-    Jr = normal_of(J, r)[1]
-    A = np.block([[JJ, JN], [JN.T, N.T @ N]])
-    b = np.r_[Jr, N.T @ r]
-    M = pinv_factor(A, 1e-14)
-    delta = -(M @ (M.T @ b))
-    Jd = J.matvec(delta[:n_p]) if isinstance(J, RowChunks) else np.asarray(J) @ delta[:n_p]
-    r2 = r + Jd + N @ delta[n_p:]
-    return delta, r2, (M @ M.T)[:n_p, :n_p]
+class ImageMotion:
+    """The nuisance kind of :func:`fitlug.explain._nuisance.search`: lines of a common
+    image motion."""
 
+    name = "image motion"
+    per_term = 4
+    max_terms = MAX_LINES
 
-def image_motion(res, geo, J, r, *, alpha: float, sigma_estimated: bool):
-    """The common image motion that holds the misfit of fit `res` (weighted residuals r,
-    zero where invalid; J its Jacobian or time chunks), or None: {"lines": [{frequency_hz,
-    amplitude_um: [x, y], dchi2, threshold}], "delta", "r2", "cov", "dchi2",
-    "chi2_per_dof"}."""
-    chi2 = float(r @ r)
-    freqs, lines, fit = [], [], None
-    cur = r
-    for _ in range(MAX_LINES):
-        found = find_line(geo, cur, exclude=freqs)
+    @staticmethod
+    def find(geo, r, exclude):
+        found = find_line(geo, r, exclude=[t for t in exclude])
         if found is None:
             return None
         f, _, n_freq = found
-        trial = freqs + [f]
-        N = _columns(geo, trial)
-        delta, r2, cov = _joint_fit(J, r, N)
-        prev = float(cur @ cur)
-        gain = prev - float(r2 @ r2)
-        thr = float(stats.chi2.isf(FALSE_ALARM / n_freq, 4))
-        if not gain > thr:
-            return None  # no significant line (left): the motion does not hold the misfit
-        freqs, cur, fit = trial, r2, (N, delta, r2, cov)
-        lines.append({"frequency_hz": f, "dchi2": gain, "threshold": thr})
-        dof = res.dof - N.shape[1]
-        det = detect(geo, r2, dof, sigma_estimated=sigma_estimated, alpha=alpha)
-        if det.consistent or not locate(geo, r2, det).parts:
-            break
-    else:
-        return None
-    N, delta, r2, cov = fit
-    n_p = len(delta) - N.shape[1]
-    for i, ln in enumerate(lines):  # amplitude of each line per axis, um (0-peak)
-        a = delta[n_p + 4 * i: n_p + 4 * i + 4]
-        ln["amplitude_um"] = [1000.0 * float(np.hypot(a[0], a[1])),
-                              1000.0 * float(np.hypot(a[2], a[3]))]
-    w = np.where(geo.valid, geo.weight, 0.0)
-    motion = np.where(w > 0, (N @ delta[n_p:]) / np.where(w > 0, w, 1.0), 0.0)
-    return {"lines": lines, "delta": delta[:n_p], "r2": r2, "cov": 0.5 * (cov + cov.T),
-            "motion_mm": motion,
-            "dchi2": chi2 - float(r2 @ r2),
-            "chi2_per_dof": float(r2 @ r2) / max(res.dof - N.shape[1], 1)}
+        return f, n_freq
+
+    columns = staticmethod(_columns)
+
+    @staticmethod
+    def describe(terms, coef, geo=None):
+        """One dict per line: frequency and 0-peak amplitude per axis (um)."""
+        out = []
+        for i, f in enumerate(terms):
+            a = coef[4 * i: 4 * i + 4]
+            out.append({"frequency_hz": float(f),
+                        "amplitude_um": [1000.0 * float(np.hypot(a[0], a[1])),
+                                         1000.0 * float(np.hypot(a[2], a[3]))]})
+        return out
+
+    @staticmethod
+    def label(terms, geo=None):
+        freqs = ", ".join(f"{f:.3g}" for f in terms)
+        return (f"a common image motion at {freqs} Hz",
+                "every marker, the lugs standing on the ground too, moves by one "
+                f"displacement at {freqs} Hz: the camera moved (no catalog physics)")
 
 
-__all__ = ["image_motion", "find_line"]
+__all__ = ["ImageMotion", "find_line", "frames"]

@@ -19,7 +19,10 @@ the variance of the total score J^T r, lets the residuals be correlated in two w
   cancel from window to window, which no local estimate sees, and the errors of k and
   C_rr it affects little come out several times too wide.
 
-Each quantity takes the largest of the least-squares, by-marker and in-time standard
+First, though, a measurement nuisance that holds the whole misfit (a camera that shook,
+a marker knocked on its lug: :mod:`._nuisance`) is taken out of the data and the model
+refitted (:func:`taken_out`); no sandwich is needed then. Otherwise each quantity takes
+the largest of the least-squares, by-marker and in-time standard
 errors (the largest of three noisy variance estimates is also what covers the small
 number of clusters: bench_coverage's out-of-catalog rows), and then carries in quadrature
 the shift the misfit can cause through the speed profile (:mod:`._speed`: a refit with a
@@ -38,12 +41,15 @@ from ..fit._lsq import RowChunks, covariance_normal
 from ..fit._result import compute_quantities
 from ._detect import ALPHA
 from ._engine import jacobian_of
-from ._image_motion import image_motion
+from ._image_motion import ImageMotion
+from ._marker_shift import MarkerShift
+from ._nuisance import search
 from ._speed import speed_sensitivity
 from ._table import Geometry
 
 WINDOW_S = 0.5  # s, the Hann windows of the in-time sandwich
 TIME = f"robust in time (Hann windows of {WINDOW_S:g} s)"
+NUISANCES = (ImageMotion, MarkerShift)
 
 
 def covariance(J) -> np.ndarray:
@@ -127,10 +133,10 @@ def robust_result(res, geo: Geometry, alpha: float = ALPHA):
              if k not in res.packing.names}
     J = jacobian_of(res.flat, fixed, res.packing, prob.lay, prob.obs)  # or its time chunks
     r = np.where(geo.valid, np.asarray(res.residuals), 0.0)
-    motion = image_motion(res, geo, J, r, alpha=alpha, sigma_estimated=prob.noise_source in (
-        "differences", "residual differences"))
-    if motion is not None:  # a camera that shook: the misfit is held, no sandwich needed
-        done = motion_result(res, motion)
+    sig_est = prob.noise_source in ("differences", "residual differences")
+    for kind in NUISANCES:  # a measurement nuisance that holds the whole misfit: taken out
+        found = search(kind, res, geo, J, r, alpha=alpha, sigma_estimated=sig_est)
+        done = taken_out(res, geo, found) if found is not None else None
         if done is not None:
             return done
     Hinv = covariance(J)
@@ -177,6 +183,19 @@ def _widened(res, out: dict, **info):
     return dataclasses.replace(res, quantities=out, robust=info)
 
 
+def _larger(quantities: dict, alt: dict) -> dict:
+    """Each estimate of `quantities` with the larger of its error and alt's."""
+    out = {}
+    for k, est in quantities.items():
+        a = alt.get(k)
+        if a is not None and a.std is not None and est.std is not None \
+                and np.isfinite(a.std) and a.std > est.std:
+            out[k] = dataclasses.replace(est, std=float(a.std), ci95=None)
+        else:
+            out[k] = est
+    return out
+
+
 def nuisance_result(res, sysb: dict):
     """A copy of `res` whose quantities carry the tracker-systematics nuisance: each error
     is the larger of the least-squares one and the one with the nuisance fitted beside the
@@ -188,14 +207,7 @@ def nuisance_result(res, sysb: dict):
     fixed_np = {k: v for k, v in res.params.items() if k not in res.packing.names}
     q = compute_quantities(res.params, res.packing, res.flat, C, prob.lay, prob.rig.mass_kg,
                            fixed_np, prob.rig.drawbar_pull_N)
-    out = {}
-    for k, est in res.quantities.items():
-        alt = q.get(k)
-        if alt is not None and alt.std is not None and est.std is not None \
-                and np.isfinite(alt.std) and alt.std > est.std:
-            out[k] = dataclasses.replace(est, std=float(alt.std), ci95=None)
-        else:
-            out[k] = est
+    out = _larger(res.quantities, q)
     method = "least squares with the tracker-systematics nuisance carried"
     return _widened(res, out, method=method, clusters=None, cov=0.5 * (C + C.T), covs={},
                     speed_sensitivity=None, label=method,
@@ -204,23 +216,23 @@ def nuisance_result(res, sysb: dict):
                                                 "measurement floor)")
 
 
-def motion_result(res, motion: dict):
-    """The fit of `res`'s recording with a common image motion (explain._image_motion)
-    taken out of the data and the model refitted (the located misfit removed), its
-    errors the larger of the refit's least-squares ones and those with the motion's
-    own uncertainty carried (the model's covariance with the motion fitted beside it);
-    (result, method) as robust_result's."""
+def taken_out(res, geo, found: dict):
+    """The fit of `res`'s recording with a measurement nuisance (explain._nuisance.search's
+    `found`) taken out of the data and the model refitted (the located misfit removed),
+    its errors the larger of the refit's least-squares ones and those with the nuisance's
+    own uncertainty carried (the model's covariance with the nuisance fitted beside it);
+    (result, method) as robust_result's, or None when the refit fails."""
     from ..fit import fit_problem
 
     prob = res.problem
-    m = motion["motion_mm"]  # the fitted displacement of every sample, in the residuals' order
+    m = found["displacement_mm"]  # of every sample, in the residuals' order
     S_l, S_b = len(prob.lug_rows), len(prob.body_rows)
     obs = dict(prob.obs)
     for key, (a, b) in zip(("lug_x", "lug_y", "body_x", "body_y"),
                            ((0, S_l), (S_l, 2 * S_l), (2 * S_l, 2 * S_l + S_b),
                             (2 * S_l + S_b, 2 * S_l + 2 * S_b))):
-        # residual = (model - obs) w, and the motion adds w m to it: obs - m is the image
-        # without the motion
+        # residual = (model - obs) w, and the nuisance adds w m to it: obs - m is the
+        # image without it
         obs[key] = jnp.asarray(np.asarray(obs[key]) - m[a:b], float)
     prob2 = dataclasses.replace(prob, obs=obs)
     try:
@@ -231,32 +243,25 @@ def motion_result(res, motion: dict):
     if not np.isfinite(res2.chi2) or not res2.chi2 < res.chi2:
         return None
     fixed_np = {k: v for k, v in res2.params.items() if k not in res2.packing.names}
-    C = motion["cov"]
+    C = found["cov"]
     q = compute_quantities(res2.params, res2.packing, res2.flat, C, prob.lay,
                            prob.rig.mass_kg, fixed_np, prob.rig.drawbar_pull_N)
-    out, shift = {}, {}
-    for k, est in res2.quantities.items():
-        alt = q.get(k)
-        if k in res.quantities and est.value is not None \
-                and res.quantities[k].value is not None:
-            shift[k] = float(est.value) - float(res.quantities[k].value)
-        if alt is not None and alt.std is not None and est.std is not None \
-                and np.isfinite(alt.std) and alt.std > est.std:
-            out[k] = dataclasses.replace(est, std=float(alt.std), ci95=None)
-        else:
-            out[k] = est
-    freqs = ", ".join(f"{ln['frequency_hz']:.3g}" for ln in motion["lines"])
-    label = f"least squares with a common image motion at {freqs} Hz taken out"
-    info = {"lines": motion["lines"], "chi2_per_dof_before": float(res.chi2_per_dof),
+    out = _larger(res2.quantities, q)
+    shift = {k: float(e.value) - float(res.quantities[k].value)
+             for k, e in res2.quantities.items()
+             if k in res.quantities and e.value is not None
+             and res.quantities[k].value is not None}
+    kind = found["kind"]
+    what, why = kind.label(found["terms"], geo)
+    label = f"least squares with {what} taken out"
+    info = {"terms": found["described"], "chi2_per_dof_before": float(res.chi2_per_dof),
             "chi2_per_dof_after": float(res2.chi2_per_dof), "shift": shift,
-            "note": ("every marker, the lugs standing on the ground too, moves by one "
-                     f"displacement at {freqs} Hz: the camera moved (no catalog physics). "
-                     "Fitted beside the model (a sine and a cosine per axis and line) it "
-                     "holds the whole misfit; it is taken out of the data and the model "
-                     "refitted, each error the larger of the refit's and the one with the "
-                     "motion's own uncertainty carried")}
+            "note": (f"{why}. Fitted beside the model it holds the whole misfit; it is "
+                     "taken out of the data and the model refitted, each error the larger "
+                     "of the refit's and the one with the nuisance's own uncertainty "
+                     "carried")}
     return _widened(res2, out, method=label, clusters=None, cov=C,
                     covs={label: (C, None)}, speed_sensitivity=None, label=label,
-                    image_motion=info,
-                    uncertainty_method=label + " (unexplained misfit: a camera motion)"
+                    nuisance=(kind.name.replace(" ", "_"), info),
+                    uncertainty_method=label + " (unexplained misfit: a measurement nuisance)"
                     ), label
