@@ -142,7 +142,8 @@ def run_one(row: str, seed: int, budget_s: float = 60.0) -> dict:
     post = sample_posterior(final, seed=seed, time_budget_s=budget_s)
     out = {"row": row, "seed": seed, "verdict": ex.verdict, "effects": list(ex.effects),
            "converged": bool(post.converged), "temper": post.temper.get("factor", 1.0),
-           "not_identifiable": sorted(post.not_identifiable), "seconds": 0.0}
+           "not_identifiable": sorted(post.not_identifiable), "seconds": 0.0,
+           "method": (final.robust or {}).get("label", "least squares")}
     for q in QUANTITIES:
         if q not in post.samples or truth.get(q) is None:
             continue

@@ -7,7 +7,8 @@ verdict is 'unexplained', :func:`search` asks for each kind whether a few of its
 hold the whole misfit:
 
 1. the kind proposes its strongest term in the residuals (a line of the common-mode
-   spectrum; a marker and an instant) and how many independent candidates it searched;
+   spectrum; a marker and an instant) and how many independent candidates it searched
+   (a continuous term, a frequency, is then refined on the joint fit);
 2. the terms so far, each a few columns of the design (every sample weighted as its
    residual), are fitted beside every parameter of the model (one linear least-squares
    step with the model's exact Jacobian, as the tracker-systematics nuisance is); the new
@@ -65,13 +66,16 @@ def search(kind, res, geo, J, r, *, alpha: float, sigma_estimated: bool) -> dict
         if found is None:
             return None
         term, n_cand = found
-        N = kind.columns(geo, terms + [term])
+        trial = terms + [term]
+        if hasattr(kind, "refine"):  # continuous terms (a frequency) on the joint fit
+            trial = kind.refine(geo, J, r, trial)
+        N = kind.columns(geo, trial)
         delta, r2, cov = joint_fit(J, r, N)
         gain = float(cur @ cur) - float(r2 @ r2)
         thr = float(stats.chi2.isf(FALSE_ALARM / max(n_cand, 1), kind.per_term))
         if not gain > thr:
             return None  # no significant term (left): the nuisance does not hold the misfit
-        terms, cur, fit = terms + [term], r2, (N, delta, r2, cov)
+        terms, cur, fit = trial, r2, (N, delta, r2, cov)
         gains.append({"dchi2": gain, "threshold": thr})
         det = detect(geo, r2, res.dof - N.shape[1], sigma_estimated=sigma_estimated,
                      alpha=alpha)
