@@ -129,13 +129,15 @@ class Explanation:
         }
         speed = (getattr(self.final, "robust", None) or {}).get("speed_sensitivity")
         if speed is not None:
+            how = ("that fit holds the whole misfit and is the headline (slip_before: the "
+                   "base model's)" if speed.get("headline") else
+                   "shift added in quadrature to its robust error")
             out["speed_sensitivity"] = {
                 **speed, "note": ("the model refitted with a free speed spline "
                                   f"(breakpoints {speed['spacing_s']:g} s apart): "
                                   "shift_raw is each quantity's change between the fits, "
                                   "shift its excess over the change's own scatter "
-                                  "(sqrt(max(0, d^2 - (V_free - V_base)))), added in "
-                                  "quadrature to its robust error")}
+                                  f"(sqrt(max(0, d^2 - (V_free - V_base)))); {how}")}
         nuis = (getattr(self.final, "robust", None) or {}).get("nuisance")
         if nuis is not None:  # a measurement nuisance taken out (explain._nuisance)
             out[nuis[0]] = nuis[1]

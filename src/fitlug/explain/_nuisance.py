@@ -54,6 +54,13 @@ def joint_fit(J, r, N):
     return delta, r2, (M @ M.T)[:n_p, :n_p]
 
 
+def holds(geo, r, dof: int, *, alpha: float, sigma_estimated: bool) -> bool:
+    """Whether residuals r (laid out as `geo`, `dof` degrees) pass detection, or nothing
+    is located in them: no misfit left."""
+    det = detect(geo, r, dof, sigma_estimated=sigma_estimated, alpha=alpha)
+    return det.consistent or not locate(geo, r, det).parts
+
+
 def search(kind, res, geo, J, r, *, alpha: float, sigma_estimated: bool) -> dict | None:
     """The terms of nuisance `kind` that hold the misfit of fit `res` (weighted residuals
     r, zero where invalid; J its Jacobian or time chunks), or None: {"kind", "terms"
@@ -77,9 +84,8 @@ def search(kind, res, geo, J, r, *, alpha: float, sigma_estimated: bool) -> dict
             return None  # no significant term (left): the nuisance does not hold the misfit
         terms, cur, fit = trial, r2, (N, delta, r2, cov)
         gains.append({"dchi2": gain, "threshold": thr})
-        det = detect(geo, r2, res.dof - N.shape[1], sigma_estimated=sigma_estimated,
-                     alpha=alpha)
-        if det.consistent or not locate(geo, r2, det).parts:
+        if holds(geo, r2, res.dof - N.shape[1], alpha=alpha,
+                 sigma_estimated=sigma_estimated):
             break
     else:
         return None

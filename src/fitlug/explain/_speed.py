@@ -87,5 +87,5 @@ def speed_sensitivity(res) -> dict | None:
     return {"spacing_s": float(br[1] - br[0]), "n_coef": int(prob2.lay.n_coef),
             "n_coef_base": int(lay.n_coef), "chi2_per_dof": float(res2.chi2_per_dof),
             "chi2_per_dof_base": float(res.chi2_per_dof), "shift": shift, "shift_raw": raw,
-            "converged": bool(res2.converged)}
+            "converged": bool(res2.converged), "_fit": res2}
 

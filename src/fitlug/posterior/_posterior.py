@@ -403,7 +403,8 @@ def tempering(res: FitResult, marg: "_Marginal | None" = None) -> dict:
     info = getattr(res, "robust", None)
     if not info or info.get("cov") is None:
         return {"factor": 1.0}
-    shifted = bool((info.get("speed_sensitivity") or {}).get("shift"))
+    sens = info.get("speed_sensitivity") or {}
+    shifted = bool(sens.get("shift")) and not sens.get("headline")  # headline: the free fit
     if info.get("method") == "least squares" and not shifted:
         return {"factor": 1.0}
     if marg is None:
@@ -529,6 +530,8 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
                 f"({temper['note']}; slip error x {math.sqrt(temper['factor']):.3g} the "
                 "white-noise one): " + ("tracker systematics carried" if "nuisance" in
                                         temper["method"] else "unexplained misfit"))
+    elif (getattr(res, "robust", None) or {}).get("uncertainty_method"):
+        how += "; " + res.robust["uncertainty_method"]  # a nuisance taken out, a free speed
     return Posterior(estimates=estimates, samples=samples, chain=chain,
                      method=f"{use}: {desc}", check=check, seed=seed,
                      not_identifiable=unident, uncertainty_method=how, temper=temper,

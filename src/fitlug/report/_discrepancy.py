@@ -382,12 +382,29 @@ def discrepancy_section(fit_json: dict, state=None) -> str:
                    f"{_num(d.get('chi2_per_dof_before'))} to {_num(d.get('chi2_per_dof_after'))}."
                    "</p>")
     else:
+        nuis = d.get("image_motion") or d.get("marker_shift")
+        sens = d.get("speed_sensitivity") or {}
+        how = ("what the mismatch is was found and modelled outside the catalog (below), and "
+               "the headline is that model's fit" if nuis or sens.get("headline") else
+               "so the slip's error bar includes the mismatch")
         out.append(f'<div class="verdict v-unexplained"><b>Unexplained.</b> '
-                   f"{located_sentence(d)} No catalog effect earns its place, so the slip's "
-                   "error bar includes the mismatch "
+                   f"{located_sentence(d)} No catalog effect earns its place; {how} "
                    f"({_e(d.get('slip_after_uncertainty', '') or fj.get('uncertainty_method', ''))}).</div>")
+        if nuis:
+            out.append(f"<p>A measurement nuisance holds the whole mismatch: "
+                       f"{_e(nuis.get('note', ''))}. χ²/dof goes from "
+                       f"{_num(nuis.get('chi2_per_dof_before'))} to "
+                       f"{_num(nuis.get('chi2_per_dof_after'))}.</p>")
     sens = d.get("speed_sensitivity")
-    if v == "unexplained" and sens and (sens.get("shift") or {}).get("slip") is not None:
+    if v == "unexplained" and sens and sens.get("headline"):
+        out.append(f"<p>Refitted with a free speed profile (breakpoints "
+                   f"{_num(sens.get('spacing_s'), 2)} s apart), χ²/dof goes from "
+                   f"{_num(sens.get('chi2_per_dof_base'))} to {_num(sens.get('chi2_per_dof'))}: "
+                   "the drive's motion has content the adaptive profile must not follow (it "
+                   "would swallow lug- and wheel-locked effects), and the free fit holds the "
+                   "whole mismatch, so it is the headline; the base model's slip is in the "
+                   "table below.</p>")
+    elif v == "unexplained" and sens and (sens.get("shift") or {}).get("slip") is not None:
         out.append(f"<p>Speed-profile sensitivity: refitted with a free speed profile "
                    f"(breakpoints {_num(sens.get('spacing_s'), 2)} s apart), χ²/dof goes "
                    f"from {_num(sens.get('chi2_per_dof_base'))} to "
