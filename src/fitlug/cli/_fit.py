@@ -168,12 +168,12 @@ def _summary(args, doc, out, report, seconds):
                          f"{sig(100 * (b['value'] - s['value']) / s['value'], 2)} %, "
                          f"{sigma_apart(b['value'], s.get('std'), s['value'])} the final value")
         if d.get("verdict") == "unexplained":
-            from ..report._discrepancy import located_sentence
+            from ..report._discrepancy import handling_sentence, located_sentence
 
             import html
 
             lines.append("    " + html.unescape(located_sentence(d)))
-            lines.append("    the slip's error bar includes this mismatch")
+            lines.append("    " + handling_sentence(d))
     m = doc.get("mcmc")
     if m:
         lines.append(f"  posterior          {m.get('walkers')} walkers × {m.get('steps')} steps, "

@@ -218,6 +218,7 @@ def _free_speed_result(res, geo, speed):
                     covs={n: (covs[n], clusters[n]) for n in covs
                           if n != "least squares" and covs[n] is not None},
                     speed_sensitivity=pub, label=label,
+                    headline="free speed profile",
                     uncertainty_method=label + " (unexplained misfit: a motion of the drive)"
                     ), label
 
@@ -310,5 +311,6 @@ def taken_out(res, geo, found: dict):
     return _widened(res2, out, method=label, clusters=None, cov=C,
                     covs={label: (C, None)}, speed_sensitivity=None, label=label,
                     nuisance=(kind.name.replace(" ", "_"), info),
+                    headline=f"{kind.name} taken out",
                     uncertainty_method=label + " (unexplained misfit: a measurement nuisance)"
                     ), label

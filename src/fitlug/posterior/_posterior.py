@@ -448,7 +448,8 @@ def tempering(res: FitResult, marg: "_Marginal | None" = None) -> dict:
     _, method, S, G, extra = best
     naive = float(g @ marg.cov @ g)
     factor = float(g @ S @ g) / naive if naive > 0 else float("inf")
-    note = f"{G} clusters" if G else "the robust covariances added"
+    note = (f"{G} clusters" if G else "the robust covariances added" if "sum" in method
+            else "its own covariance")
     if extra > 1.0 + 1e-9:
         note += f", errors x {math.sqrt(extra):.3f} so that no quantity is narrower than its own"
     if shifted:
@@ -525,13 +526,17 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     desc = {"gaussian": "emcee on the Gaussian limit of the linearly marginalised likelihood",
             "exact": "emcee on the exact-model, linearly marginalised likelihood"}[use]
     how = "posterior (emcee)"
-    if temper["factor"] > 1.0:
+    headline = (getattr(res, "robust", None) or {}).get("headline")
+    if headline:  # a nuisance taken out, a free speed profile: the fit is another model's
+        how += "; " + res.robust["uncertainty_method"]
+        if temper["factor"] > 1.0 + 1e-6:
+            how += (f"; likelihood stretched (slip error x {math.sqrt(temper['factor']):.3g}) "
+                    "to carry the nuisance's own uncertainty")
+    elif temper["factor"] > 1.0:
         how += (f", likelihood tempered (stretched) to the {temper['method']} covariance "
                 f"({temper['note']}; slip error x {math.sqrt(temper['factor']):.3g} the "
                 "white-noise one): " + ("tracker systematics carried" if "nuisance" in
                                         temper["method"] else "unexplained misfit"))
-    elif (getattr(res, "robust", None) or {}).get("uncertainty_method"):
-        how += "; " + res.robust["uncertainty_method"]  # a nuisance taken out, a free speed
     return Posterior(estimates=estimates, samples=samples, chain=chain,
                      method=f"{use}: {desc}", check=check, seed=seed,
                      not_identifiable=unident, uncertainty_method=how, temper=temper,

@@ -47,6 +47,27 @@ def _new(w, h, rows=1, cols=1, **kw):
     return new_figure(w, h, rows, cols, **kw)
 
 
+def handling_sentence(d: dict) -> str:
+    """What was done about an unexplained mismatch, one plain clause (no HTML): a
+    measurement nuisance or a free speed profile that holds it, else the widened error."""
+    im, ms = d.get("image_motion"), d.get("marker_shift")
+    if im:
+        f = ", ".join(f"{t['frequency_hz']:.3g}" for t in im.get("terms") or [])
+        return (f"it is a common motion of the whole image at {f} Hz (the camera moved): "
+                "taken out and the model refitted, the headline is that fit")
+    if ms:
+        parts = "; ".join(
+            f"marker {t['marker']} by ({t['shift_um'][0]:.0f}, {t['shift_um'][1]:.0f}) um "
+            f"from {t['from_time_s']:.3g} s" for t in ms.get("terms") or [])
+        return (f"it is one marker shifted and staying there ({parts}: knocked on its lug?): "
+                "taken out and the model refitted, the headline is that fit")
+    sens = d.get("speed_sensitivity") or {}
+    if sens.get("headline"):
+        return ("a free speed profile follows it (a motion of the drive the adaptive profile "
+                "must not follow): that fit holds the whole mismatch and is the headline")
+    return "the slip's error bar includes this mismatch"
+
+
 def located_sentence(d: dict) -> str:
     """One plain sentence: where the mismatch is and what it looks like."""
     shares = [p for p in d.get("located") or [] if not p.get("test")]

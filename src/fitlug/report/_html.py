@@ -133,6 +133,9 @@ def _widened(fj) -> str:
     d = fj.get("discrepancy") or {}
     if d.get("verdict") != "unexplained":
         return ""
+    if d.get("image_motion") or d.get("marker_shift") or \
+            (d.get("speed_sensitivity") or {}).get("headline"):
+        return ""  # the mismatch was modelled (outside the catalog): not a widened error
     how = d.get("slip_after_uncertainty") or fj.get("uncertainty_method") or ""
     return ("the residuals hold a mismatch no catalog effect explains, so the error bar "
             "includes it" + (f" ({_e(how)})" if how else ""))
@@ -175,12 +178,18 @@ def _verdict_box(fj) -> str:
         return (f'<div class="verdict v-explained"><b>Explained</b> by {names} '
                 f'(χ²/dof {F.sig(d.get("chi2_per_dof_before"), 4)} → '
                 f'{F.sig(d.get("chi2_per_dof_after"), 4)}).{off} {meaning}</div>')
+    from ._discrepancy import handling_sentence
+
     sentence = _located_sentence(d)
     return ('<div class="verdict v-unexplained"><b>⚠ Unexplained mismatch.</b> The residuals '
             'are not consistent with the noise and no catalog effect earns its place. '
-            f'{sentence} The slip error bar includes this mismatch '
+            f'{sentence} {_e(_cap(handling_sentence(d)))} '
             f'({_e(d.get("slip_after_uncertainty") or fj.get("uncertainty_method") or "widened")}); '
             'treat the slip as a measurement with an unmodelled systematic.</div>')
+
+
+def _cap(text: str) -> str:
+    return text[:1].upper() + text[1:]
 
 
 def _given(x) -> str:
