@@ -56,16 +56,26 @@ nav.toc a{text-decoration:none}code{overflow-wrap:anywhere}
 
 def figure_html(fig, alt: str, caption: str = "") -> str:
     """A matplotlib figure as an embedded <img> in a <figure> with its caption; closes it."""
-    import matplotlib.pyplot as plt
+    from ._layout import tidy
 
+    tidy(fig)
     buf = io.BytesIO()
-    # one draw only: layouts are set when the figure is made (bbox_inches="tight" draws twice)
+    # one draw only: the layout is set above (bbox_inches="tight" draws twice)
     fig.savefig(buf, format="png", dpi=DPI)
-    plt.close(fig)
+    _close(fig)
     data = base64.b64encode(buf.getvalue()).decode("ascii")
     cap = f"<figcaption>{caption}</figcaption>" if caption else ""
     return (f'<figure><img alt="{html.escape(alt)}" '
             f'src="data:image/png;base64,{data}">{cap}</figure>')
+
+
+def _close(fig) -> None:
+    """Forget a figure pyplot knows of (one made by :mod:`._layout` it never saw)."""
+    import sys
+
+    plt = sys.modules.get("matplotlib.pyplot")
+    if plt is not None and fig.canvas.manager is not None:
+        plt.close(fig)
 
 
 def _fig(w, h, rows=1, cols=1, **kw):
