@@ -1,13 +1,14 @@
 """The report's heavy imports (matplotlib, corner, ArviZ: ~3 s on a 2-core machine) and
-matplotlib's and xarray's first-use costs, in a background thread while the fit runs; JAX's
-numerics release the GIL, so they overlap.
+xarray's first netCDF write, in a background thread while the fit runs; JAX's numerics
+release the GIL, so they overlap.
 
-After the imports the thread draws one small throwaway figure with every kind of element
-the report uses (mathtext, legend, colorbar, log axis, image, PNG encoding) and writes and
-reads a tiny netCDF file through ArviZ: the first figure of a process otherwise pays for
-the mathtext parser, the font look-ups and the tick machinery (about 1 s), and the first
-posterior.nc for xarray's and h5py's first writes. Each step checks whether :func:`wait` is
-already waiting, and stops there: the warm-up never delays the run.
+After the imports the thread writes and reads a tiny netCDF file through ArviZ: the first
+posterior.nc of a process otherwise pays for xarray's first write (it imports
+dask.distributed to ask whether a cluster is in use) and h5py's first file, 0.6-0.8 s.
+A throwaway figure drawn here as well did not make the report's figures cheaper, and its
+pure-Python work held the GIL against the fit's own Python and slowed it by more than it
+saved (measured in the whole run, on the bundled recording): the thread does not draw.
+Each step checks whether :func:`wait` is already waiting, and stops there.
 
 The caller's thread imports scipy.linalg and scipy.stats before the thread starts (the
 fit, the explanation and the posterior need them anyway): the thread then imports only
@@ -53,7 +54,7 @@ def _run() -> None:
         import arviz  # noqa: F401
     except Exception:  # noqa: BLE001 - the report imports them again and says what failed
         return
-    for step in (_warm_figure, _warm_netcdf):
+    for step in (_warm_netcdf,):
         if _WANTED.is_set():
             return
         try:
@@ -62,49 +63,17 @@ def _run() -> None:
             pass
 
 
-def _warm_figure() -> None:
-    """Draw and encode one small figure with the report's kinds of element."""
-    import io
-
-    import numpy as np
-
-    from ._layout import tidy
-    from ._plots import CBAR, new_figure
-
-    fig, ax = new_figure(4.0, 2.0, 1, 3)
-    a, b, c = ax[0]
-    x = np.linspace(0.0, 1.0, 50)
-    a.plot(x, x ** 2, ".", ms=1, label="$s_0$ data")
-    a.plot(x, x, "-", label="$v_t = v/(1-s)$")
-    a.fill_between(x, x - 0.1, x + 0.1, alpha=0.2, lw=0)
-    a.axvspan(0.1, 0.2, alpha=0.2)
-    a.set_title("t (s)", fontsize=9)
-    a.set_xlabel("x (mm)")
-    a.set_ylabel("y (µm)")
-    a.legend(frameon=False, ncol=2, loc="lower left", bbox_to_anchor=(0.0, 1.0))
-    a.annotate("creep", (0.5, 0.5), fontsize=8)
-    a.ticklabel_format(axis="y", useOffset=False)
-    im = b.imshow(np.eye(3), cmap="RdBu_r", vmin=-1, vmax=1)
-    fig.colorbar(im, ax=b, label="σ", **CBAR)
-    c.bar([0, 1], [1.0, 30.0])
-    c.set_yscale("log")
-    for size in (7, 8):
-        b.text(0.5, 0.5, "s₀ .25", fontsize=size)
-    tidy(fig)
-    fig.savefig(io.BytesIO(), format="png", dpi=fig.dpi)
-
-
 def _warm_netcdf() -> None:
     """Write and read a tiny InferenceData through h5netcdf (as posterior.nc is)."""
     import os
     import tempfile
-    import warnings
 
     import arviz as az
     import numpy as np
 
-    with warnings.catch_warnings(), tempfile.TemporaryDirectory() as tmp:
-        warnings.simplefilter("ignore")
+    # no warnings.catch_warnings here: it swaps the process-wide filters under the main
+    # thread's feet (nothing below warns: a posterior of 2 chains x 4 draws, no summary)
+    with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "warm.nc")
         x = np.zeros((2, 4))
         az.from_dict(posterior={"a": x}, sample_stats={"lp": x},
