@@ -52,7 +52,8 @@ def tidy(fig) -> None:
         ss = a.get_subplotspec().get_topmost_subplotspec()
         if ss.get_gridspec() is not gs:
             continue
-        tb = a.get_tightbbox(r, for_layout_only=True)  # long axis labels may overhang
+        tb = a.get_tightbbox(r, bbox_extra_artists=_outer_artists(a),
+                             for_layout_only=True)  # long axis labels may overhang
         if tb is None:
             continue
         cell = ss.get_position(fig)  # the grid cell (a colorbar shares its axes' cell)
@@ -77,3 +78,17 @@ def tidy(fig) -> None:
         return  # decorations larger than the figure: leave matplotlib's defaults
     fig.subplots_adjust(left=L / W, right=1 - R / W, bottom=B / H, top=1 - T / H,
                         wspace=ws / aw if nc > 1 else None, hspace=hs / ah if nr > 1 else None)
+
+
+def _outer_artists(ax) -> list:
+    """The artists of ax that may reach outside its box, for its tight box: matplotlib's
+    default list without the spines (on the box; their tick marks sit within the pads)
+    and without legends anchored to the box itself (placed inside it). Measuring those
+    took a third of the layout's time and never moved a margin."""
+    from matplotlib.legend import Legend
+    from matplotlib.spines import Spine
+
+    return [c for c in ax.get_default_bbox_extra_artists()
+            if not isinstance(c, Spine)
+            and not (isinstance(c, Legend) and c.get_bbox_to_anchor() is ax.bbox)]
+
