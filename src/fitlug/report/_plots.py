@@ -630,7 +630,7 @@ def plot_marker_residuals(st: dict, glitches=None, cols: int = 4):
         ax.set_ylim(0, top)
         ax.set_xlim(tlo, thi)
         ax.text(0.02, 0.95, name, transform=ax.transAxes, ha="left", va="top", fontsize=8,
-                bbox={"fc": "white", "ec": "none", "alpha": 0.7, "pad": 1})
+                bbox={"fc": "white", "ec": "none", "alpha": 0.7, "pad": 1}, clip_on=True)
         ax.tick_params(labelsize=7)
     for ax in axes[-1]:
         ax.set_xlabel("t (s)", fontsize=8)
@@ -653,8 +653,8 @@ def plot_correlation(corr, names, ax=None):
         for i in range(k):
             for j in range(k):
                 ax.text(j, i, f"{c[i, j]:.2f}".replace("0.", ".").replace("-.", "−."),
-                        ha="center", va="center", fontsize=7,
-                        color="white" if abs(c[i, j]) > 0.6 else "black")
+                        ha="center", va="center", fontsize=7, clip_on=True,  # in its cell:
+                        color="white" if abs(c[i, j]) > 0.6 else "black")  # not measured
     ax.figure.colorbar(im, ax=ax, label="correlation", shrink=0.8, **CBAR)
     return ax
 
