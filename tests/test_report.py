@@ -112,6 +112,23 @@ def test_state_holds_what_the_report_draws(folder, fitted):
                                                                 rel=1e-6)
 
 
+def test_state_through_the_exported_module_equals_the_jitted_one(folder, fitted, monkeypatch):
+    """The state's model arrays come from a module exported to disk (fitlug._exported): the
+    same numbers, bit for bit, as the compiled function itself (the export cache off)."""
+    from types import SimpleNamespace
+
+    from fitlug.report._state import state_arrays
+
+    res, _, _ = fitted
+    base = SimpleNamespace(base=res)  # the base residuals go through a second module
+    a, meta = state_arrays(res, explanation=base)
+    monkeypatch.setenv("FITLUG_NO_EXPORT_CACHE", "1")
+    b, meta_b = state_arrays(res, explanation=base)
+    assert meta == meta_b and set(a) == set(b)
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+
+
 def test_cli_rebuilds_the_report(folder, capsys):
     os.remove(folder / "report.html")
     assert main(["report", str(folder)]) == 0

@@ -120,6 +120,8 @@ def plot_maps(maps: dict):
     One colour scale for both unless the after map is SHARED_SCALE_MAX_RATIO times
     weaker; returns (fig, shared).
     """
+    from ._plots import CBAR
+
     keys = [k for k in ("before", "after") if maps.get(k)]
     arrs = {k: _map_array(maps[k]) for k in keys}
     vmax = {k: max(float(np.nanpercentile(np.abs(a), 99)) if np.isfinite(a).any() else 1.0,
@@ -143,7 +145,7 @@ def plot_maps(maps: dict):
         ax_.set_title(f"{k}: mean residual per bin (σ)"
                       + ("" if shared else f", own scale ±{F.sig(vmax[k], 2)}"), fontsize=9)
         if not shared or k == keys[-1]:
-            fig.colorbar(im, ax=ax_, shrink=0.8, label="σ")
+            fig.colorbar(im, ax=ax_, shrink=0.8, label="σ", **CBAR)
     return fig, shared
 
 
@@ -245,7 +247,7 @@ def plot_before_after(st: dict):
                 if (row, j) == (0, 0):
                     handles, labels = axes[row, j].get_legend_handles_labels()
                 axes[row, j].get_legend().remove()
-    fig.legend(handles, labels, loc="outside upper center", ncol=5, frameon=False,
+    fig.legend(handles, labels, loc="upper center", ncol=5, frameon=False,
                markerscale=6)
     for row in range(4):  # one scale per row: before and after compare directly
         lo = min(axes[row, 0].get_ylim()[0], axes[row, 1].get_ylim()[0])

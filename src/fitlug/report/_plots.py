@@ -15,21 +15,24 @@ SEG_COLORS = ("#1b9e77", "#d95f02", "#7570b3", "#e7298a")
 BODY_COLOR = "#444444"
 
 
+#: a colorbar's slot beside its axes (fractions of the axes' cell) and its length/width:
+#: a slim bar close to the axes, as constrained layout drew it
+CBAR = {"fraction": 0.04, "pad": 0.04, "aspect": 16}
+
 RC = {"font.size": 10, "axes.titlesize": 10.5, "axes.labelsize": 10, "legend.fontsize": 9,
       "xtick.labelsize": 9, "ytick.labelsize": 9, "figure.dpi": 96}
 
 
 def new_figure(w, h, rows=1, cols=1, **kw):
-    """(figure, axes[rows, cols]) with constrained layout and the report's font sizes."""
+    """(figure, axes[rows, cols]) with the report's font sizes, laid out by
+    :func:`fitlug.report._layout.tidy` when it is saved (no pyplot)."""
     import matplotlib
 
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    from ._layout import figure
 
     matplotlib.rcParams.update(RC)
-    fig, axes = plt.subplots(rows, cols, figsize=(w, h), squeeze=False, layout="constrained",
-                             **kw)
-    return fig, axes
+    fig = figure(w, h)
+    return fig, fig.subplots(rows, cols, squeeze=False, **kw)
 
 
 def _ax(ax, figsize=(8, 4)):
@@ -211,7 +214,7 @@ def plot_stall(st: dict, ax=None, slip: float | None = None, D_mm: float | None 
     names = st.get("meta", {}).get("markers")
     ids = st.get("meta", {}).get("lug_ids")
     label = names[ids[m]] if names and ids else f"lug {m}"
-    ax.figure.colorbar(sc, ax=ax, label="t (s)")
+    ax.figure.colorbar(sc, ax=ax, label="t (s)", **CBAR)
     ax.set_xlabel("x (mm, ground frame)")
     ax.set_ylabel("y (mm)")
     ax.set_title(f"Stall of {label} on the ground, enlarged")
@@ -393,9 +396,10 @@ def plot_corner(samples, labels, fig=None, truths=None):
     samples = np.asarray(samples, float)
     k = samples.shape[1]
     if fig is None:
-        import matplotlib.pyplot as plt
+        from ._layout import figure
 
-        fig = plt.figure(figsize=(max(2.6 * k + 0.8, 5.0), max(2.6 * k + 0.8, 5.0)))
+        fig = figure(max(2.6 * k + 0.8, 5.0), max(2.6 * k + 0.8, 5.0))
+        fig._fitlug_tidy = False  # corner sets its own margins
     from ._format import pm
 
     corner.corner(samples, labels=labels, fig=fig, quantiles=[0.025, 0.5, 0.975],
@@ -626,7 +630,7 @@ def plot_marker_residuals(st: dict, glitches=None, cols: int = 4):
         ax.set_ylim(0, top)
         ax.set_xlim(tlo, thi)
         ax.text(0.02, 0.95, name, transform=ax.transAxes, ha="left", va="top", fontsize=8,
-                bbox={"fc": "white", "ec": "none", "alpha": 0.7, "pad": 1})
+                bbox={"fc": "white", "ec": "none", "alpha": 0.7, "pad": 1}, clip_on=True)
         ax.tick_params(labelsize=7)
     for ax in axes[-1]:
         ax.set_xlabel("t (s)", fontsize=8)
@@ -649,9 +653,9 @@ def plot_correlation(corr, names, ax=None):
         for i in range(k):
             for j in range(k):
                 ax.text(j, i, f"{c[i, j]:.2f}".replace("0.", ".").replace("-.", "−."),
-                        ha="center", va="center", fontsize=7,
-                        color="white" if abs(c[i, j]) > 0.6 else "black")
-    ax.figure.colorbar(im, ax=ax, label="correlation", shrink=0.8)
+                        ha="center", va="center", fontsize=7, clip_on=True,  # in its cell:
+                        color="white" if abs(c[i, j]) > 0.6 else "black")  # not measured
+    ax.figure.colorbar(im, ax=ax, label="correlation", shrink=0.8, **CBAR)
     return ax
 
 

@@ -41,7 +41,10 @@ def _raw_residuals(prob, p, model=None):
 
     model: the model positions (lug_x, lug_y, body_x, body_y) when already evaluated."""
     if model is None:
-        model = _predict_jit()(p, prob.lay)
+        from .. import _exported
+
+        # through a module exported to disk: a new process skips its tracing
+        model = _exported.call("report_predict", _predict_jit(), (), p, prob.lay)
     lx, ly, bx, by = (np.asarray(a) for a in model)
     o = {k: np.asarray(v) for k, v in prob.obs.items()}
     vl, vb = o["lug_w"] > 0, o["body_w"] > 0
@@ -81,12 +84,36 @@ def _model_state(p, lay, fine, lay_c):
             "curve": predict(p, lay_c)[:2], "P": belt_length(p["R"], p["D"])}
 
 
+_FINE = ("X", "v", "psi", "v_t", "s")
+
+
+def _model_state_flat(p, lay, fine, lay_c):
+    """:func:`_model_state` as a flat tuple of arrays (what an exported module returns)."""
+    m = _model_state(p, lay, fine, lay_c)
+    return (*m["model"], m["seg"], m["psi_l"], *(m["fine"][k] for k in _FINE), *m["curve"],
+            m["P"])
+
+
 def _model_state_jit():
     if "state" not in _JITTED:
         import equinox as eqx
 
-        _JITTED["state"] = eqx.filter_jit(_model_state)
+        _JITTED["state"] = eqx.filter_jit(_model_state_flat)
     return _JITTED["state"]
+
+
+def _model_state_call(p, lay, fine, lay_c) -> dict:
+    """:func:`_model_state`, compiled, through a module exported to disk (a new process
+    skips tracing and lowering it: about 0.7 s of every warm run)."""
+    from .. import _exported
+
+    out = _exported.call("report_state", _model_state_jit(), (), p, lay, fine, lay_c)
+    model, rest = out[:4], out[4:]
+    seg, psi_l, rest = rest[0], rest[1], rest[2:]
+    fine_d = dict(zip(_FINE, rest[:len(_FINE)]))
+    cx, cy, P = rest[len(_FINE):]
+    return {"model": tuple(model), "seg": seg, "psi_l": psi_l, "fine": fine_d,
+            "curve": (cx, cy), "P": P}
 
 
 def state_arrays(res, posterior=None, explanation=None) -> tuple[dict, dict]:
@@ -110,7 +137,7 @@ def state_arrays(res, posterior=None, explanation=None) -> tuple[dict, dict]:
     ci = np.repeat(np.arange(lay.n_lug), len(ct))
     ct = np.tile(ct, lay.n_lug)
     lay_c = lay.with_times(ct, ci, lay.body_t[:1], lay.body_j[:1])
-    m = _model_state_jit()(p, lay, jnp.asarray(fine), lay_c)
+    m = _model_state_call(p, lay, jnp.asarray(fine), lay_c)
 
     a.update(_raw_residuals(prob, p, m["model"]))
     a["lug_seg"] = np.asarray(m["seg"]).astype(np.int8)
