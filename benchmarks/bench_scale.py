@@ -104,7 +104,11 @@ class RssTrace:
 
     def _run(self):
         while not self.stop.wait(self.every):
-            self.samples.append((time.perf_counter() - self.t0, self.rss(), self._stack()))
+            try:
+                st = self._stack()
+            except Exception as exc:  # a frame torn down while read: keep sampling
+                st = f"<{type(exc).__name__}>"
+            self.samples.append((time.perf_counter() - self.t0, self.rss(), st))
 
     def write(self):
         self.stop.set()
