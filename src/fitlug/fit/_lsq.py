@@ -356,8 +356,36 @@ class ChunkPlan(eqx.Module):
     BW: int = eqx.field(static=True)  # spline coefficients a window's rows touch locally
 
 
+_MMAP_THRESHOLD = 1 << 20
+_heap_set = False
+
+
+def return_freed_memory() -> None:
+    """Make glibc serve blocks of 1 MiB and more by mmap, so that they go back to the
+    system when freed (process-wide, once; nothing elsewhere than glibc).
+
+    A long recording's passes allocate and free tens to hundreds of MB per call (XLA's
+    temporaries, the chunk buffers, the engine's residual batches); with glibc's adaptive
+    threshold those end up in the heap once one of them has been freed, and the heap's
+    fragments stay resident: measured on the 10 000-frame explanation, the peak fell from
+    1.25 to 1.01 GB with this threshold (MALLOC_MMAP_THRESHOLD_). Called by every
+    chunked path (:func:`chunk_plan`)."""
+    global _heap_set
+    if _heap_set:
+        return
+    _heap_set = True
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None)
+        libc.mallopt(-3, _MMAP_THRESHOLD)  # M_MMAP_THRESHOLD
+    except (OSError, AttributeError, TypeError):  # not glibc: leave the allocator alone
+        pass
+
+
 def chunk_plan(lay, chunk: int = CHUNK_INTERVALS, margin: int = _MARGIN) -> ChunkPlan:
     """Time chunks of a layout's residual rows ([lug x, lug y, body x, body y])."""
+    return_freed_memory()
     grid = np.asarray(lay.grid)
     G = grid.shape[0]
     lt, bt = np.asarray(lay.lug_t), np.asarray(lay.body_t)
