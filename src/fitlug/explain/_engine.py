@@ -113,6 +113,15 @@ class NormalJacobian:
         self.g = self._assemble(JbW[:, F.shape[1]:], F.T @ r[:, None])[:, 0]  # J^T r
         self.shape = (len(r), self.n)
 
+    def normal(self) -> tuple:
+        """(J^T J, J^T r)."""
+        return self.A, self.g
+
+    def release(self) -> None:
+        """Drop the time chunks and the difference columns (memory linear in the samples),
+        keeping J^T J and J^T r; :meth:`Jt` and :meth:`suffix_projections` are gone."""
+        self.chunks = self.F = None
+
     def _assemble(self, JbV, FtV):
         out = np.zeros((self.n, JbV.shape[1]))
         out[self.base_cols] = JbV[self.base_cols]
@@ -399,8 +408,9 @@ class Engine:
         for it in range(1, max_iter + 1):
             if stale:
                 if self.chunked:
-                    NJ = self.jacobian(theta, extra, r)
-                    A, g = NJ.A, NJ.g
+                    # only J^T J and J^T r are needed: the chunks and the difference
+                    # columns (tens of doubles per residual) go before the next step's
+                    A, g = self.jacobian(theta, extra, r).normal()
                 else:
                     J = self.jacobian(theta, extra)
                     A = J.T @ J
@@ -492,6 +502,9 @@ def screen_normal(engine, theta, r, NJ: NormalJacobian, effects, extra_names, ge
         start = gn_start(th, JtC, beta)
         start = engine.with_values(start, alt.start(beta))
         out[eid] = Screened(eid, d, start, th, alt.label)
+    # the screening is the normal Jacobian's last use in a round: its chunks and columns
+    # would otherwise stay resident through the round's candidate fits
+    NJ.release()
     return out
 
 
