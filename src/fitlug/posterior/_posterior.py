@@ -228,6 +228,9 @@ class _Marginal:
             # long recordings: everything below needs J only through J^T J (and J_eta^T r
             # in exact_chi2), accumulated in time chunks; no dense (N x p) Jacobian
             self._plan = chunk_plan(prob.lay)
+            # exact_chi2 holds a batch's residual vectors and their model temporaries
+            # (~5 doubles per residual each): at most LARGE_ENTRIES residuals per batch
+            self.batch = max(1, min(batch, LARGE_ENTRIES // max(n_res, 1)))
             JtJ = np.asarray(_normal(self._args[0], self._args[2], *self._args[3:],
                                      self._plan))
         else:
