@@ -243,3 +243,30 @@ def test_robust_errors_and_systematics_check_in_normal_form_equal_the_dense_ones
     assert np.sqrt(g @ covd @ g) >= np.sqrt(g @ d[0] @ g) * (1 - 1e-9)  # never narrower
     assert np.max(np.abs(r2c - r2d)) < 1e-6 * np.max(np.abs(r - r2d))
     assert np.sum(r2d ** 2) < 0.9 * np.sum(r ** 2)  # the nuisance carries part of the sag
+
+
+def test_posterior_exact_chi2_in_bounded_batches_equals_the_dense_one(sag_fit, monkeypatch):
+    """The posterior's exact marginal chi^2 on the chunked path, in batches capped so that
+    a batch holds at most LARGE_ENTRIES residuals, equals the dense path's (one batch of
+    16 with the dense Jacobian) at the linearity check's points, and the chunked normal
+    matrix gives the same Gaussian limit."""
+    from fitlug.posterior import _posterior
+    from fitlug.posterior._posterior import _Marginal, slip_law_parameters
+
+    res = sag_fit
+    names = slip_law_parameters(res)
+    n_res = len(res.residuals)
+    monkeypatch.setattr(_posterior, "LARGE_ENTRIES", 10 ** 15)
+    dense = _Marginal(res, names, batch=16)
+    monkeypatch.setattr(_posterior, "LARGE_ENTRIES", 3 * n_res)
+    chunked = _Marginal(res, names, batch=16)
+    assert dense._plan is None and chunked._plan is not None
+    assert dense.batch == 16 and chunked.batch == 3  # 3 residual vectors per batch
+    pts = np.vstack([dense.theta_hat, dense.check_points(), dense.theta_hat])
+    assert len(pts) % 3  # the last batch padded
+    cd, cc = dense.exact_chi2(pts), chunked.exact_chi2(pts)
+    assert len(cc) == len(pts)
+    np.testing.assert_allclose(cc, cd, rtol=1e-9)
+    # the chi^2 differences the check uses (a few units) agree far below their size
+    assert np.max(np.abs((cc - cc[0]) - (cd - cd[0]))) < 1e-6
+    np.testing.assert_allclose(chunked.cov, dense.cov, rtol=1e-7)
