@@ -85,8 +85,8 @@ def test_chunked_normal_equations_equal_the_dense_jacobians():
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from test_model import _small_layout
 
-    from fitlug.fit._lsq import (Packing, RowChunks, chunk_plan, chunkable, normal_equations,
-                                 residuals)
+    from fitlug.fit._lsq import (Packing, RowChunks, chunk_plan, chunkable, normal_blocks,
+                                 normal_equations, residuals, time_blocks)
     from fitlug.model.effects import CATALOG
 
     effects = tuple(e for e in CATALOG if e not in ("lug_ripple", "wheel_runout"))
@@ -113,6 +113,17 @@ def test_chunked_normal_equations_equal_the_dense_jacobians():
         assert np.max(np.abs(np.asarray(A) - A0) / scale) < 1e-8, chunk
         assert np.max(np.abs(np.asarray(g) - g0)) < 1e-10 * np.max(np.abs(g0)), chunk
         assert abs(float(chi2) - r @ r) < 1e-10 * (r @ r)
+    # the same sums one time block at a time (padded to one shape; the long recordings'
+    # bounded-memory pass), blocks smaller than a chunk and spanning several
+    for max_rows, chunk in ((len(r) // 4, 7),):
+        blocks = time_blocks(lay, obs, max_rows, chunk, 8)
+        assert blocks is not None and len(blocks.lays) >= 3
+        got = np.sort(np.concatenate(blocks.rows))
+        np.testing.assert_array_equal(got[got >= 0], np.arange(len(r)))  # each row once
+        A, g, chi2 = normal_blocks(flat, fixed, lay, obs, packing, None, blocks)
+        assert np.max(np.abs(A - A0) / scale) < 1e-8, max_rows
+        assert np.max(np.abs(g - g0)) < 1e-10 * np.max(np.abs(g0)), max_rows
+        assert abs(chi2 - r @ r) < 1e-10 * (r @ r)
     # the same rows one time chunk at a time (RowChunks: the explanation's long path)
     for chunk in (9,):
         rc = RowChunks(flat, fixed, lay, obs, packing, chunk_plan(lay, chunk, 8))

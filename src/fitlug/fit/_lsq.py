@@ -386,15 +386,25 @@ def return_freed_memory() -> None:
 def chunk_plan(lay, chunk: int = CHUNK_INTERVALS, margin: int = _MARGIN) -> ChunkPlan:
     """Time chunks of a layout's residual rows ([lug x, lug y, body x, body y])."""
     return_freed_memory()
+    a = _plan_arrays(lay, chunk, margin)
+    return _padded_plan(a, *a["rows"].shape)
+
+
+def _plan_arrays(lay, chunk: int, margin: int) -> dict:
+    """:func:`chunk_plan`'s arrays (numpy): chunks numbered from the first one holding a
+    row (a time block's first chunk may lie far into the grid)."""
+    return_freed_memory()
     grid = np.asarray(lay.grid)
     G = grid.shape[0]
     lt, bt = np.asarray(lay.lug_t), np.asarray(lay.body_t)
     t_row = np.concatenate([lt, lt, bt, bt])
     i0 = np.clip(np.floor((t_row - grid[0]) / lay.h).astype(np.int64), 0, G - 2)
     cid = i0 // chunk
+    c0 = int(cid.min()) if len(cid) else 0
+    cid = cid - c0
     C = int(cid.max()) + 1 if len(cid) else 1
     W = int(min(chunk + 2 * margin + 2, G))
-    ws = np.clip(np.arange(C) * chunk - margin, 0, G - W)
+    ws = np.clip((c0 + np.arange(C)) * chunk - margin, 0, G - W)
     counts = np.bincount(cid, minlength=C)
     R = max(int(counts.max()), 1)
     order = np.argsort(cid, kind="stable")
@@ -404,7 +414,6 @@ def chunk_plan(lay, chunk: int = CHUNK_INTERVALS, margin: int = _MARGIN) -> Chun
     mask = np.zeros((C, R))
     rows[cid[order], pos] = order
     mask[cid[order], pos] = 1.0
-    seg = np.searchsorted(ws, np.arange(G - 1), side="right")
     # the band of spline coefficients whose increments fall inside each window (the
     # rest of a row's kinematic derivative is the window's prefix: rank two per chunk)
     K = int(lay.n_coef)
@@ -414,9 +423,104 @@ def chunk_plan(lay, chunk: int = CHUNK_INTERVALS, margin: int = _MARGIN) -> Chun
     hi = np.maximum(jn[ws + W - 1], jm[np.minimum(ws + W - 2, G - 2)]) + b - 1
     lo, hi = np.clip(lo, 0, K - 1), np.clip(hi, 0, K - 1)
     BW = int(min(K, max(int(np.max(hi - lo)) + 1, 1)))
-    cb = np.clip(lo, 0, K - BW)
+    return {"rows": rows, "mask": mask, "ws": ws, "G": G, "W": W, "BW": BW, "lo": lo, "K": K}
+
+
+def _padded_plan(a: dict, C: int, R: int, BW: int | None = None) -> ChunkPlan:
+    """A :class:`ChunkPlan` of the arrays `a` padded to C chunks of R rows (padding: no
+    rows, windows at the last chunk's)."""
+    c, r = a["rows"].shape
+    rows = np.zeros((C, R), np.int64)
+    mask = np.zeros((C, R))
+    rows[:c, :r], mask[:c, :r] = a["rows"], a["mask"]
+    ws = np.r_[a["ws"], np.full(C - c, a["ws"][-1])]
+    lo = np.r_[a["lo"], np.full(C - c, a["lo"][-1])]
+    seg = np.searchsorted(a["ws"], np.arange(a["G"] - 1), side="right")
+    BW = a["BW"] if BW is None else BW
+    cb = np.clip(lo, 0, a["K"] - BW)
     return ChunkPlan(rows=jnp.asarray(rows), mask=jnp.asarray(mask), ws=jnp.asarray(ws),
-                     seg=jnp.asarray(seg), cb=jnp.asarray(cb), W=W, BW=BW)
+                     seg=jnp.asarray(seg), cb=jnp.asarray(cb), W=a["W"], BW=BW)
+
+
+#: residual rows per time block of a chunked pass: the pass's per-row buffers (residuals,
+#: their X/psi derivatives, the non-kinematic columns and their temporaries: ~30 doubles
+#: a row) are built one block at a time, so its memory stops growing with the recording
+BLOCK_ROWS = 500_000
+
+
+class TimeBlocks(NamedTuple):
+    """A recording's samples cut in time into blocks of equal shape (padded with samples of
+    zero weight), each a problem of its own on the same grid: the Jacobian rows of a sample
+    depend on its own time and marker only, so J^T J, J^T r and chi^2 are the sums of the
+    blocks'. lays/obss/plans: one per block; rows: each block's rows in the full residual
+    vector (-1 for padding)."""
+
+    lays: list
+    obss: list
+    plans: list
+    rows: list
+
+
+def time_blocks(lay, obs: dict, max_rows: int = BLOCK_ROWS,
+                chunk: int = CHUNK_INTERVALS, margin: int = _MARGIN) -> TimeBlocks | None:
+    """:class:`TimeBlocks` of at most about `max_rows` residual rows, or None when the
+    recording fits in one (or a block would hold no lug or no body sample)."""
+    lt, bt = np.asarray(lay.lug_t), np.asarray(lay.body_t)
+    S_l, S_b = len(lt), len(bt)
+    n_res = 2 * (S_l + S_b)
+    nb = -(-n_res // max(int(max_rows), 1))
+    if nb <= 1:
+        return None
+    t_all = np.sort(np.concatenate([lt, bt]))
+    cuts = t_all[(np.arange(1, nb) * len(t_all)) // nb]
+    bl, bb = np.searchsorted(cuts, lt, side="right"), np.searchsorted(cuts, bt, side="right")
+    idx_l = [np.flatnonzero(bl == k) for k in range(nb)]
+    idx_b = [np.flatnonzero(bb == k) for k in range(nb)]
+    if any(len(a) == 0 for a in idx_l + idx_b):
+        return None
+    nl, nbd = max(map(len, idx_l)), max(map(len, idx_b))
+    lug_keys, body_keys = ("lug_x", "lug_y", "lug_w"), ("body_x", "body_y", "body_w")
+    lays, obss, rows, raw = [], [], [], []
+    for il, ib in zip(idx_l, idx_b):
+        # padding: the block's last sample again, with zero weight (rows of zeros)
+        pl, pb = np.r_[il, np.full(nl - len(il), il[-1])], np.r_[ib, np.full(nbd - len(ib), ib[-1])]
+        real_l, real_b = np.arange(nl) < len(il), np.arange(nbd) < len(ib)
+        lay_k = lay.with_times(lay.lug_t[pl], lay.lug_i[pl], lay.body_t[pb], lay.body_j[pb])
+        ob = {k: obs[k][pl] for k in lug_keys}
+        ob.update({k: obs[k][pb] for k in body_keys})
+        ob["lug_w"] = jnp.where(jnp.asarray(real_l), ob["lug_w"], 0.0)
+        ob["body_w"] = jnp.where(jnp.asarray(real_b), ob["body_w"], 0.0)
+        lays.append(lay_k)
+        obss.append(ob)
+        rr = np.concatenate([np.where(real_l, pl, -1), np.where(real_l, S_l + pl, -1),
+                             np.where(real_b, 2 * S_l + pb, -1),
+                             np.where(real_b, 2 * S_l + S_b + pb, -1)])
+        rows.append(rr)
+        raw.append(_plan_arrays(lay_k, chunk, margin))
+    # one shape for every block's plan (one compilation serves them all)
+    C = max(a["rows"].shape[0] for a in raw)
+    R = max(a["rows"].shape[1] for a in raw)
+    BW = max(a["BW"] for a in raw)
+    plans = [_padded_plan(a, C, R, BW) for a in raw]
+    return TimeBlocks(lays, obss, plans, rows)
+
+
+def normal_blocks(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: ChunkPlan,
+                  blocks: TimeBlocks | None = None) -> tuple:
+    """(J^T J, J^T r, chi^2) in numpy from :func:`normal_equations`, one time block at a
+    time when the recording has several (:func:`time_blocks`; pass them when known)."""
+    blocks = time_blocks(lay, obs) if blocks is None else blocks
+    if blocks is None:
+        A, g, c2 = _normal_jit(jnp.asarray(flat), fixed, lay, obs, packing, plan)
+        return np.array(A), np.array(g), float(c2)
+    A = g = None
+    c2 = 0.0
+    for lay_k, ob_k, plan_k in zip(blocks.lays, blocks.obss, blocks.plans):
+        Ak, gk, ck = _normal_jit(jnp.asarray(flat), fixed, lay_k, ob_k, packing, plan_k)
+        A = np.array(Ak) if A is None else A + np.asarray(Ak)
+        g = np.array(gk) if g is None else g + np.asarray(gk)
+        c2 += float(ck)
+    return A, g, c2
 
 
 def chunkable(p: dict, lay, packing: Packing) -> bool:
@@ -809,9 +913,10 @@ def _solve_chunked(flat0, fixed, lay, obs, packing: Packing, plan: ChunkPlan, ma
         pr, pj = _bound_jit(jnp.asarray(f), fixed, packing)
         return np.asarray(pr), np.asarray(pj)
 
+    blocks = time_blocks(lay, obs)  # long recordings: one block's buffers at a time
+
     def ne(f):
-        A, g, c2 = _normal_jit(jnp.asarray(f), fixed, lay, obs, packing, plan)
-        A, g, c2 = np.array(A), np.array(g), float(c2)
+        A, g, c2 = normal_blocks(f, fixed, lay, obs, packing, plan, blocks)
         if bounded:
             pr, pj = bound(f)
             A += pj.T @ pj
