@@ -47,7 +47,7 @@ from .._errors import FitError
 from ..model._physics import C_RR_MIN, beta_max
 from ..model.effects import CATALOG
 from ..fit._lsq import (LARGE_ENTRIES, chunk_plan, chunkable, inverse_norms, jacobian,
-                        normal_equations, residuals)
+                        normal_blocks, normal_equations, residuals)
 from ._identify import not_identifiable
 from ._mcmc import Chain, autocorr_time, run_ensemble
 from ..fit._result import Estimate, FitResult, derived
@@ -231,8 +231,8 @@ class _Marginal:
             # exact_chi2 holds a batch's residual vectors and their model temporaries
             # (~5 doubles per residual each): at most LARGE_ENTRIES residuals per batch
             self.batch = max(1, min(batch, LARGE_ENTRIES // max(n_res, 1)))
-            JtJ = np.asarray(_normal(self._args[0], self._args[2], *self._args[3:],
-                                     self._plan))
+            JtJ = normal_blocks(self._args[0], self._args[2], *self._args[3:],
+                                self._plan)[0]  # by time blocks: bounded buffers
         else:
             # through a module exported to disk: a new process skips its tracing
             (J,) = _exported.call("posterior_jacobian", _jacobian_tuple, (res.packing,),
