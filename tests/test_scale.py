@@ -273,11 +273,21 @@ def test_posterior_exact_chi2_in_bounded_batches_equals_the_dense_one(sag_fit, m
     chunked = _Marginal(res, names, batch=16)
     assert dense._plan is None and chunked._plan is not None
     assert dense.batch == 16 and chunked.batch == 3  # 3 residual vectors per batch
+    # and in time blocks of a quarter of the rows each (batches of 3 blocks' rows)
+    from fitlug.fit import _lsq
+
+    monkeypatch.setattr(_posterior, "LARGE_ENTRIES", n_res)
+    monkeypatch.setattr(_lsq, "BLOCK_ROWS", n_res // 4)
+    blocked = _Marginal(res, names, batch=16)
+    assert blocked._blocks is not None and len(blocked._blocks.lays) >= 4
+    assert blocked.batch >= 3
     pts = np.vstack([dense.theta_hat, dense.check_points(), dense.theta_hat])
     assert len(pts) % 3  # the last batch padded
-    cd, cc = dense.exact_chi2(pts), chunked.exact_chi2(pts)
-    assert len(cc) == len(pts)
-    np.testing.assert_allclose(cc, cd, rtol=1e-9)
-    # the chi^2 differences the check uses (a few units) agree far below their size
-    assert np.max(np.abs((cc - cc[0]) - (cd - cd[0]))) < 1e-6
-    np.testing.assert_allclose(chunked.cov, dense.cov, rtol=1e-7)
+    cd = dense.exact_chi2(pts)
+    for m in (chunked, blocked):
+        cc = m.exact_chi2(pts)
+        assert len(cc) == len(pts)
+        np.testing.assert_allclose(cc, cd, rtol=1e-9)
+        # the chi^2 differences the check uses (a few units) agree far below their size
+        assert np.max(np.abs((cc - cc[0]) - (cd - cd[0]))) < 1e-6
+        np.testing.assert_allclose(m.cov, dense.cov, rtol=1e-7)

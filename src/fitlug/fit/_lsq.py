@@ -461,10 +461,12 @@ class TimeBlocks(NamedTuple):
     rows: list
 
 
-def time_blocks(lay, obs: dict, max_rows: int = BLOCK_ROWS,
+def time_blocks(lay, obs: dict, max_rows: int | None = None,
                 chunk: int = CHUNK_INTERVALS, margin: int = _MARGIN) -> TimeBlocks | None:
-    """:class:`TimeBlocks` of at most about `max_rows` residual rows, or None when the
-    recording fits in one (or a block would hold no lug or no body sample)."""
+    """:class:`TimeBlocks` of at most about `max_rows` (default BLOCK_ROWS) residual rows,
+    or None when the recording fits in one (or a block would hold no lug or no body
+    sample)."""
+    max_rows = BLOCK_ROWS if max_rows is None else max_rows
     lt, bt = np.asarray(lay.lug_t), np.asarray(lay.body_t)
     S_l, S_b = len(lt), len(bt)
     n_res = 2 * (S_l + S_b)
