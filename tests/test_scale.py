@@ -124,9 +124,18 @@ def test_chunked_normal_equations_equal_the_dense_jacobians():
         assert np.max(np.abs(A - A0) / scale) < 1e-8, max_rows
         assert np.max(np.abs(g - g0)) < 1e-10 * np.max(np.abs(g0)), max_rows
         assert abs(chi2 - r @ r) < 1e-10 * (r @ r)
-    # the same rows one time chunk at a time (RowChunks: the explanation's long path)
-    for chunk in (9,):
-        rc = RowChunks(flat, fixed, lay, obs, packing, chunk_plan(lay, chunk, 8))
+    # the same rows one time chunk at a time (RowChunks: the explanation's long path),
+    # also one time block at a time
+    for chunk in (9, "blocks"):
+        rc = (RowChunks(flat, fixed, lay, obs, packing, chunk_plan(lay, chunk, 8))
+              if chunk != "blocks" else
+              RowChunks(flat, fixed, lay, obs, packing,
+                        blocks=time_blocks(lay, obs, len(r) // 4, 7, 8)))
+        if chunk == "blocks":
+            assert len(rc._parts) >= 4
+            Ab, gb = rc.normal()
+            assert np.max(np.abs(Ab - A0) / scale) < 1e-8
+            assert np.max(np.abs(gb[:, 0] - g0)) < 1e-10 * np.max(np.abs(g0))
         seen = np.zeros(len(r), int)
         for rows, Jc in rc:
             seen[rows] += 1
@@ -150,13 +159,17 @@ def sag_fit():
     return fit(rec, rig_of(sc))
 
 
-def _both(monkeypatch, fn):
-    """fn() on the dense path, then on the chunked (long-recording) path."""
+def _both(monkeypatch, fn, block_rows=None):
+    """fn() on the dense path, then on the chunked (long-recording) path, there in time
+    blocks of `block_rows` residual rows when given."""
     from fitlug.explain import _engine
+    from fitlug.fit import _lsq
 
     monkeypatch.setattr(_engine, "CHUNKED_ENTRIES", 10 ** 15)
     dense = fn()
     monkeypatch.setattr(_engine, "CHUNKED_ENTRIES", 0)
+    if block_rows is not None:
+        monkeypatch.setattr(_lsq, "BLOCK_ROWS", block_rows)
     return dense, fn()
 
 
@@ -188,7 +201,7 @@ def test_explanation_engine_in_normal_form_equals_the_dense_engine(sag_fit, monk
         fin = final_fit(res, eng, ["belt_sag"], out.theta)
         return eng.chunked, A, g, Jv, scr, out, fin
 
-    d, c = _both(monkeypatch, run)
+    d, c = _both(monkeypatch, run, block_rows=len(res.residuals) // 3)  # 3-4 time blocks
     assert not d[0] and c[0]
     for k in (1, 2, 3):
         scale = np.max(np.abs(d[k]))
@@ -236,7 +249,7 @@ def test_robust_errors_and_systematics_check_in_normal_form_equal_the_dense_ones
         return (H, _sandwich(J, r, geo.marker, H), _in_time(J, r, geo.t, geo.t_lo, H)[0],
                 _nuisance_fit(res, geo, r))
 
-    d, c = _both(monkeypatch, run)
+    d, c = _both(monkeypatch, run, block_rows=len(res.residuals) // 3)
     fixed_j = {k: jnp.asarray(v, float) for k, v in res.params.items()
                if k not in res.packing.names}
     g = np.asarray(jax.grad(lambda f: derived(res.packing.unpack(f, fixed_j), prob.lay,

@@ -797,31 +797,66 @@ class RowChunks:
     chunks share (linear in the samples). `r` holds the weighted residuals."""
 
     def __init__(self, flat, fixed: dict, lay, obs: dict, packing: Packing,
-                 plan: ChunkPlan | None = None):
-        self.plan = chunk_plan(lay) if plan is None else plan
-        self.lay, self.packing = lay, packing
-        self.prep = _prepare_jit(jnp.asarray(flat), fixed, lay, obs, packing, self.plan)
-        self.r = np.asarray(self.prep["r"])
+                 plan: ChunkPlan | None = None, blocks: TimeBlocks | None | bool = None):
+        # long recordings (no plan given): one time block's shared buffers at a time
+        # (:func:`time_blocks`; `blocks=False` forces one block)
+        if blocks is None and plan is None:
+            blocks = time_blocks(lay, obs)
+        blocks = blocks or None
+        self.flat, self.fixed, self.packing = jnp.asarray(flat), fixed, packing
+        if blocks is None:
+            plan = chunk_plan(lay) if plan is None else plan
+            self._parts = [(lay, obs, plan, None)]
+        else:
+            self._parts = list(zip(blocks.lays, blocks.obss, blocks.plans, blocks.rows))
+        self._cur = (None, None)
+        if blocks is None:
+            self.r = np.asarray(self._prep(0)["r"])
+        else:
+            self.r = np.asarray(_residuals_jit(self.flat, fixed, lay, obs, packing))
         self.n_par = int(sum(packing.sizes))
-        self._rows = np.asarray(self.plan.rows)
-        self._mask = np.asarray(self.plan.mask) > 0
+        self._C = int(self._parts[0][2].rows.shape[0])  # chunks per part (one shape)
+        self._rows, self._keep = [], []
+        for lay_k, _, plan_k, glob in self._parts:
+            rows = np.asarray(plan_k.rows)
+            keep = np.asarray(plan_k.mask) > 0
+            if glob is not None:  # block rows -> rows of the whole recording
+                rows = glob[rows]
+                keep &= rows >= 0
+            self._rows.append(rows)
+            self._keep.append(keep)
         sl = packing.slices()
         self._kin_pos = np.r_[np.arange(sl["v"].start, sl["v"].stop), sl["s0"].start,
                               sl["beta"].start]
 
+    def _prep(self, k: int) -> dict:
+        """The shared buffers of part k (the last part's are dropped)."""
+        if self._cur[0] != k:
+            self._cur = (None, None)
+            lay_k, obs_k, plan_k, _ = self._parts[k]
+            self._cur = (k, _prepare_jit(self.flat, self.fixed, lay_k, obs_k, self.packing,
+                                         plan_k))
+        return self._cur[1]
+
+    @property
+    def plan(self) -> ChunkPlan:
+        return self._parts[0][2]
+
     @property
     def n_chunks(self) -> int:
-        return int(self._rows.shape[0])
+        return self._C * len(self._parts)
 
     def chunk(self, c: int):
         """(rows, J_rows) of chunk c, or None when it holds no rows."""
-        keep = self._mask[c]
+        k, j = divmod(c, self._C)
+        keep = self._keep[k][j]
         if not keep.any():
             return None
-        pl = self.plan
-        Jc = _chunk_jit(self.prep, self.lay, self.packing, pl.W, pl.rows[c], pl.mask[c],
-                        pl.ws[c], self.prep["preX"][c], self.prep["preP"][c])
-        return self._rows[c][keep], np.asarray(Jc)[keep]
+        lay_k, _, pl, _ = self._parts[k]
+        prep = self._prep(k)
+        Jc = _chunk_jit(prep, lay_k, self.packing, pl.W, pl.rows[j], pl.mask[j], pl.ws[j],
+                        prep["preX"][j], prep["preP"][j])
+        return self._rows[k][j][keep], np.asarray(Jc)[keep]
 
     def __iter__(self):
         for c in range(self.n_chunks):
@@ -839,14 +874,15 @@ class RowChunks:
     def factors(self, c: int):
         """Chunk c as (rows, U, P, L, pos): its rows are U P^T on the kinematic columns
         plus L on the columns pos (see :func:`normal_equations`); None without rows."""
-        keep = self._mask[c]
+        k, j = divmod(c, self._C)
+        keep = self._keep[k][j]
         if not keep.any():
             return None
-        pl = self.plan
-        U, P, L, pos = _factors_jit(self.prep, self.lay, self.packing, pl, pl.rows[c],
-                                    pl.mask[c], pl.ws[c], pl.cb[c], self.prep["preX"][c],
-                                    self.prep["preP"][c])
-        return (self._rows[c][keep], np.asarray(U)[keep], np.asarray(P),
+        lay_k, _, pl, _ = self._parts[k]
+        prep = self._prep(k)
+        U, P, L, pos = _factors_jit(prep, lay_k, self.packing, pl, pl.rows[j], pl.mask[j],
+                                    pl.ws[j], pl.cb[j], prep["preX"][j], prep["preP"][j])
+        return (self._rows[k][j][keep], np.asarray(U)[keep], np.asarray(P),
                 np.asarray(L)[keep], np.asarray(pos))
 
     def normal(self, V=None, with_A: bool = True):
