@@ -304,3 +304,29 @@ def test_posterior_exact_chi2_in_bounded_batches_equals_the_dense_one(sag_fit, m
         # the chi^2 differences the check uses (a few units) agree far below their size
         assert np.max(np.abs((cc - cc[0]) - (cd - cd[0]))) < 1e-6
         np.testing.assert_allclose(m.cov, dense.cov, rtol=1e-7)
+
+
+def test_engine_residuals_by_time_blocks_equal_the_whole_batch(sag_fit, monkeypatch):
+    """A long recording's engine integrates a full batch once and evaluates the samples by
+    time blocks: the same residuals as the whole-recording batch, with effects that map
+    the time stamps, bend the path and modulate the speed (the integration's scan)."""
+    from fitlug.explain import _engine
+    from fitlug.explain._engine import CHUNK, Engine
+
+    res = sag_fit
+    eng0 = Engine(res)
+    assert eng0.blocks is None and eng0.batch == CHUNK
+    n_res = len(res.residuals)
+    monkeypatch.setattr(_engine, "BATCH_ENTRIES", n_res)  # whole-recording batch of one
+    eng = Engine(res)
+    assert eng.blocks is not None and len(eng.blocks.lays) >= 6 and eng.batch == CHUNK
+    th = eng.theta0
+    t_mid = float(np.median(np.asarray(res.problem.lay.lug_t)))
+    moved = [th, eng.with_values(th, {"sag_d": 0.3}),
+             eng.with_values(th, {"drop_dt": 0.004, "drop_tstar": t_mid}),
+             eng.with_values(th, {"ripple_a": 0.02, "ripple_b": -0.01, "slide_mu": 0.3})]
+    thetas = np.array([m for m in moved for _ in range(3)])  # 12: a batch and a padded one
+    R0, R = eng0.residuals(thetas), eng.residuals(thetas)
+    assert R.shape == R0.shape == (12, n_res)
+    assert np.max(np.abs(R - R0)) < 1e-10 * np.max(np.abs(R0))
+    assert np.max(np.abs(R0[3] - R0[0])) > 1.0  # the effects act
