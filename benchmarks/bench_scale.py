@@ -26,6 +26,10 @@ cold first run of a new installation (FITLUG_CACHE_DIR set to an empty folder).
     python benchmarks/bench_scale.py                    # the full ladder (long: quiet machine)
     python benchmarks/bench_scale.py --frames 2000 10000 --stages simulate lsq
 
+FITLUG_BENCH_RSS_TRACE=PREFIX makes every stage's process sample its resident memory and
+its fitlug call stack in a thread (PREFIX.STAGE.FRAMES.txt: the peak and where it was, the
+growth and the time by stack, a timeline), to find what holds the memory.
+
 Stages of one size run one after another (each needs the simulated recording); sizes run
 in parallel with --workers N (separate processes; memory figures then share the machine).
 """

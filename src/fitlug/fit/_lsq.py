@@ -17,7 +17,8 @@ than jacfwd); the start scaling, the covariance and the explanation engine use i
 Long recordings (the dense Jacobian above LARGE_ENTRIES entries) never form J: their LM
 runs on J^T J and J^T r accumulated in time chunks (:func:`normal_equations`), same
 optimum (1.7e-10 relative in the parameters on the reference recording), memory linear
-in the samples.
+in the samples. Above BLOCK_ROWS residual rows the passes run by time blocks
+(:func:`time_blocks`): the per-row buffers of one block at a time, the sums unchanged.
 """
 
 from __future__ import annotations
