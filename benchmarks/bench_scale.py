@@ -26,6 +26,10 @@ cold first run of a new installation (FITLUG_CACHE_DIR set to an empty folder).
     python benchmarks/bench_scale.py                    # the full ladder (long: quiet machine)
     python benchmarks/bench_scale.py --frames 2000 10000 --stages simulate lsq
 
+FITLUG_BENCH_RSS_TRACE=PREFIX makes every stage's process sample its resident memory and
+its fitlug call stack in a thread (PREFIX.STAGE.FRAMES.txt: the peak and where it was, the
+growth and the time by stack, a timeline), to find what holds the memory.
+
 Stages of one size run one after another (each needs the simulated recording); sizes run
 in parallel with --workers N (separate processes; memory figures then share the machine).
 """
@@ -66,9 +70,87 @@ def scenario_for(frames: int) -> dict:
 
 
 # --------------------------------------------------------------------------- workers
+class RssTrace:
+    """Samples this process's VmRSS and the main thread's fitlug stack in a thread.
+
+    Set FITLUG_BENCH_RSS_TRACE=PREFIX to write to PREFIX.STAGE.FRAMES.txt, at the end of a worker, the samples around the
+    peak and the stacks where the resident memory grew most (JAX's buffers included, which
+    tracemalloc does not see). A diagnosis aid; off by default."""
+
+    def __init__(self, path: str, every_s: float = 0.05):
+        import threading
+
+        self.path, self.every = path, every_s
+        self.samples = []  # (t, rss bytes, stack string)
+        self.main = threading.main_thread().ident
+        self.stop = threading.Event()
+        self.t0 = time.perf_counter()
+        self.th = threading.Thread(target=self._run, daemon=True)
+        self.th.start()
+
+    @staticmethod
+    def rss() -> int:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) * 1024
+        return 0
+
+    def _stack(self) -> str:
+        f = sys._current_frames().get(self.main)
+        parts = []
+        while f is not None:
+            fn = f.f_code.co_filename
+            if "fitlug" in fn or "bench_scale" in fn:
+                parts.append(f"{os.path.basename(fn)}:{f.f_lineno}:{f.f_code.co_name}")
+            f = f.f_back
+        return " < ".join(parts[:8])
+
+    def _run(self):
+        while not self.stop.wait(self.every):
+            try:
+                st = self._stack()
+            except Exception as exc:  # a frame torn down while read: keep sampling
+                st = f"<{type(exc).__name__}>"
+            self.samples.append((time.perf_counter() - self.t0, self.rss(), st))
+
+    def write(self):
+        self.stop.set()
+        self.th.join()
+        s = self.samples
+        if not s:
+            return
+        peak_i = max(range(len(s)), key=lambda i: s[i][1])
+        growth = {}
+        for a, b in zip(s, s[1:]):
+            if b[1] > a[1]:
+                growth[b[2]] = growth.get(b[2], 0) + b[1] - a[1]
+        with open(self.path, "w", encoding="utf-8") as fh:
+            fh.write(f"peak {s[peak_i][1] / GB:.3f} GB at {s[peak_i][0]:.1f} s: {s[peak_i][2]}\n")
+            fh.write("largest RSS growth by stack (MB):\n")
+            for k, v in sorted(growth.items(), key=lambda kv: -kv[1])[:25]:
+                fh.write(f"  {v / 2 ** 20:9.1f}  {k}\n")
+            fh.write("time by stack (s; innermost fitlug frames):\n")
+            spent = {}
+            for a, b in zip(s, s[1:]):
+                for depth in (1, 3):
+                    key = " < ".join(b[2].split(" < ")[:depth])
+                    spent[key] = spent.get(key, 0.0) + b[0] - a[0]
+            for k, v in sorted(spent.items(), key=lambda kv: -kv[1])[:30]:
+                fh.write(f"  {v:8.1f}  {k}\n")
+            fh.write("timeline (every ~1 s: t, GB, stack):\n")
+            last = -1.0
+            for t, r, st in s:
+                if t - last >= 1.0:
+                    fh.write(f"  {t:7.1f} {r / GB:6.3f}  {st}\n")
+                    last = t
+
+
 def _worker(stage: str, folder: str, frames: int, budget: float) -> dict:
     """Run one stage in this (fresh) process; returns its timings and peak memory."""
     sys.path.insert(0, SRC)
+    trace = (RssTrace(f"{os.environ['FITLUG_BENCH_RSS_TRACE']}.{stage}.{frames}.txt")
+             if os.environ.get("FITLUG_BENCH_RSS_TRACE") else None)
     t0 = time.perf_counter()
     extra = {}
     csv = os.path.join(folder, "trajectories.csv")
@@ -120,6 +202,8 @@ def _worker(stage: str, folder: str, frames: int, budget: float) -> dict:
         stage_s = time.perf_counter() - t1 if stage != "lsq" else None
     total = time.perf_counter() - t0
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024.0  # Linux: KiB
+    if trace is not None:
+        trace.write()
     return {"stage": stage, "frames": frames, "time_s": stage_s if stage_s is not None else total,
             "process_s": total, "peak_bytes": peak, **extra}
 

@@ -85,8 +85,8 @@ def test_chunked_normal_equations_equal_the_dense_jacobians():
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from test_model import _small_layout
 
-    from fitlug.fit._lsq import (Packing, RowChunks, chunk_plan, chunkable, normal_equations,
-                                 residuals)
+    from fitlug.fit._lsq import (Packing, RowChunks, chunk_plan, chunkable, normal_blocks,
+                                 normal_equations, residuals, time_blocks)
     from fitlug.model.effects import CATALOG
 
     effects = tuple(e for e in CATALOG if e not in ("lug_ripple", "wheel_runout"))
@@ -113,9 +113,29 @@ def test_chunked_normal_equations_equal_the_dense_jacobians():
         assert np.max(np.abs(np.asarray(A) - A0) / scale) < 1e-8, chunk
         assert np.max(np.abs(np.asarray(g) - g0)) < 1e-10 * np.max(np.abs(g0)), chunk
         assert abs(float(chi2) - r @ r) < 1e-10 * (r @ r)
-    # the same rows one time chunk at a time (RowChunks: the explanation's long path)
-    for chunk in (9,):
-        rc = RowChunks(flat, fixed, lay, obs, packing, chunk_plan(lay, chunk, 8))
+    # the same sums one time block at a time (padded to one shape; the long recordings'
+    # bounded-memory pass), blocks smaller than a chunk and spanning several
+    for max_rows, chunk in ((len(r) // 4, 7),):
+        blocks = time_blocks(lay, obs, max_rows, chunk, 8)
+        assert blocks is not None and len(blocks.lays) >= 3
+        got = np.sort(np.concatenate(blocks.rows))
+        np.testing.assert_array_equal(got[got >= 0], np.arange(len(r)))  # each row once
+        A, g, chi2 = normal_blocks(flat, fixed, lay, obs, packing, None, blocks)
+        assert np.max(np.abs(A - A0) / scale) < 1e-8, max_rows
+        assert np.max(np.abs(g - g0)) < 1e-10 * np.max(np.abs(g0)), max_rows
+        assert abs(chi2 - r @ r) < 1e-10 * (r @ r)
+    # the same rows one time chunk at a time (RowChunks: the explanation's long path),
+    # also one time block at a time
+    for chunk in (9, "blocks"):
+        rc = (RowChunks(flat, fixed, lay, obs, packing, chunk_plan(lay, chunk, 8))
+              if chunk != "blocks" else
+              RowChunks(flat, fixed, lay, obs, packing,
+                        blocks=time_blocks(lay, obs, len(r) // 4, 7, 8)))
+        if chunk == "blocks":
+            assert len(rc._parts) >= 4
+            Ab, gb = rc.normal()
+            assert np.max(np.abs(Ab - A0) / scale) < 1e-8
+            assert np.max(np.abs(gb[:, 0] - g0)) < 1e-10 * np.max(np.abs(g0))
         seen = np.zeros(len(r), int)
         for rows, Jc in rc:
             seen[rows] += 1
@@ -139,13 +159,17 @@ def sag_fit():
     return fit(rec, rig_of(sc))
 
 
-def _both(monkeypatch, fn):
-    """fn() on the dense path, then on the chunked (long-recording) path."""
+def _both(monkeypatch, fn, block_rows=None):
+    """fn() on the dense path, then on the chunked (long-recording) path, there in time
+    blocks of `block_rows` residual rows when given."""
     from fitlug.explain import _engine
+    from fitlug.fit import _lsq
 
     monkeypatch.setattr(_engine, "CHUNKED_ENTRIES", 10 ** 15)
     dense = fn()
     monkeypatch.setattr(_engine, "CHUNKED_ENTRIES", 0)
+    if block_rows is not None:
+        monkeypatch.setattr(_lsq, "BLOCK_ROWS", block_rows)
     return dense, fn()
 
 
@@ -175,10 +199,11 @@ def test_explanation_engine_in_normal_form_equals_the_dense_engine(sag_fit, monk
         scr = screen(eng, th, r, eng.jacobian(th, []), cands, [], geo)
         out = eng.fit(scr["belt_sag"].theta_start, eng.free_names("belt_sag"))
         fin = final_fit(res, eng, ["belt_sag"], out.theta)
-        return eng.chunked, A, g, Jv, scr, out, fin
+        parts = None if isinstance(J, np.ndarray) else len(J.chunks._parts)
+        return eng.chunked, A, g, Jv, scr, out, fin, parts
 
-    d, c = _both(monkeypatch, run)
-    assert not d[0] and c[0]
+    d, c = _both(monkeypatch, run, block_rows=len(res.residuals) // 3)  # 3-4 time blocks
+    assert not d[0] and c[0] and c[7] >= 3
     for k in (1, 2, 3):
         scale = np.max(np.abs(d[k]))
         np.testing.assert_allclose(c[k], d[k], rtol=1e-8, atol=1e-10 * scale)
@@ -225,7 +250,7 @@ def test_robust_errors_and_systematics_check_in_normal_form_equal_the_dense_ones
         return (H, _sandwich(J, r, geo.marker, H), _in_time(J, r, geo.t, geo.t_lo, H)[0],
                 _nuisance_fit(res, geo, r))
 
-    d, c = _both(monkeypatch, run)
+    d, c = _both(monkeypatch, run, block_rows=len(res.residuals) // 3)
     fixed_j = {k: jnp.asarray(v, float) for k, v in res.params.items()
                if k not in res.packing.names}
     g = np.asarray(jax.grad(lambda f: derived(res.packing.unpack(f, fixed_j), prob.lay,
@@ -243,3 +268,66 @@ def test_robust_errors_and_systematics_check_in_normal_form_equal_the_dense_ones
     assert np.sqrt(g @ covd @ g) >= np.sqrt(g @ d[0] @ g) * (1 - 1e-9)  # never narrower
     assert np.max(np.abs(r2c - r2d)) < 1e-6 * np.max(np.abs(r - r2d))
     assert np.sum(r2d ** 2) < 0.9 * np.sum(r ** 2)  # the nuisance carries part of the sag
+
+
+def test_posterior_exact_chi2_in_bounded_batches_equals_the_dense_one(sag_fit, monkeypatch):
+    """The posterior's exact marginal chi^2 on the chunked path, in batches capped so that
+    a batch holds at most LARGE_ENTRIES residuals, equals the dense path's (one batch of
+    16 with the dense Jacobian) at the linearity check's points, and the chunked normal
+    matrix gives the same Gaussian limit."""
+    from fitlug.posterior import _posterior
+    from fitlug.posterior._posterior import _Marginal, slip_law_parameters
+
+    res = sag_fit
+    names = slip_law_parameters(res)
+    n_res = len(res.residuals)
+    monkeypatch.setattr(_posterior, "LARGE_ENTRIES", 10 ** 15)
+    dense = _Marginal(res, names, batch=16)
+    monkeypatch.setattr(_posterior, "LARGE_ENTRIES", 3 * n_res)
+    chunked = _Marginal(res, names, batch=16)
+    assert dense._plan is None and chunked._plan is not None
+    assert dense.batch == 16 and chunked.batch == 3  # 3 residual vectors per batch
+    # and in time blocks of a quarter of the rows each (batches of 3 blocks' rows)
+    from fitlug.fit import _lsq
+
+    monkeypatch.setattr(_posterior, "LARGE_ENTRIES", n_res)
+    monkeypatch.setattr(_lsq, "BLOCK_ROWS", n_res // 4)
+    blocked = _Marginal(res, names, batch=16)
+    assert blocked._blocks is not None and len(blocked._blocks.lays) >= 4
+    assert blocked.batch >= 3
+    pts = np.vstack([dense.theta_hat, dense.check_points(), dense.theta_hat])
+    assert len(pts) % 3  # the last batch padded
+    cd = dense.exact_chi2(pts)
+    for m in (chunked, blocked):
+        cc = m.exact_chi2(pts)
+        assert len(cc) == len(pts)
+        np.testing.assert_allclose(cc, cd, rtol=1e-9)
+        # the chi^2 differences the check uses (a few units) agree far below their size
+        assert np.max(np.abs((cc - cc[0]) - (cd - cd[0]))) < 1e-6
+        np.testing.assert_allclose(m.cov, dense.cov, rtol=1e-7)
+
+
+def test_engine_residuals_by_time_blocks_equal_the_whole_batch(sag_fit, monkeypatch):
+    """A long recording's engine integrates a full batch once and evaluates the samples by
+    time blocks: the same residuals as the whole-recording batch, with effects that map
+    the time stamps, bend the path and modulate the speed (the integration's scan)."""
+    from fitlug.explain import _engine
+    from fitlug.explain._engine import CHUNK, Engine
+
+    res = sag_fit
+    eng0 = Engine(res)
+    assert eng0.blocks is None and eng0.batch == CHUNK
+    n_res = len(res.residuals)
+    monkeypatch.setattr(_engine, "BATCH_ENTRIES", n_res)  # whole-recording batch of one
+    eng = Engine(res)
+    assert eng.blocks is not None and len(eng.blocks.lays) >= 6 and eng.batch == CHUNK
+    th = eng.theta0
+    t_mid = float(np.median(np.asarray(res.problem.lay.lug_t)))
+    moved = [th, eng.with_values(th, {"sag_d": 0.3}),
+             eng.with_values(th, {"drop_dt": 0.004, "drop_tstar": t_mid}),
+             eng.with_values(th, {"ripple_a": 0.02, "ripple_b": -0.01, "slide_mu": 0.3})]
+    thetas = np.array([m for m in moved for _ in range(3)])  # 12: a batch and a padded one
+    R0, R = eng0.residuals(thetas), eng.residuals(thetas)
+    assert R.shape == R0.shape == (12, n_res)
+    assert np.max(np.abs(R - R0)) < 1e-10 * np.max(np.abs(R0))
+    assert np.max(np.abs(R0[3] - R0[0])) > 1.0  # the effects act

@@ -35,7 +35,7 @@ import numpy as np
 
 from .. import _jaxconfig  # noqa: F401
 from ..fit import residuals
-from ..fit._lsq import LARGE_ENTRIES, Packing, RowChunks, chunkable, jacobian
+from ..fit._lsq import LARGE_ENTRIES, Packing, RowChunks, chunkable, jacobian, time_blocks
 from ..model import CATALOG, param_names
 
 COUPLED = ("s0", "beta", "R", "D", "e", "x_off", "y_off")
@@ -45,8 +45,11 @@ _BASE_STEPS = {"s0": 1e-5, "beta": 1e-9, "R": 1e-4, "D": 1e-4, "e": 1e-4, "x_off
 _LAMBDAS = np.array([0.0, 1e-6, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0])
 #: dense Jacobian entries above which the engine works on chunked normal equations
 CHUNKED_ENTRIES = LARGE_ENTRIES
-#: residual entries per batched model evaluation (the batch shrinks on long recordings)
+#: residual entries per batched model evaluation (the batch shrinks on long recordings,
+#: or, where time blocks apply, the samples' part runs in blocks of BATCH_ENTRIES / CHUNK)
 BATCH_ENTRIES = 4_000_000
+#: residual entries a batch's output may hold on the blocked path (128 MB)
+RESULT_ENTRIES = 16_000_000
 
 
 def use_chunks(lay, packing, params) -> bool:
@@ -112,6 +115,15 @@ class NormalJacobian:
         self.A = A
         self.g = self._assemble(JbW[:, F.shape[1]:], F.T @ r[:, None])[:, 0]  # J^T r
         self.shape = (len(r), self.n)
+
+    def normal(self) -> tuple:
+        """(J^T J, J^T r)."""
+        return self.A, self.g
+
+    def release(self) -> None:
+        """Drop the time chunks and the difference columns (memory linear in the samples),
+        keeping J^T J and J^T r; :meth:`Jt` and :meth:`suffix_projections` are gone."""
+        self.chunks = self.F = None
 
     def _assemble(self, JbV, FtV):
         out = np.zeros((self.n, JbV.shape[1]))
@@ -180,6 +192,27 @@ def _res_batch(flats, packing, lay, obs):
 
 
 @partial(jax.jit, static_argnames=("packing",))
+def _nodes_batch(flats, packing, lay):
+    """The node values of the integration, (X, psi, dX/dt, dpsi/dt) each (B, G)."""
+    from ..model._model import integrate
+
+    return jax.vmap(lambda f: integrate(packing.unpack(f, {}), lay))(flats)
+
+
+@partial(jax.jit, static_argnames=("packing",))
+def _res_from_nodes(flats, nodes, packing, lay, obs):
+    """:func:`_res_batch` of the samples of `lay` (a time block) from the node values."""
+    from ..fit._lsq import _weighted
+    from ..model._model import positions, sampled_from_nodes
+
+    def one(f, *nd):
+        p = packing.unpack(f, {})
+        return _weighted(positions(p, lay, *sampled_from_nodes(p, lay, nd)), obs)
+
+    return jax.vmap(one)(flats, *nodes)
+
+
+@partial(jax.jit, static_argnames=("packing",))
 def _jac_block(flat, fixed, packing, lay, obs):
     return jacobian(flat, fixed, lay, obs, packing)  # structured: same values as jacfwd
 
@@ -220,7 +253,18 @@ class Engine:
                               if sl.stop - sl.start == 1}
         self.evaluations = 0
         n_res = 2 * (self.obs["lug_w"].shape[0] + self.obs["body_w"].shape[0])
+        self.n_res = n_res
         self.batch = int(max(1, min(CHUNK, BATCH_ENTRIES // max(n_res, 1))))
+        self.blocks = None
+        if self.batch < CHUNK:
+            # long recordings: the batch stays CHUNK wide (the integration's sequential
+            # scan over the grid costs about as much for one lane as for eight) as long as
+            # its residual vectors stay under RESULT_ENTRIES; the samples' part of the
+            # model, whose temporaries grow with the samples, runs by time blocks
+            blocks = time_blocks(self.lay_all, self.obs, max_rows=BATCH_ENTRIES // CHUNK)
+            if blocks is not None:
+                self.blocks = blocks
+                self.batch = int(max(1, min(CHUNK, RESULT_ENTRIES // max(n_res, 1))))
         self.chunked = use_chunks(prob.lay, res.packing, res.params)
 
     # ---- parameter bookkeeping -------------------------------------------------------
@@ -275,10 +319,25 @@ class Engine:
         for i in range(0, len(thetas), B):
             blk = thetas[i:i + B]
             pad = np.vstack([blk, np.repeat(blk[-1:], B - len(blk), 0)])
-            r = np.asarray(_res_batch(jnp.asarray(pad), self.packing, self.lay_all, self.obs))
+            if self.blocks is None:
+                r = np.asarray(_res_batch(jnp.asarray(pad), self.packing, self.lay_all,
+                                          self.obs))
+            else:
+                r = self._blocked_residuals(jnp.asarray(pad))
             out.append(r[:len(blk)])
             self.evaluations += len(blk)
         return np.vstack(out)
+
+    def _blocked_residuals(self, pad) -> np.ndarray:
+        """:func:`_res_batch` on a long recording: one integration for the batch, the
+        samples by time blocks."""
+        nodes = _nodes_batch(pad, self.packing, self.lay_all)
+        out = np.empty((pad.shape[0], self.n_res))
+        for lay_k, obs_k, rows_k in zip(self.blocks.lays, self.blocks.obss, self.blocks.rows):
+            rk = np.asarray(_res_from_nodes(pad, nodes, self.packing, lay_k, obs_k))
+            real = rows_k >= 0
+            out[:, rows_k[real]] = rk[:, real]
+        return out
 
     def chi2_best(self, thetas) -> tuple:
         """(chi^2 of each vector (inf where not finite), index of the lowest, its residuals),
@@ -399,8 +458,9 @@ class Engine:
         for it in range(1, max_iter + 1):
             if stale:
                 if self.chunked:
-                    NJ = self.jacobian(theta, extra, r)
-                    A, g = NJ.A, NJ.g
+                    # only J^T J and J^T r are needed: the chunks and the difference
+                    # columns (tens of doubles per residual) go before the next step's
+                    A, g = self.jacobian(theta, extra, r).normal()
                 else:
                     J = self.jacobian(theta, extra)
                     A = J.T @ J
@@ -492,6 +552,9 @@ def screen_normal(engine, theta, r, NJ: NormalJacobian, effects, extra_names, ge
         start = gn_start(th, JtC, beta)
         start = engine.with_values(start, alt.start(beta))
         out[eid] = Screened(eid, d, start, th, alt.label)
+    # the screening is the normal Jacobian's last use in a round: its chunks and columns
+    # would otherwise stay resident through the round's candidate fits
+    NJ.release()
     return out
 
 

@@ -17,7 +17,8 @@ than jacfwd); the start scaling, the covariance and the explanation engine use i
 Long recordings (the dense Jacobian above LARGE_ENTRIES entries) never form J: their LM
 runs on J^T J and J^T r accumulated in time chunks (:func:`normal_equations`), same
 optimum (1.7e-10 relative in the parameters on the reference recording), memory linear
-in the samples.
+in the samples. Above BLOCK_ROWS residual rows the passes run by time blocks
+(:func:`time_blocks`): the per-row buffers of one block at a time, the sums unchanged.
 """
 
 from __future__ import annotations
@@ -356,17 +357,55 @@ class ChunkPlan(eqx.Module):
     BW: int = eqx.field(static=True)  # spline coefficients a window's rows touch locally
 
 
+_MMAP_THRESHOLD = 1 << 20
+_heap_set = False
+
+
+def return_freed_memory() -> None:
+    """Make glibc serve blocks of 1 MiB and more by mmap, so that they go back to the
+    system when freed (process-wide, once; nothing elsewhere than glibc).
+
+    A long recording's passes allocate and free tens to hundreds of MB per call (XLA's
+    temporaries, the chunk buffers, the engine's residual batches); with glibc's adaptive
+    threshold those end up in the heap once one of them has been freed, and the heap's
+    fragments stay resident: measured on the 10 000-frame explanation, the peak fell from
+    1.25 to 1.01 GB with this threshold (MALLOC_MMAP_THRESHOLD_). Called by every
+    chunked path (:func:`chunk_plan`)."""
+    global _heap_set
+    if _heap_set:
+        return
+    _heap_set = True
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None)
+        libc.mallopt(-3, _MMAP_THRESHOLD)  # M_MMAP_THRESHOLD
+    except (OSError, AttributeError, TypeError):  # not glibc: leave the allocator alone
+        pass
+
+
 def chunk_plan(lay, chunk: int = CHUNK_INTERVALS, margin: int = _MARGIN) -> ChunkPlan:
     """Time chunks of a layout's residual rows ([lug x, lug y, body x, body y])."""
+    return_freed_memory()
+    a = _plan_arrays(lay, chunk, margin)
+    return _padded_plan(a, *a["rows"].shape)
+
+
+def _plan_arrays(lay, chunk: int, margin: int) -> dict:
+    """:func:`chunk_plan`'s arrays (numpy): chunks numbered from the first one holding a
+    row (a time block's first chunk may lie far into the grid)."""
+    return_freed_memory()
     grid = np.asarray(lay.grid)
     G = grid.shape[0]
     lt, bt = np.asarray(lay.lug_t), np.asarray(lay.body_t)
     t_row = np.concatenate([lt, lt, bt, bt])
     i0 = np.clip(np.floor((t_row - grid[0]) / lay.h).astype(np.int64), 0, G - 2)
     cid = i0 // chunk
+    c0 = int(cid.min()) if len(cid) else 0
+    cid = cid - c0
     C = int(cid.max()) + 1 if len(cid) else 1
     W = int(min(chunk + 2 * margin + 2, G))
-    ws = np.clip(np.arange(C) * chunk - margin, 0, G - W)
+    ws = np.clip((c0 + np.arange(C)) * chunk - margin, 0, G - W)
     counts = np.bincount(cid, minlength=C)
     R = max(int(counts.max()), 1)
     order = np.argsort(cid, kind="stable")
@@ -376,7 +415,6 @@ def chunk_plan(lay, chunk: int = CHUNK_INTERVALS, margin: int = _MARGIN) -> Chun
     mask = np.zeros((C, R))
     rows[cid[order], pos] = order
     mask[cid[order], pos] = 1.0
-    seg = np.searchsorted(ws, np.arange(G - 1), side="right")
     # the band of spline coefficients whose increments fall inside each window (the
     # rest of a row's kinematic derivative is the window's prefix: rank two per chunk)
     K = int(lay.n_coef)
@@ -386,9 +424,106 @@ def chunk_plan(lay, chunk: int = CHUNK_INTERVALS, margin: int = _MARGIN) -> Chun
     hi = np.maximum(jn[ws + W - 1], jm[np.minimum(ws + W - 2, G - 2)]) + b - 1
     lo, hi = np.clip(lo, 0, K - 1), np.clip(hi, 0, K - 1)
     BW = int(min(K, max(int(np.max(hi - lo)) + 1, 1)))
-    cb = np.clip(lo, 0, K - BW)
+    return {"rows": rows, "mask": mask, "ws": ws, "G": G, "W": W, "BW": BW, "lo": lo, "K": K}
+
+
+def _padded_plan(a: dict, C: int, R: int, BW: int | None = None) -> ChunkPlan:
+    """A :class:`ChunkPlan` of the arrays `a` padded to C chunks of R rows (padding: no
+    rows, windows at the last chunk's)."""
+    c, r = a["rows"].shape
+    rows = np.zeros((C, R), np.int64)
+    mask = np.zeros((C, R))
+    rows[:c, :r], mask[:c, :r] = a["rows"], a["mask"]
+    ws = np.r_[a["ws"], np.full(C - c, a["ws"][-1])]
+    lo = np.r_[a["lo"], np.full(C - c, a["lo"][-1])]
+    seg = np.searchsorted(a["ws"], np.arange(a["G"] - 1), side="right")
+    BW = a["BW"] if BW is None else BW
+    cb = np.clip(lo, 0, a["K"] - BW)
     return ChunkPlan(rows=jnp.asarray(rows), mask=jnp.asarray(mask), ws=jnp.asarray(ws),
-                     seg=jnp.asarray(seg), cb=jnp.asarray(cb), W=W, BW=BW)
+                     seg=jnp.asarray(seg), cb=jnp.asarray(cb), W=a["W"], BW=BW)
+
+
+#: residual rows per time block of a chunked pass: the pass's per-row buffers (residuals,
+#: their X/psi derivatives, the non-kinematic columns and their temporaries: ~30 doubles
+#: a row) are built one block at a time, so its memory stops growing with the recording
+BLOCK_ROWS = 500_000
+
+
+class TimeBlocks(NamedTuple):
+    """A recording's samples cut in time into blocks of equal shape (padded with samples of
+    zero weight), each a problem of its own on the same grid: the Jacobian rows of a sample
+    depend on its own time and marker only, so J^T J, J^T r and chi^2 are the sums of the
+    blocks'. lays/obss/plans: one per block; rows: each block's rows in the full residual
+    vector (-1 for padding)."""
+
+    lays: list
+    obss: list
+    plans: list
+    rows: list
+
+
+def time_blocks(lay, obs: dict, max_rows: int | None = None,
+                chunk: int = CHUNK_INTERVALS, margin: int = _MARGIN) -> TimeBlocks | None:
+    """:class:`TimeBlocks` of at most about `max_rows` (default BLOCK_ROWS) residual rows,
+    or None when the recording fits in one (or a block would hold no lug or no body
+    sample)."""
+    max_rows = BLOCK_ROWS if max_rows is None else max_rows
+    lt, bt = np.asarray(lay.lug_t), np.asarray(lay.body_t)
+    S_l, S_b = len(lt), len(bt)
+    n_res = 2 * (S_l + S_b)
+    nb = -(-n_res // max(int(max_rows), 1))
+    if nb <= 1:
+        return None
+    t_all = np.sort(np.concatenate([lt, bt]))
+    cuts = t_all[(np.arange(1, nb) * len(t_all)) // nb]
+    bl, bb = np.searchsorted(cuts, lt, side="right"), np.searchsorted(cuts, bt, side="right")
+    idx_l = [np.flatnonzero(bl == k) for k in range(nb)]
+    idx_b = [np.flatnonzero(bb == k) for k in range(nb)]
+    if any(len(a) == 0 for a in idx_l + idx_b):
+        return None
+    nl, nbd = max(map(len, idx_l)), max(map(len, idx_b))
+    lug_keys, body_keys = ("lug_x", "lug_y", "lug_w"), ("body_x", "body_y", "body_w")
+    lays, obss, rows, raw = [], [], [], []
+    for il, ib in zip(idx_l, idx_b):
+        # padding: the block's last sample again, with zero weight (rows of zeros)
+        pl, pb = np.r_[il, np.full(nl - len(il), il[-1])], np.r_[ib, np.full(nbd - len(ib), ib[-1])]
+        real_l, real_b = np.arange(nl) < len(il), np.arange(nbd) < len(ib)
+        lay_k = lay.with_times(lay.lug_t[pl], lay.lug_i[pl], lay.body_t[pb], lay.body_j[pb])
+        ob = {k: obs[k][pl] for k in lug_keys}
+        ob.update({k: obs[k][pb] for k in body_keys})
+        ob["lug_w"] = jnp.where(jnp.asarray(real_l), ob["lug_w"], 0.0)
+        ob["body_w"] = jnp.where(jnp.asarray(real_b), ob["body_w"], 0.0)
+        lays.append(lay_k)
+        obss.append(ob)
+        rr = np.concatenate([np.where(real_l, pl, -1), np.where(real_l, S_l + pl, -1),
+                             np.where(real_b, 2 * S_l + pb, -1),
+                             np.where(real_b, 2 * S_l + S_b + pb, -1)])
+        rows.append(rr)
+        raw.append(_plan_arrays(lay_k, chunk, margin))
+    # one shape for every block's plan (one compilation serves them all)
+    C = max(a["rows"].shape[0] for a in raw)
+    R = max(a["rows"].shape[1] for a in raw)
+    BW = max(a["BW"] for a in raw)
+    plans = [_padded_plan(a, C, R, BW) for a in raw]
+    return TimeBlocks(lays, obss, plans, rows)
+
+
+def normal_blocks(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: ChunkPlan,
+                  blocks: TimeBlocks | None = None) -> tuple:
+    """(J^T J, J^T r, chi^2) in numpy from :func:`normal_equations`, one time block at a
+    time when the recording has several (:func:`time_blocks`; pass them when known)."""
+    blocks = time_blocks(lay, obs) if blocks is None else blocks
+    if blocks is None:
+        A, g, c2 = _normal_jit(jnp.asarray(flat), fixed, lay, obs, packing, plan)
+        return np.array(A), np.array(g), float(c2)
+    A = g = None
+    c2 = 0.0
+    for lay_k, ob_k, plan_k in zip(blocks.lays, blocks.obss, blocks.plans):
+        Ak, gk, ck = _normal_jit(jnp.asarray(flat), fixed, lay_k, ob_k, packing, plan_k)
+        A = np.array(Ak) if A is None else A + np.asarray(Ak)
+        g = np.array(gk) if g is None else g + np.asarray(gk)
+        c2 += float(ck)
+    return A, g, c2
 
 
 def chunkable(p: dict, lay, packing: Packing) -> bool:
@@ -663,31 +798,66 @@ class RowChunks:
     chunks share (linear in the samples). `r` holds the weighted residuals."""
 
     def __init__(self, flat, fixed: dict, lay, obs: dict, packing: Packing,
-                 plan: ChunkPlan | None = None):
-        self.plan = chunk_plan(lay) if plan is None else plan
-        self.lay, self.packing = lay, packing
-        self.prep = _prepare_jit(jnp.asarray(flat), fixed, lay, obs, packing, self.plan)
-        self.r = np.asarray(self.prep["r"])
+                 plan: ChunkPlan | None = None, blocks: TimeBlocks | None | bool = None):
+        # long recordings (no plan given): one time block's shared buffers at a time
+        # (:func:`time_blocks`; `blocks=False` forces one block)
+        if blocks is None and plan is None:
+            blocks = time_blocks(lay, obs)
+        blocks = blocks or None
+        self.flat, self.fixed, self.packing = jnp.asarray(flat), fixed, packing
+        if blocks is None:
+            plan = chunk_plan(lay) if plan is None else plan
+            self._parts = [(lay, obs, plan, None)]
+        else:
+            self._parts = list(zip(blocks.lays, blocks.obss, blocks.plans, blocks.rows))
+        self._cur = (None, None)
+        if blocks is None:
+            self.r = np.asarray(self._prep(0)["r"])
+        else:
+            self.r = np.asarray(_residuals_jit(self.flat, fixed, lay, obs, packing))
         self.n_par = int(sum(packing.sizes))
-        self._rows = np.asarray(self.plan.rows)
-        self._mask = np.asarray(self.plan.mask) > 0
+        self._C = int(self._parts[0][2].rows.shape[0])  # chunks per part (one shape)
+        self._rows, self._keep = [], []
+        for lay_k, _, plan_k, glob in self._parts:
+            rows = np.asarray(plan_k.rows)
+            keep = np.asarray(plan_k.mask) > 0
+            if glob is not None:  # block rows -> rows of the whole recording
+                rows = glob[rows]
+                keep &= rows >= 0
+            self._rows.append(rows)
+            self._keep.append(keep)
         sl = packing.slices()
         self._kin_pos = np.r_[np.arange(sl["v"].start, sl["v"].stop), sl["s0"].start,
                               sl["beta"].start]
 
+    def _prep(self, k: int) -> dict:
+        """The shared buffers of part k (the last part's are dropped)."""
+        if self._cur[0] != k:
+            self._cur = (None, None)
+            lay_k, obs_k, plan_k, _ = self._parts[k]
+            self._cur = (k, _prepare_jit(self.flat, self.fixed, lay_k, obs_k, self.packing,
+                                         plan_k))
+        return self._cur[1]
+
+    @property
+    def plan(self) -> ChunkPlan:
+        return self._parts[0][2]
+
     @property
     def n_chunks(self) -> int:
-        return int(self._rows.shape[0])
+        return self._C * len(self._parts)
 
     def chunk(self, c: int):
         """(rows, J_rows) of chunk c, or None when it holds no rows."""
-        keep = self._mask[c]
+        k, j = divmod(c, self._C)
+        keep = self._keep[k][j]
         if not keep.any():
             return None
-        pl = self.plan
-        Jc = _chunk_jit(self.prep, self.lay, self.packing, pl.W, pl.rows[c], pl.mask[c],
-                        pl.ws[c], self.prep["preX"][c], self.prep["preP"][c])
-        return self._rows[c][keep], np.asarray(Jc)[keep]
+        lay_k, _, pl, _ = self._parts[k]
+        prep = self._prep(k)
+        Jc = _chunk_jit(prep, lay_k, self.packing, pl.W, pl.rows[j], pl.mask[j], pl.ws[j],
+                        prep["preX"][j], prep["preP"][j])
+        return self._rows[k][j][keep], np.asarray(Jc)[keep]
 
     def __iter__(self):
         for c in range(self.n_chunks):
@@ -705,14 +875,15 @@ class RowChunks:
     def factors(self, c: int):
         """Chunk c as (rows, U, P, L, pos): its rows are U P^T on the kinematic columns
         plus L on the columns pos (see :func:`normal_equations`); None without rows."""
-        keep = self._mask[c]
+        k, j = divmod(c, self._C)
+        keep = self._keep[k][j]
         if not keep.any():
             return None
-        pl = self.plan
-        U, P, L, pos = _factors_jit(self.prep, self.lay, self.packing, pl, pl.rows[c],
-                                    pl.mask[c], pl.ws[c], pl.cb[c], self.prep["preX"][c],
-                                    self.prep["preP"][c])
-        return (self._rows[c][keep], np.asarray(U)[keep], np.asarray(P),
+        lay_k, _, pl, _ = self._parts[k]
+        prep = self._prep(k)
+        U, P, L, pos = _factors_jit(prep, lay_k, self.packing, pl, pl.rows[j], pl.mask[j],
+                                    pl.ws[j], pl.cb[j], prep["preX"][j], prep["preP"][j])
+        return (self._rows[k][j][keep], np.asarray(U)[keep], np.asarray(P),
                 np.asarray(L)[keep], np.asarray(pos))
 
     def normal(self, V=None, with_A: bool = True):
@@ -781,9 +952,10 @@ def _solve_chunked(flat0, fixed, lay, obs, packing: Packing, plan: ChunkPlan, ma
         pr, pj = _bound_jit(jnp.asarray(f), fixed, packing)
         return np.asarray(pr), np.asarray(pj)
 
+    blocks = time_blocks(lay, obs)  # long recordings: one block's buffers at a time
+
     def ne(f):
-        A, g, c2 = _normal_jit(jnp.asarray(f), fixed, lay, obs, packing, plan)
-        A, g, c2 = np.array(A), np.array(g), float(c2)
+        A, g, c2 = normal_blocks(f, fixed, lay, obs, packing, plan, blocks)
         if bounded:
             pr, pj = bound(f)
             A += pj.T @ pj

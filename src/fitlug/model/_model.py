@@ -243,7 +243,14 @@ def sampled_kinematics(p: dict, lay: Layout):
 
     The first stage of :func:`predict`. Every sample's position depends on the motion only
     through its own X and psi, which the fit's structured Jacobian uses."""
-    X, psi, vn, dpn = integrate(p, lay)
+    return sampled_from_nodes(p, lay, integrate(p, lay))
+
+
+def sampled_from_nodes(p: dict, lay: Layout, nodes):
+    """:func:`sampled_kinematics` from the node values `nodes` = :func:`integrate`'s
+    (X, psi, dX/dt, dpsi/dt): the samples' part, local in time (the long recordings'
+    explanation integrates once and evaluates the samples by time blocks)."""
+    X, psi, vn, dpn = nodes
     tl, tb = _true_times(p, lay, lay.lug_t), _true_times(p, lay, lay.body_t)
     return (hermite(lay, tl, X, vn), hermite(lay, tl, psi, dpn),
             hermite(lay, tb, X, vn), hermite(lay, tb, psi, dpn))

@@ -47,7 +47,7 @@ from .._errors import FitError
 from ..model._physics import C_RR_MIN, beta_max
 from ..model.effects import CATALOG
 from ..fit._lsq import (LARGE_ENTRIES, chunk_plan, chunkable, inverse_norms, jacobian,
-                        normal_equations, residuals)
+                        normal_blocks, normal_equations, residuals, time_blocks)
 from ._identify import not_identifiable
 from ._mcmc import Chain, autocorr_time, run_ensemble
 from ..fit._result import Estimate, FitResult, derived
@@ -208,6 +208,17 @@ def _exact_chi2_chunked(thetas, flat, idx, rest, fixed, lay, obs, packing, plan,
     return jnp.sum(R * R, axis=1) - jnp.einsum("mi,ij,mj->m", b, Minv, b)
 
 
+@eqx.filter_jit
+def _exact_parts_chunked(thetas, flat, idx, rest, fixed, lay, obs, packing, plan):
+    """(|r|^2, J_eta^T r) of a batch of theta on one time block (summed over the blocks)."""
+    def res_of(th):
+        return residuals(packing.unpack(flat.at[idx].set(th), fixed), lay, obs)
+
+    R = jax.vmap(res_of)(thetas)  # (m, N_block)
+    _, b, _ = normal_equations(flat, fixed, lay, obs, packing, plan, v=R, with_A=False)
+    return jnp.sum(R * R, axis=1), b[:, rest]
+
+
 class _Marginal:
     """The linearised marginal of theta for one FitResult: Gaussian limit and exact."""
 
@@ -221,15 +232,20 @@ class _Marginal:
         self._args = (jnp.asarray(res.flat), jnp.asarray(self.idx),
                       {k: jnp.asarray(v) for k, v in res.params.items()
                        if k not in res.packing.names}, prob.lay, prob.obs, res.packing)
-        self._plan = None
+        self._plan = self._blocks = None
         n_res = 2 * (prob.lay.lug_t.shape[0] + prob.lay.body_t.shape[0])
         if (n_res * len(res.flat) > LARGE_ENTRIES
                 and chunkable(res.params, prob.lay, res.packing)):
             # long recordings: everything below needs J only through J^T J (and J_eta^T r
             # in exact_chi2), accumulated in time chunks; no dense (N x p) Jacobian
             self._plan = chunk_plan(prob.lay)
-            JtJ = np.asarray(_normal(self._args[0], self._args[2], *self._args[3:],
-                                     self._plan))
+            self._blocks = time_blocks(prob.lay, prob.obs)  # None: one block
+            # exact_chi2 holds a batch's residual vectors and their model temporaries
+            # (~5 doubles per residual each): at most LARGE_ENTRIES residuals per call
+            rows = n_res if self._blocks is None else len(self._blocks.rows[0])
+            self.batch = max(1, min(batch, LARGE_ENTRIES // max(rows, 1)))
+            JtJ = normal_blocks(self._args[0], self._args[2], *self._args[3:],
+                                self._plan, self._blocks)[0]  # bounded buffers
         else:
             # through a module exported to disk: a new process skips its tracing
             (J,) = _exported.call("posterior_jacobian", _jacobian_tuple, (res.packing,),
@@ -301,6 +317,18 @@ class _Marginal:
         thetas = np.atleast_2d(thetas)
         m, b = len(thetas), self.batch
         pad = np.concatenate([thetas, np.repeat(thetas[-1:], (-m) % b, 0)])
+        if self._plan is not None and self._blocks is not None:
+            a, bl = self._args, self._blocks
+            out = []
+            for i in range(0, len(pad), b):
+                th = jnp.asarray(pad[i:i + b])
+                rr, bb = 0.0, 0.0
+                for lay_k, ob_k, plan_k in zip(bl.lays, bl.obss, bl.plans):
+                    r2, bk = _exact_parts_chunked(th, a[0], a[1], jnp.asarray(self._rest),
+                                                  a[2], lay_k, ob_k, a[5], plan_k)
+                    rr, bb = rr + np.asarray(r2), bb + np.asarray(bk)
+                out.append(rr - np.einsum("mi,ij,mj->m", bb, self.Minv, bb))
+            return np.concatenate(out)[:m]
         if self._plan is not None:
             a = self._args
             out = [np.asarray(_exact_chi2_chunked(
