@@ -226,9 +226,9 @@ def _test_parts(geo, r, det, parts) -> list:
 
 
 def _norm_isf(p: float) -> float:
-    from scipy.stats import norm
+    from scipy.special import ndtri
 
-    return norm.isf(p)
+    return -ndtri(p)
 
 
 def _parts(geo, r, m, pc, M) -> list:

@@ -29,7 +29,7 @@ fitted beside it).
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 from ..fit._lsq import RowChunks
 from ._detect import detect
@@ -79,7 +79,7 @@ def search(kind, res, geo, J, r, *, alpha: float, sigma_estimated: bool) -> dict
         N = kind.columns(geo, trial)
         delta, r2, cov = joint_fit(J, r, N)
         gain = float(cur @ cur) - float(r2 @ r2)
-        thr = float(stats.chi2.isf(FALSE_ALARM / max(n_cand, 1), kind.per_term))
+        thr = float(special.chdtri(kind.per_term, FALSE_ALARM / max(n_cand, 1)))
         if not gain > thr:
             return None  # no significant term (left): the nuisance does not hold the misfit
         terms, cur, fit = trial, r2, (N, delta, r2, cov)

@@ -10,8 +10,9 @@ pure-Python work held the GIL against the fit's own Python and slowed it by more
 saved (measured in the whole run, on the bundled recording): the thread does not draw.
 Each step checks whether :func:`wait` is already waiting, and stops there.
 
-The caller's thread imports scipy.linalg and scipy.stats before the thread starts (the
-fit, the explanation and the posterior need them anyway): the thread then imports only
+The caller's thread imports scipy.linalg and scipy.special before the thread starts (the
+fit, the explanation and the posterior need them anyway; scipy.stats, 1 s, only the
+report's ArviZ does, in the thread): the thread then imports only
 modules the caller does not import before :func:`wait`, so the two threads never wait on
 each other's import locks. Call :func:`wait` before writing posterior.nc or the report.
 """
@@ -29,7 +30,7 @@ def start() -> None:
     if _THREAD:
         return
     import scipy.linalg  # noqa: F401
-    import scipy.stats  # noqa: F401
+    import scipy.special  # noqa: F401
 
     t = threading.Thread(target=_run, name="fitlug-report-imports", daemon=True)
     _THREAD.append(t)
