@@ -188,6 +188,10 @@ def main(argv=None):
         return r
 
     if a.workers > 1:
+        # one XLA thread per worker process (inherited by the spawned workers): with XLA's
+        # own thread pools, 16 workers on 16 cores took ~120 s a recording, ~15 s so
+        os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false "
+                                           "intra_op_parallelism_threads=1")
         ctx = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(a.workers, mp_context=ctx) as ex:
             futures = [ex.submit(one, t) for t in tasks]
