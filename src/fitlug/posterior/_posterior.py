@@ -557,7 +557,7 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     headline = (getattr(res, "robust", None) or {}).get("headline")
     if headline:  # a nuisance taken out, a free speed profile: the fit is another model's
         how += "; " + res.robust["uncertainty_method"]
-        if temper["factor"] > 1.0 + 1e-6:
+        if temper["factor"] > 1.01:  # an error 0.5 % wider or more
             how += (f"; likelihood stretched (slip error x {math.sqrt(temper['factor']):.3g}) "
                     "to carry the nuisance's own uncertainty")
     elif temper["factor"] > 1.0:

@@ -244,11 +244,14 @@ def _verdict_box(fj) -> str:
     from ._discrepancy import handling_sentence
 
     sentence = _located_sentence(d)
+    if _widened(fj):  # the error bar carries the mismatch
+        tail = (f' ({_e(d.get("slip_after_uncertainty") or fj.get("uncertainty_method") or "widened")}); '
+                'treat the slip as a measurement with an unmodelled systematic.')
+    else:  # modelled outside the catalog: the headline is that model's fit
+        tail = "."
     return ('<div class="verdict v-unexplained"><b>⚠ Unexplained mismatch.</b> The residuals '
             'are not consistent with the noise and no catalog effect earns its place. '
-            f'{sentence} {_e(_cap(handling_sentence(d)))} '
-            f'({_e(d.get("slip_after_uncertainty") or fj.get("uncertainty_method") or "widened")}); '
-            'treat the slip as a measurement with an unmodelled systematic.</div>')
+            f'{sentence} {_e(_cap(handling_sentence(d)))}{tail}</div>')
 
 
 def _cap(text: str) -> str:
