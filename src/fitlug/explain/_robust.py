@@ -135,7 +135,10 @@ def robust_result(res, geo: Geometry, alpha: float = ALPHA):
     r = np.where(geo.valid, np.asarray(res.residuals), 0.0)
     sig_est = prob.noise_source in ("differences", "residual differences")
     for kind in NUISANCES:  # a measurement nuisance that holds the whole misfit: taken out
-        found = search(kind, res, geo, J, r, alpha=alpha, sigma_estimated=sig_est)
+        try:
+            found = search(kind, res, geo, J, r, alpha=alpha, sigma_estimated=sig_est)
+        except Exception:  # noqa: BLE001 - a failed search leaves the sandwich errors
+            found = None
         done = taken_out(res, geo, found) if found is not None else None
         if done is not None:
             return done
