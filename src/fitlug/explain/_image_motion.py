@@ -117,7 +117,7 @@ class ImageMotion:
 
     @staticmethod
     def find(geo, r, exclude):
-        found = find_line(geo, r, exclude=[t for t in exclude])
+        found = find_line(geo, r, exclude=exclude)
         if found is None:
             return None
         f, _, n_freq = found

@@ -129,10 +129,7 @@ def robust_result(res, geo: Geometry, alpha: float = ALPHA):
     "naive_std" and "robust_std" (quantity -> standard error)}.
     """
     prob = res.problem
-    fixed = {k: jnp.asarray(v, float) for k, v in res.params.items()
-             if k not in res.packing.names}
-    J = jacobian_of(res.flat, fixed, res.packing, prob.lay, prob.obs)  # or its time chunks
-    r = np.where(geo.valid, np.asarray(res.residuals), 0.0)
+    J, r = _jacobian_residuals(res, geo)
     sig_est = prob.noise_source in ("differences", "residual differences")
     for kind in NUISANCES:  # a measurement nuisance that holds the whole misfit: taken out
         try:
@@ -146,27 +143,34 @@ def robust_result(res, geo: Geometry, alpha: float = ALPHA):
     if speed is not None and holds(geo, speed["_fit"].residuals, speed["_fit"].dof,
                                    alpha=alpha, sigma_estimated=sig_est):
         return _free_speed_result(res, geo, speed)
-    out, covs, clusters, cov_method = _sandwiches(res, geo, J, r)
-    method = cov_method
+    out, sandwich = _sandwiches(res, geo, J, r)
+    method = sandwich["method"]
     if speed is not None:
         for k, d in speed["shift"].items():
             if k in out and out[k].std is not None and np.isfinite(out[k].std):
                 out[k] = dataclasses.replace(out[k], std=float(np.hypot(out[k].std, d)),
                                              ci95=None)
         method += " + speed-profile sensitivity"
-    return _widened(res, out, method=cov_method, clusters=clusters[cov_method],
-                    cov=covs[cov_method],
-                    covs={n: (covs[n], clusters[n]) for n in covs
-                          if n != "least squares" and covs[n] is not None},
-                    speed_sensitivity=_public(speed), label=method,
+    return _widened(res, out, **sandwich, speed_sensitivity=_public(speed), label=method,
                     uncertainty_method=f"least squares, {method} errors (unexplained misfit)"
                     ), method
 
 
+def _jacobian_residuals(res, geo):
+    """The Jacobian of fit `res` (dense, or its time chunks) and its weighted residuals,
+    zero where a sample is invalid."""
+    prob = res.problem
+    fixed = {k: jnp.asarray(v, float) for k, v in res.params.items()
+             if k not in res.packing.names}
+    J = jacobian_of(res.flat, fixed, res.packing, prob.lay, prob.obs)
+    return J, np.where(geo.valid, np.asarray(res.residuals), 0.0)
+
+
 def _sandwiches(res, geo, J, r):
     """Each quantity of `res` with the largest of its least-squares, by-marker and
-    in-time errors: (quantities, covariances, their numbers of clusters, the name of the
-    one that set the slip's error)."""
+    in-time errors, and what res.robust records of them: (quantities, {"method" (the
+    covariance that set the slip's error), "clusters", "cov" (that covariance), "covs"
+    (every robust one with its number of clusters)})."""
     prob = res.problem
     Hinv = covariance(J)
     in_time, n_win = _in_time(J, r, geo.t, geo.t_lo, Hinv)
@@ -188,7 +192,9 @@ def _sandwiches(res, geo, J, r):
     for k in res.quantities:
         best = max(qs, key=lambda n: (qs[n][k].std or 0.0))
         out[k] = dataclasses.replace(qs[best][k], ci95=None)  # interval from the new std
-    return out, covs, clusters, max(qs, key=lambda n: (qs[n]["slip"].std or 0.0))
+    name = max(qs, key=lambda n: (qs[n]["slip"].std or 0.0))
+    return out, {"method": name, "clusters": clusters[name], "cov": covs[name],
+                 "covs": {n: (covs[n], clusters[n]) for n in qs if n != "least squares"}}
 
 
 def _public(speed):
@@ -206,21 +212,13 @@ def _free_speed_result(res, geo, speed):
     it in 44 of 50 (rms z 1.18: the free profile, 4 breakpoints a period at 8 Hz, leaves a
     little of the motion, below detection)."""
     res2 = speed["_fit"]
-    prob = res2.problem
-    fixed = {k: jnp.asarray(v, float) for k, v in res2.params.items()
-             if k not in res2.packing.names}
-    J = jacobian_of(res2.flat, fixed, res2.packing, prob.lay, prob.obs)
-    r = np.where(geo.valid, np.asarray(res2.residuals), 0.0)
-    out, covs, clusters, cov_method = _sandwiches(res2, geo, J, r)
+    out, sandwich = _sandwiches(res2, geo, *_jacobian_residuals(res2, geo))
     out = _larger(out, res.quantities)
     label = (f"the model with a free speed profile (breakpoints {speed['spacing_s']:g} s "
-             f"apart), which holds the whole misfit: least squares, {cov_method} errors")
+             f"apart), which holds the whole misfit: least squares, {sandwich['method']} "
+             "errors")
     pub = {**_public(speed), "headline": True}
-    return _widened(res2, out, method=cov_method, clusters=clusters[cov_method],
-                    cov=covs[cov_method],
-                    covs={n: (covs[n], clusters[n]) for n in covs
-                          if n != "least squares" and covs[n] is not None},
-                    speed_sensitivity=pub, label=label,
+    return _widened(res2, out, **sandwich, speed_sensitivity=pub, label=label,
                     headline="free speed profile",
                     uncertainty_method=label + " (unexplained misfit: a motion of the drive)"
                     ), label

@@ -47,6 +47,13 @@ def _new(w, h, rows=1, cols=1, **kw):
     return new_figure(w, h, rows, cols, **kw)
 
 
+def modelled(d: dict) -> bool:
+    """Whether an unexplained mismatch was modelled outside the catalog (a measurement
+    nuisance taken out, a free speed profile as headline) rather than widening the error."""
+    return bool(d.get("image_motion") or d.get("marker_shift")
+                or (d.get("speed_sensitivity") or {}).get("headline"))
+
+
 def handling_sentence(d: dict) -> str:
     """What was done about an unexplained mismatch, one plain clause (no HTML): a
     measurement nuisance or a free speed profile that holds it, else the widened error."""
@@ -406,9 +413,8 @@ def discrepancy_section(fit_json: dict, state=None) -> str:
                    "</p>")
     else:
         nuis = d.get("image_motion") or d.get("marker_shift")
-        sens = d.get("speed_sensitivity") or {}
         how = ("what the mismatch is was found and modelled outside the catalog (below), and "
-               "the headline is that model's fit" if nuis or sens.get("headline") else
+               "the headline is that model's fit" if modelled(d) else
                "so the slip's error bar includes the mismatch")
         out.append(f'<div class="verdict v-unexplained"><b>Unexplained.</b> '
                    f"{located_sentence(d)} No catalog effect earns its place; {how} "

@@ -196,8 +196,9 @@ def _widened(fj) -> str:
     d = fj.get("discrepancy") or {}
     if d.get("verdict") != "unexplained":
         return ""
-    if d.get("image_motion") or d.get("marker_shift") or \
-            (d.get("speed_sensitivity") or {}).get("headline"):
+    from ._discrepancy import modelled
+
+    if modelled(d):
         return ""  # the mismatch was modelled (outside the catalog): not a widened error
     how = d.get("slip_after_uncertainty") or fj.get("uncertainty_method") or ""
     return ("the residuals hold a mismatch no catalog effect explains, so the error bar "
