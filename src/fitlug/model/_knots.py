@@ -33,21 +33,44 @@ from __future__ import annotations
 import numpy as np
 
 
-def _smooth_derivs(t: np.ndarray, X: np.ndarray, window_s: float):
-    """Local quadratic fits: (v, a) at each t from X within +-window_s/2."""
-    v = np.empty_like(X)
-    a = np.empty_like(X)
+def _smooth_derivs(t: np.ndarray, X: np.ndarray, window_s: float, *, block: int = 4096):
+    """Local quadratic fits: (v, a) at each t from X within +-window_s/2.
+
+    Every sample's fit at once (in blocks of `block` samples): the window's samples are
+    gathered into a padded row with a mask, the time scaled by the half window, and the
+    3x3 normal equations solved batched - the same numbers as a polyfit per sample to
+    rounding, in linear time without a Python loop over the samples."""
+    t = np.asarray(t, float)
+    X = np.asarray(X, float)
+    n = len(t)
+    v = np.full(n, np.nan)
+    a = np.full(n, np.nan)
+    if n == 0:
+        return v, a
     half = window_s / 2
     lo = np.searchsorted(t, t - half)
     hi = np.searchsorted(t, t + half, side="right")
-    for k in range(len(t)):
-        sl = slice(lo[k], hi[k])
-        tt = t[sl] - t[k]
-        if len(tt) < 4:
-            v[k], a[k] = np.nan, np.nan
-            continue
-        c = np.polyfit(tt, X[sl], 2)
-        v[k], a[k] = c[1], 2 * c[0]
+    width = int((hi - lo).max())
+    cols = np.arange(width)
+    for b0 in range(0, n, block):
+        k = np.arange(b0, min(b0 + block, n))
+        idx = lo[k, None] + cols
+        m = idx < hi[k, None]
+        idx = np.minimum(idx, n - 1)
+        u = np.where(m, (t[idx] - t[k, None]) / half, 0.0)
+        y = np.where(m, X[idx], 0.0)
+        w = m.astype(float)
+        p = [w, u, u * u]
+        S = np.empty((len(k), 3, 3))
+        r = np.empty((len(k), 3))
+        for i in range(3):
+            r[:, i] = (p[i] * y).sum(1)
+            for j in range(i, 3):
+                S[:, i, j] = S[:, j, i] = (p[i] * p[j]).sum(1)
+        enough = m.sum(1) >= 4
+        c = np.linalg.solve(S[enough], r[enough][..., None])[..., 0]
+        v[k[enough]] = c[:, 1] / half
+        a[k[enough]] = 2 * c[:, 2] / half ** 2
     return v, a
 
 
