@@ -166,10 +166,27 @@ def test_dask_two_workers_same_numbers(tiny_campaign, tmp_path):
         np.testing.assert_allclose([a.point["slip"], a.point["slope"]],
                                    [b.point["slip"], b.point["slope"]], rtol=1e-9)
         np.testing.assert_allclose(a.point["cov"], b.point["cov"], rtol=1e-6)
-    assert two.stiffness == pytest.approx(one.stiffness, rel=1e-9)
-    for key in ("value", "std"):
-        assert two.rolling_resistance["concrete"][key] == pytest.approx(
-            one.rolling_resistance["concrete"][key], rel=1e-9)
+    # the law's least-squares fit is a smooth function of the points: the same to 1e-6
+    for law in ("linear", "janosi_hanamoto"):
+        np.testing.assert_allclose(two.fits[law].theta, one.fits[law].theta, rtol=1e-6,
+                                   atol=1e-12, err_msg=law)
+    # the reported estimates are posterior summaries: a worker's BLAS rounds the points'
+    # covariance differently in the last bits (seen: 1e-8 relative), which flips an emcee
+    # accept/reject somewhere and gives another, equally valid chain of the same seed. So
+    # they agree within the samplers' Monte Carlo error (a difference of two medians:
+    # sqrt(2) x 1.25 sigma / sqrt(ESS), bounded at 5 of those), not to the last bit
+    # (CI once failed on exact equality: k 0.250168 against 0.250159, sigma 1.4e-4)
+    ess = min(two.mcmc["ess"], one.mcmc["ess"])
+    assert ess > 200, (two.mcmc, one.mcmc)
+    mc = 5 * np.sqrt(2) * 1.25 / np.sqrt(ess)
+    a, b = two.stiffness, one.stiffness
+    assert abs(a["value"] - b["value"]) < mc * b["std"], (a, b, ess)
+    assert abs(a["std"] / b["std"] - 1) < 5 * np.sqrt(2) / np.sqrt(2 * ess), (a, b, ess)
+    for lo_hi in (0, 1):  # the 2.5 and 97.5 % quantiles: ~2.5x a median's MC error
+        assert abs(a["ci95"][lo_hi] - b["ci95"][lo_hi]) < 2.5 * mc * b["std"], (a, b, ess)
+    c2, c1 = two.rolling_resistance["concrete"], one.rolling_resistance["concrete"]
+    assert abs(c2["value"] - c1["value"]) < mc * c1["std"], (c2, c1, ess)
+    assert abs(c2["std"] / c1["std"] - 1) < 5 * np.sqrt(2) / np.sqrt(2 * ess), (c2, c1, ess)
 
 
 def test_failing_recording_does_not_stop_campaign(tiny_campaign, tmp_path):
