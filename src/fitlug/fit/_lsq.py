@@ -252,6 +252,7 @@ def least_squares(p0: dict, free, lay, obs, *, max_steps: int = 200, rtol: float
     flat, J, r, ok, steps = _exported.call("lsq_solve", _solve,
                                            (packing, max_steps, rtol, atol),
                                            packing.pack(p0), fixed, lay, obs)
+    flat = np.asarray(flat)  # unpacked in numpy: jax slices compile once per (offset, size)
     p = packing.unpack(flat, fixed)
     return LsqOutput(params=p, flat=np.asarray(flat), J=np.asarray(J), r=np.asarray(r),
                      converged=bool(ok), steps=int(steps), packing=packing)

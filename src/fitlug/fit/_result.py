@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -42,6 +43,11 @@ def _f(x):
     return x if np.isfinite(x) else None
 
 
+def _no_pull(F) -> bool:
+    """Whether no drawbar pull is given: None or zero (a traced pull is a given one)."""
+    return F is None or (not isinstance(F, jax.core.Tracer) and not np.any(np.asarray(F)))
+
+
 def derived(p: dict, lay, mass_kg, drawbar_N: float = 0.0) -> dict:
     """Physical quantities of one parameter set (JAX scalars), see MODEL.md §2.
 
@@ -59,7 +65,7 @@ def derived(p: dict, lay, mass_kg, drawbar_N: float = 0.0) -> dict:
         "R_mm": p["R"], "D_mm": p["D"], "e_mm": p["e"], "pitch_mm": P / lay.n_belt,
         "s0_linear": p["s0"], "beta": p["beta"],
     }
-    if not drawbar_N:
+    if _no_pull(drawbar_N):
         out["rolling_resistance"] = crr_plus
     elif mass_kg is not None:
         out["rolling_resistance"] = crr_plus - drawbar_N / (mass_kg * G)
@@ -212,14 +218,28 @@ class FitResult:
         return out
 
 
+@eqx.filter_jit
+def _derived_with_jacobian(flat, packing, fixed, lay, mass, pull, has_mass: bool,
+                           has_pull: bool):
+    """:func:`derived` and its Jacobian in the free vector, in one compiled program (run
+    op by op they cost ~20 small compilations, each a persistent-cache read, per fit)."""
+    def f(fl):
+        return derived(packing.unpack(fl, fixed), lay, mass if has_mass else None,
+                       pull if has_pull else 0.0)
+
+    return f(flat), jax.jacfwd(f)(flat)
+
+
 def compute_quantities(res_params, packing, flat, cov, lay, mass_kg, fixed,
                        drawbar_N: float = 0.0) -> dict:
     """Each derived quantity with its delta-method standard error."""
-    def f(fl):
-        return derived(packing.unpack(fl, fixed), lay, mass_kg, drawbar_N)
-
-    vals = f(jnp.asarray(flat))
-    jac = jax.jacfwd(f)(jnp.asarray(flat))
+    fixed = {k: jnp.asarray(v, float) for k, v in fixed.items()}
+    # the mass and pull as traced numbers (a campaign's recordings share one program);
+    # whether they are given is static
+    vals, jac = _derived_with_jacobian(jnp.asarray(flat, float), packing, fixed, lay,
+                                       jnp.asarray(mass_kg or 0.0, float),
+                                       jnp.asarray(drawbar_N or 0.0, float),
+                                       mass_kg is not None, bool(drawbar_N))
     out = {}
     for k, v in vals.items():
         g = np.asarray(jac[k])
