@@ -13,11 +13,12 @@ fitted centre is the centre of quadrant symmetry.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 
-from ._refine import cut_disc, cut_windows
+from ._refine import _disc_offsets, cut_disc, cut_windows
 
 N_PARAMS = 11  # x0, y0, θ, blur_u, blur_v, A, a_x, a_y, B, b_x, b_y
 _A, _B = 5, 8  # offset plane and contrast plane start here
@@ -43,26 +44,32 @@ class QsFit:
     dof: np.ndarray | None = None
 
 
+# the four corners z = u + 1/2 + b/2, u + 1/2 - b/2, u - 1/2 + b/2, u - 1/2 - b/2
+_CORNER_U = np.array([0.5, 0.5, -0.5, -0.5])[:, None]
+_CORNER_B = np.array([0.5, -0.5, 0.5, -0.5])[:, None]
+_SIGNS = np.array([1.0, -1.0, -1.0, 1.0])  # the four corners' signs
+_SUMS = np.array([_SIGNS, [1.0, 1.0, -1.0, -1.0]])  # Σ ± z for dS/du, and for dS/db
+
+
 def _edge(u, b, derivatives=True):
     """A straight edge seen by the camera: a step blurred by two boxes - the pixel (1 px)
     and the blur across the edge (b px: motion blur and optics) - as a value in [-1, 1].
 
-    u: (M, N) signed distance from the edge, px; b: (M, 1) blur width, px.
-    Returns S, and with `derivatives` dS/du and dS/db (each (M, N)).
+    u: (..., N) signed distance from the edge, px; b: (..., 1) blur width, px.
+    Returns S, and with `derivatives` dS/du and dS/db (each (..., N)).
     """
     # the unit step convolved with two boxes: Σ ± (z)₊² / 2b over the four corners
-    # z = u ± 1/2 ± b/2 (a piecewise quadratic ramp from -(1+b)/2 to (1+b)/2)
-    hb = 0.5 * b
-    z1 = np.maximum(u + (0.5 + hb), 0.0)
-    z2 = np.maximum(u + (0.5 - hb), 0.0)
-    z3 = np.maximum(u - (0.5 - hb), 0.0)
-    z4 = np.maximum(u - (0.5 + hb), 0.0)
+    # z = u ± 1/2 ± b/2 (a piecewise quadratic ramp from -(1+b)/2 to (1+b)/2); the four
+    # corners as one array (..., 4, N)
+    z = u[..., None, :] + (_CORNER_U + _CORNER_B * b[..., None])
+    np.maximum(z, 0.0, out=z)
     inv = 1.0 / b
-    e = (z1 * z1 - z2 * z2 - z3 * z3 + z4 * z4) * (0.5 * inv)
+    e = (_SIGNS @ (z * z)) * (0.5 * inv)
     if not derivatives:
         return 2.0 * e - 1.0
-    du = (z1 - z2 - z3 + z4) * (2.0 * inv)
-    db = (z1 + z2 - z3 - z4 - 2.0 * e) * inv
+    sums = _SUMS @ z  # (..., 2, N)
+    du = sums[..., 0, :] * (2.0 * inv)
+    db = (sums[..., 1, :] - 2.0 * e) * inv
     return 2.0 * e - 1.0, du, db
 
 
@@ -264,8 +271,10 @@ def _fit(win, rfit, xy, basis, p, n_iter, prior=None, hold=False):
     return best, rms, slopes, dof
 
 
-def _offsets_basis(x, y):
-    """Pixel offsets (2, N) and the planes' basis (3, N): 1, x, y."""
+@functools.lru_cache(maxsize=64)
+def _offsets_basis(radius):
+    """Offsets (2, N) of the pixels of `cut_disc`'s disc and the planes' basis (3, N): 1, x, y."""
+    x, y = _disc_offsets(radius)[3:5]
     return np.stack([x, y]), np.stack([np.ones_like(x), x, y])
 
 
@@ -321,8 +330,9 @@ def refine_qs(frame: np.ndarray, xy0: np.ndarray, half_size, *, params: np.ndarr
         p[:, _A] -= p[:, _A + 1] * p[:, 0] + p[:, _A + 2] * p[:, 1]
         p[:, _B] -= p[:, _B + 1] * p[:, 0] + p[:, _B + 2] * p[:, 1]
     rfit = np.maximum(hs - 1.0 - 0.5 * p[:, 3:5].max(axis=1) - 0.25, 2.5)[:, None]
-    win, x, y, ins = cut_disc(frame, base, float(rfit.max()) + 1.25)
-    xy_b, basis = _offsets_basis(x, y)
+    reach = np.ceil((float(rfit.max()) + 1.25) * 4.0) / 4.0
+    win, x, y, ins = cut_disc(frame, base, reach)
+    xy_b, basis = _offsets_basis(reach)
     inside &= ins
     if params is None:  # levels from the data: mean, and the checker's signed half-contrast
         mask = ((x - p[:, :1]) ** 2 + (y - p[:, 1:2]) ** 2 <= rfit ** 2).astype(np.float64)
