@@ -189,13 +189,9 @@ def _fit(win, rfit, xy, basis, p, n_iter, prior=None, hold=False):
     moved = np.zeros(p.shape[0], dtype=bool)  # a step after the start was accepted
     it, extra = 0, 0
     while True:
-        # a marker whose steps were all rejected gets up to EXTRA_STEPS more (its centre
-        # would otherwise be its start)
-        last = it >= n_iter and (moved.all() or extra >= EXTRA_STEPS or n_iter == 0)
-        if it >= n_iter and not last:
-            extra += 1
+        # the evaluations after the n_iter-th step only check it: no Jacobian needed
+        last = it >= n_iter
         it += 1
-        # the last evaluation only checks the last step: no Jacobian needed
         res, jac, data_cost, w = _model(win, rfit, xy, basis, p, jacobian=not last)
         cost = data_cost
         if prior is not None:
@@ -211,7 +207,13 @@ def _fit(win, rfit, xy, basis, p, n_iter, prior=None, hold=False):
                 best_data = np.where(better, data_cost, best_data)
                 weight = np.where(better, w, weight)
             if last:
-                break
+                # a marker whose steps were all rejected gets up to EXTRA_STEPS more, each
+                # damped more (its centre would otherwise be its start; its normal equations
+                # are still those of its start); the others stay where they are
+                stuck = ~moved
+                if n_iter == 0 or extra >= EXTRA_STEPS or not stuck.any():
+                    break
+                extra += 1
         else:
             h = jac @ jac.transpose(0, 2, 1)
             gr = (jac @ res[:, :, None])[..., 0]
@@ -255,6 +257,8 @@ def _fit(win, rfit, xy, basis, p, n_iter, prior=None, hold=False):
                 dh[:, k, k] = 1.0
                 gh[:, k] = 0.0
             step[held] = np.linalg.solve(dh, gh[..., None])[..., 0]
+        if last:
+            step[~stuck] = 0.0
         np.minimum(step, _STEP_HI, out=step)
         np.maximum(step, -_STEP_HI, out=step)
         p = best + step
