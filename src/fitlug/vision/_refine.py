@@ -67,10 +67,13 @@ def _flat_offsets(radius: float, width: int):
 
 @functools.lru_cache(maxsize=64)
 def _disc_f32(radius: float):
-    """The disc's offsets X, Y (N,), basis (N, 6) and distance from the centre, float32."""
+    """The disc's offsets X, Y (N,), basis (N, 6), distance from the centre (N,) and the
+    plane's basis (3, N): 1, X, Y, float32."""
     fx, fy, basis = _disc_offsets(radius)[3:]
     f32 = np.float32
-    return fx.astype(f32), fy.astype(f32), basis.astype(f32), np.sqrt(fx * fx + fy * fy).astype(f32)
+    b32 = basis.astype(f32)
+    return (fx.astype(f32), fy.astype(f32), b32, np.sqrt(fx * fx + fy * fy).astype(f32),
+            np.ascontiguousarray(b32[:, :3].T))
 
 
 def cut_disc(frame: np.ndarray, centres: np.ndarray, radius: float, dtype=np.float64):
@@ -147,67 +150,72 @@ def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, blur_
     xy0 = np.asarray(xy0, dtype=np.float64).reshape(-1, 2)
     m = xy0.shape[0]
     f32 = np.float32  # the sums below need no more: float32 halves the memory traffic
+    # (the per-frame cost is in the number of numpy calls on small arrays: few of them)
     r = np.broadcast_to(np.asarray(radius, dtype=f32), (m,))[:, None]
-    blur = np.broadcast_to(np.asarray(blur_px, dtype=f32), (m,))[:, None]
-    ra = r + f32(1.0) + f32(0.5) * blur  # aperture: disc, anti-aliased edge, blur
+    half = f32(0.5) * np.broadcast_to(np.asarray(blur_px, dtype=f32), (m,))[:, None]
+    ra = r + f32(1.0) + half  # aperture: disc, anti-aliased edge, blur
     ok = np.isfinite(xy0).all(axis=1)
-    base = np.where(ok[:, None], np.rint(xy0), 0).astype(np.int64)
+    base = np.rint(np.where(ok[:, None], xy0, 0.0)).astype(np.int64)
     reach = np.ceil((float(ra.max()) + 3.0 if m else 1.0) * 4.0) / 4.0
     win, _, _, inside = cut_disc(frame, base, reach, dtype=f32)
-    gx, gy, basis, rho0 = _disc_f32(reach)
+    gx, gy, basis, rho0, basis3t = _disc_f32(reach)
     # 1. local background: a plane through an annulus outside the disc (about the window
     #    centre, within half a pixel of the guess)
-    ring = ((rho0 >= ra + f32(0.5)) & (rho0 <= ra + f32(2.75))).astype(f32)
-    coef = _weighted_plane(ring, win, basis).astype(f32)
-    win -= coef @ basis[:, :3].T
+    ring = (np.abs(rho0 - (ra + f32(1.625))) <= f32(1.125)).astype(f32)
+    win -= _weighted_plane(ring, win, basis).astype(f32) @ basis3t
     # the annulus may reach past the dark surround of a small disc (the lug's edge, the
     # lighter surface beyond it): pixels well above the plane are not background. Their
     # spread is measured on the pixels below the plane (which they do not reach); fit
     # again without them.
+    n_ring = ring.sum(axis=1)
     for _ in range(2):
         below = ring * (win < 0)
-        scale = np.sqrt((below * win * win).sum(axis=1, keepdims=True)
-                        / np.maximum(below.sum(axis=1, keepdims=True), 1))
-        keep = ring * (win <= f32(3.0) * scale + f32(0.5))
-        if (keep.sum(axis=1) == ring.sum(axis=1)).all():
+        scale = np.sqrt(np.einsum("mn,mn,mn->m", below, win, win)
+                        / np.maximum(below.sum(axis=1), 1))
+        keep = ring * (win <= f32(3.0) * scale[:, None] + f32(0.5))
+        n_keep = keep.sum(axis=1)
+        if (n_keep == n_ring).all():
             break
-        coef2 = _weighted_plane(keep, win, basis).astype(f32)
-        win -= coef2 @ basis[:, :3].T
-        ring = keep
-    noise = np.sqrt((ring * win * win).sum(axis=1, dtype=np.float64)
-                    / np.maximum(ring.sum(axis=1, dtype=np.float64) - 3, 1))
+        win -= _weighted_plane(keep, win, basis).astype(f32) @ basis3t
+        ring, n_ring = keep, n_keep
+    noise = np.sqrt(np.einsum("mn,mn,mn->m", ring, win, win, dtype=np.float64)
+                    / np.maximum(n_ring.astype(np.float64) - 3, 1))
     # 2. plain centroid steps in the aperture
-    c = np.where(ok[:, None], xy0 - base, 0.0).astype(f32)
+    c = (xy0 - base).astype(f32)
+    c[~ok] = 0.0
     for _ in range(n_iter):
         dx, dy = gx - c[:, :1], gy - c[:, 1:]
-        wgt = win * np.minimum(np.maximum(ra + f32(0.5) - np.sqrt(dx * dx + dy * dy), 0), 1)
+        wgt = np.sqrt(dx * dx + dy * dy)
+        np.subtract(ra + f32(0.5), wgt, out=wgt)
+        np.maximum(wgt, 0, out=wgt)
+        np.minimum(wgt, 1, out=wgt)
+        wgt *= win
         mom = (wgt @ basis[:, :3]).astype(np.float64)
         c = (mom[:, 1:3] / np.where(mom[:, :1] > 0, mom[:, :1], 1.0)).astype(f32)
     # 3. flat-fielded centroid, the interior replaced by its fitted level
     dx, dy = gx - c[:, :1], gy - c[:, 1:]
     rho = np.sqrt(dx * dx + dy * dy)
     if blur_dir is None:
-        wi = np.minimum(np.maximum(r - f32(0.5) - f32(0.5) * blur - rho, 0), 1)
-        ap = np.minimum(np.maximum(ra + f32(0.5) - rho, 0), 1)
+        wi = r - f32(0.5) - half - rho
+        ap = ra + f32(0.5) - rho
     else:
         # a disc swept along a segment: covered by all its positions inside both end discs
         # (the lens), by none beyond the disc's reach from the segment (the stadium)
         u = np.asarray(blur_dir, dtype=f32).reshape(-1, 2)
         along = np.abs(dx * u[:, :1] + dy * u[:, 1:])
         across2 = np.maximum(rho * rho - along * along, 0)
-        half = f32(0.5) * blur
-        far = np.sqrt(across2 + (along + half) ** 2)
-        seg = np.sqrt(across2 + np.maximum(along - half, 0) ** 2)
-        wi = np.minimum(np.maximum(r - f32(0.5) - far, 0), 1)
-        ap = np.minimum(np.maximum(r + f32(1.5) - seg, 0), 1)
-    coef = _weighted_plane(wi, win, basis).astype(np.float64)
+        wi = r - f32(0.5) - np.sqrt(across2 + (along + half) ** 2)
+        ap = r + f32(1.5) - np.sqrt(across2 + np.maximum(along - half, 0) ** 2)
+    for a in (wi, ap):
+        np.maximum(a, 0, out=a)
+        np.minimum(a, 1, out=a)
+    coef = _weighted_plane(wi, win, basis)
     cc = c.astype(np.float64)
     level = coef[:, 0] + coef[:, 1] * cc[:, 0] + coef[:, 2] * cc[:, 1]
-    safe = np.where(np.abs(level) > 0, level, 1.0)
-    fitted = coef[:, 1:3] / safe[:, None]
-    rel = fitted if gain_slope is None else np.asarray(gain_slope, dtype=np.float64).reshape(-1, 2)
-    rel32 = rel.astype(f32)
-    flat = win / (f32(1.0) + rel32[:, :1] * dx + rel32[:, 1:] * dy)
+    fitted = coef[:, 1:3] / np.where(np.abs(level) > 0, level, 1.0)[:, None]
+    rel = (fitted if gain_slope is None else np.asarray(gain_slope, dtype=np.float64)).astype(f32)
+    rel = rel.reshape(-1, 2)
+    flat = win / (f32(1.0) + rel[:, :1] * dx + rel[:, 1:] * dy)
     wgt = (flat + wi * (level.astype(f32)[:, None] - flat)) * ap
     mom = (wgt @ basis).astype(np.float64)  # raw moments about the window centre
     flux = mom[:, 0]
@@ -220,8 +228,11 @@ def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, blur_
     radius_m = 2.0 * np.sqrt(np.maximum(half_tr - half_diff - 1.0 / 12.0, 0.0))
     streak = np.sqrt(24.0 * half_diff)
     contrast = flux / (np.pi * np.maximum(radius_m, 1e-9) ** 2)
-    xy = base + np.stack([mx, my], axis=1)
+    xy = np.empty((m, 2))
+    xy[:, 0], xy[:, 1] = mx, my
+    xy += base
     bad = ~(ok & inside & (flux > 0))
     xy[bad] = np.nan
-    shear = np.stack([0.5 * (mxx - myy), mxy], axis=1)
+    shear = np.empty((m, 2))
+    shear[:, 0], shear[:, 1] = 0.5 * (mxx - myy), mxy
     return CogFit(xy, flux, contrast, radius_m, streak, shear, noise, level, fitted, inside & ok)
