@@ -74,6 +74,8 @@ class Tracker:
     def __init__(self, config: TrackerConfig | None = None):
         self.config = config or TrackerConfig()
         self.tracks: list[Track] = []
+        self._live: list[Track] = []  # the tracks still followed (the per-frame loops: not
+        # over every track a long recording ever had)
         self.frames = array("q")  # typed arrays: memory grows by 16 bytes a frame
         self.times = array("d")
         self.noise = None
@@ -102,6 +104,7 @@ class Tracker:
         t = Track(len(self.tracks), str(det.kind[j]), det.size[j], frame_no, det.xy[j],
                    det.contrast[j], params)
         self.tracks.append(t)
+        self._live.append(t)
         return t
 
     # -- one frame -------------------------------------------------------------------------
@@ -112,7 +115,7 @@ class Tracker:
             self.noise = max(estimate_noise(frame), 1e-3)
         self.frames.append(int(frame_no))
         self.times.append(float(time_s))
-        live = [t for t in self.tracks if t.alive]
+        live = list(self._live)
         batch = {COG: [], QS: []}
         search = []
         for t in live:
@@ -283,14 +286,13 @@ class Tracker:
             for u, c in zip(uids, clash):
                 if c:
                     del found[u]
-        for t in self.tracks:
-            if not t.alive:
-                continue
+        for t in list(self._live):
             got = found.get(t.uid)
             if got is None or got[1] < cfg.min_quality:
                 t.misses += 1
                 if t.misses > cfg.max_gap or (not t.confirmed and t.misses > 1):
                     t.alive = False
+                    self._live.remove(t)
                     if cfg.watch_frames > 0 and (t.confirmed or len(t.frames) >= 2):
                         self._watch.append((t, frame_no + cfg.watch_frames))
                 continue
@@ -389,7 +391,7 @@ class Tracker:
         if len(det) == 0:
             return
         qs_rows = np.cumsum(det.kind == QS) - 1
-        live = [t for t in self.tracks if t.alive]
+        live = list(self._live)
         for j in range(len(det)):
             near = False
             for t in live:
