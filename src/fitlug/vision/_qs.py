@@ -345,8 +345,8 @@ def refine_qs(frame: np.ndarray, xy0: np.ndarray, half_size, *, params: np.ndarr
         sign = np.sign(x - p[:, :1]) * np.sign(y - p[:, 1:2])
         p[:, _B] = ((win - p[:, _A, None]) * sign * mask).sum(axis=1) / n
     hold = hold_slopes and params is not None
-    p, rms, slopes, dof = _fit(win, rfit, xy_b, basis, p, n_iter, None if params is None else params[:, 3:5],
-                          hold=hold)
+    prior = None if params is None else params[:, 3:5]
+    p, rms, slopes, dof = _fit(win, rfit, xy_b, basis, p, n_iter, prior, hold=hold)
     xy = base + p[:, :2]
     bad = ~inside | ~np.isfinite(xy).all(axis=1) | (np.abs(p[:, :2]) > 2).any(axis=1)
     xy[bad] = np.nan
