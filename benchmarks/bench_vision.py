@@ -20,7 +20,9 @@ One run prints, side by side:
 from a 4 ms exposure, a dark bar sweeping across the picture (each marker hidden a few
 frames) and markers leaving it (`fitlug.vision._scene.hard_clip`), over --n recordings
 (--workers processes): detection rate over the frames where a marker is whole and clear,
-identity swaps, RMS per axis and 2-D against the Cramer-Rao bound, and speed; with
+identity swaps, RMS per axis and 2-D against the Cramer-Rao bound, and speed (steady state
+of frames in memory, blocks of 25 frames after the first, and with the periodic whole-frame
+search for new markers amortized over its period); with
 --compare-src DIR the same frames are also tracked by the fitlug found in DIR (e.g. a
 checkout of main's src/) side by side. `--memory`: peak RSS of tracking a streamed
 1632x1200 video of 2 000 and 20 000 frames, each in its own process.
@@ -347,14 +349,23 @@ for _ in range(int(sys.argv[3])):
         for i in range(start, start + 25):
             tr.step(i, i / 100.0, frames[i])
         blocks.append((time.process_time() - c1) / 25)
-np.savez(sys.argv[2], xy=res.xy_px, wall=wall, cpu=cpu, blocks=np.array(blocks))
+# the whole-frame search for new markers (one every redetect_every frames), on a frame in the
+# middle with every marker followed: its CPU time (the least of 5)
+search = []
+for _ in range(5):
+    c1 = time.process_time()
+    tr._pick_up(frames[len(frames) // 2], len(frames) - 1)
+    search.append(time.process_time() - c1)
+from fitlug.vision import TrackerConfig
+np.savez(sys.argv[2], xy=res.xy_px, wall=wall, cpu=cpu, blocks=np.array(blocks),
+         search=min(search), every=TrackerConfig().redetect_every)
 """
 
 
 def _track_with(src, frames, repeats):
     """Track `frames` with the fitlug package found in `src` (None: this one), in a fresh
     process; returns (xy_px (F, K, 2), whole-run CPU s, steady-state CPU s per frame
-    (blocks of 25))."""
+    (blocks of 25), CPU s of one whole-frame search for new markers, frames between two)."""
     import subprocess
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -366,7 +377,7 @@ def _track_with(src, frames, repeats):
         subprocess.run([sys.executable, "-c", _TRACK_CODE, os.path.join(tmp, "frames.npy"), out,
                         str(repeats)], check=True, env=env)
         r = np.load(out)
-        return r["xy"], float(r["cpu"]), r["blocks"]
+        return r["xy"], float(r["cpu"]), r["blocks"], float(r["search"]), int(r["every"])
 
 
 class _Res:
@@ -385,10 +396,11 @@ def _hard_one(job):
     for name, src in (("after", None), ("before", compare)):
         if name == "before" and src is None:
             continue
-        xy, cpu, blocks = _track_with(src, clip.frames, repeats)
+        xy, cpu, blocks, search, period = _track_with(src, clip.frames, repeats)
         err, rate, swaps, ids = evaluate_tracks(_Res(xy), clip.truth, clip.visible, clip.kinds)
         found = _found(xy, clip.truth)
         out[name] = {"err": err, "swaps": swaps, "ids": ids, "cpu": cpu, "blocks": blocks,
+                     "search": search, "every": period,
                      "hits": (found & clip.visible).sum(axis=0), "vis": clip.visible.sum(axis=0)}
     gain = _render.gain_field(size, clip.options)
     sigma2 = clip.options.noise_sigma ** 2 + 1.0 / 12.0
@@ -459,9 +471,13 @@ def main_hard(args):
             continue
         b = np.concatenate([r[name]["blocks"] for r in runs])
         whole = sum(r["frames"] for r in runs) / sum(r[name]["cpu"] for r in runs)
+        search = np.median([r[name]["search"] for r in runs])
+        every = runs[0][name]["every"]
         print(f"speed {name}: whole run {whole:.0f} frames/s CPU; steady state best "
               f"{1 / b.min():.0f}, median {1 / np.median(b):.0f} frames/s CPU "
-              f"(load {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores)")
+              f"(load {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores); the whole-frame "
+              f"search for new markers {search * 1e3:.1f} ms CPU, one every {every} frames: "
+              f"with it, median {1 / (np.median(b) + search / every):.0f} frames/s CPU")
     return 0
 
 

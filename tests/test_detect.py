@@ -125,6 +125,33 @@ def test_half_resolution_search_finds_the_same_markers():
         assert np.hypot(*(half.xy - xy).T).min() < 0.03
 
 
+def test_half_size_search_finds_small_markers_and_no_squares():
+    # the tracker's periodic and edge searches shrink the frame for discs >= 7 px across and
+    # checkers >= 9.5 px a side: on hard renders (noise 4, blur, a lighting gradient, a bar)
+    # every whole marker found at full size is found so, and a small bright square is not a
+    # disc there either
+    from fitlug.vision._scene import hard_clip
+
+    clip = hard_clip(12, (480, 320), seed=5, cog_px=8.0, qs_px=10.0)
+    sizes = dict(cog_radius=3.8, qs_half=5.0, noise=4.0)
+    n = 0
+    for i in range(0, 12, 3):
+        full = detect_markers(clip.frames[i], **sizes)
+        half = detect_markers(clip.frames[i], scale={"cog": 2, "qs": 2}, **sizes)
+        assert len(half) == len(full)
+        for j in np.flatnonzero(clip.visible[i]):
+            d = np.hypot(*(half.xy - clip.truth[i, j]).T)
+            assert d.min() < 0.1 and half.kind[np.argmin(d)] == clip.kinds[j]
+            n += 1
+    assert n >= 30
+    rng = np.random.default_rng(9)
+    img = np.clip(70 + 4 * rng.standard_normal((300, 400)), 0, 255).astype(np.uint8)
+    for k, side in enumerate((6, 7, 8)):
+        img[50 + 60 * k:50 + 60 * k + side, 100:100 + side] = 200
+        img[50 + 60 * k:50 + 60 * k + side, 250 + k:250 + k + side] = 200
+    assert len(detect_markers(img, scale={"cog": 2, "qs": 2}, **sizes)) == 0
+
+
 def test_region_search_reports_full_frame_pixels():
     rng = np.random.default_rng(9)
     (img, truth), = _frames(["cog", "cog", "cog"], 1, rng)

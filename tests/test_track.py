@@ -117,6 +117,31 @@ def test_markers_leaving_and_entering_get_their_own_ids():
         assert first <= np.flatnonzero(visible[:, j])[0] + 3  # picked up soon after it enters
 
 
+def test_a_small_marker_appearing_mid_picture_is_picked_up_by_the_periodic_search():
+    # small markers (8 px discs, 10 px checkers, noise 4): the whole-frame search for new
+    # markers runs on a half-size frame once their sizes are known; a disc that appears in
+    # the middle of the picture (neither at an edge nor where a track was lost) is found
+    # by it and followed from then on
+    f = 36
+    t = np.arange(f)
+    px = np.full((f, 4, 2), np.nan)
+    px[:, 0] = np.stack([60 + 2.0 * t, np.full(f, 80.0)], axis=1)
+    px[:, 1] = [300.0, 230.0]
+    px[:, 2] = [120.0, 200.0]  # a checker
+    px[14:, 3] = np.stack([200 + 1.5 * t[:f - 14], np.full(f - 14, 150.0)], axis=1)
+    opt = OPT.replace(noise_sigma=4.0, cog_diameter_mm=8 * S, lug_diameter_mm=16 * S,
+                      qs_size_mm=10 * S)
+    images, truth, visible = _clip(px, ["lug", "lug", "body", "lug"], opt=opt, seed=3)
+    cfg = TrackerConfig(redetect_every=10, edge_every=0, watch_frames=0)
+    res = track(images, fps=100, config=cfg)
+    owner = _match(res, truth, tol=0.1)
+    assert sorted(owner) == [0, 1, 2, 3]
+    late = np.isfinite(res.xy_px[:, owner.index(3), 0])
+    assert not late[:20].any() and late[20:].all()  # found at the search of frame 20
+    for j in (0, 1, 2):
+        assert np.isfinite(res.xy_px[:, owner.index(j), 0]).all()
+
+
 def test_tracks_reach_the_accuracy_of_single_frames():
     tt, names, roles, xy = stadium_scene(60, speed_mm_s=120.0, n_lug_markers=6)
     cam = default_camera(S, (640, 360), dist_coeffs=None)

@@ -59,7 +59,11 @@ def estimate_noise(img: np.ndarray) -> float:
     return float(np.sqrt(np.mean(keep.astype(np.float64) ** 2) / 2.0)) if keep.size else 0.0
 
 
-def _find_cog(img, noise, r_range, min_contrast):
+def _find_cog(img, noise, r_range, min_contrast, shrunk=False):
+    """Candidate discs: centres (K, 2) and equivalent radii (K,) px of `img`, and whether
+    each is to be checked at full size (K,). shrunk: `img` is a frame shrunk for the
+    search, where a disc may be only 3-5 px across: there the few pixels of a small blob
+    do not tell a disc from a square, and one that fills its box is checked."""
     import cv2
 
     r_lo, r_hi = r_range
@@ -69,12 +73,17 @@ def _find_cog(img, noise, r_range, min_contrast):
     mask = ((img - bg) > thresh).astype(np.uint8)
     n, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
     if n <= 1:
-        return np.zeros((0, 2)), np.zeros(0)
+        return np.zeros((0, 2)), np.zeros(0), np.zeros(0, bool)
     x, y, w, h, area = (stats[1:, i].astype(np.float64) for i in range(5))
     fill = area / (w * h)
+    # (a disc 4-5 px across straddling pixel boundaries fills ~0.55 of its 5 x 5 box, one
+    # 3-4 px across all of its 3 x 3 or 4 x 4 box)
+    tiny = shrunk & (area < 20)
+    boxy = tiny & (fill >= 0.93)
     keep = (area >= np.pi * r_lo ** 2 * 0.7) & (area <= np.pi * r_hi ** 2 * 1.3) \
-        & (fill > 0.6) & (fill < 0.93) & (w < 1.7 * h) & (h < 1.7 * w)
-    out, radii = [], []
+        & (fill > np.where(tiny, 0.5, 0.6)) & ((fill < 0.93) | boxy) & (w < 1.7 * h) \
+        & (h < 1.7 * w)
+    out, radii, check = [], [], []
     for i in np.flatnonzero(keep):
         x0, y0 = int(x[i]), int(y[i])
         ys, xs = np.nonzero(labels[y0:y0 + int(h[i]), x0:x0 + int(w[i])] == i + 1)
@@ -84,7 +93,9 @@ def _find_cog(img, noise, r_range, min_contrast):
         if far <= 1.15 * req + 0.7:  # a disc; a square's corner reaches 1.25 req
             out.append(c)
             radii.append(req)
-    return np.asarray(out, dtype=np.float64).reshape(-1, 2), np.asarray(radii)
+            check.append(boxy[i])
+    return (np.asarray(out, dtype=np.float64).reshape(-1, 2), np.asarray(radii),
+            np.asarray(check, dtype=bool))
 
 
 def ring_profiles(img, centres, radii, n_angles=32):
@@ -237,7 +248,8 @@ def detect_markers(frame: np.ndarray, *, kinds=(COG, QS), cog_radius=None, qs_ha
     px if known (else measured); min_contrast: least marker contrast, grey levels (the
     default threshold is 8x the noise); roi: (x0, y0, x1, y1) px to search only there;
     noise: pixel noise std if known; scale: search on the frame shrunk by this factor
-    (1 or 2; faster, for markers of known size), refine at full resolution.
+    (1 or 2; faster, for markers of known size), refine at full resolution; a dict
+    {kind: factor} gives each kind its own.
     Returns Detections in full-frame pixels.
     """
     import cv2
@@ -255,18 +267,26 @@ def detect_markers(frame: np.ndarray, *, kinds=(COG, QS), cog_radius=None, qs_ha
     if noise is None:
         noise = estimate_noise(img)
     off = np.array([x0, y0], dtype=np.float64)
-    search, k = img, 1.0
-    if scale > 1 and min(img.shape) >= 16 * scale:
-        k = float(int(scale))
-        search = cv2.resize(img, (img.shape[1] // int(k), img.shape[0] // int(k)),
-                            interpolation=cv2.INTER_AREA)
+    shrunk = {1: img}
+
+    def search_image(kind):
+        """The image to search for `kind` and its shrink factor."""
+        k = int(scale.get(kind, 1) if isinstance(scale, dict) else scale)
+        if k <= 1 or min(img.shape) < 16 * k:
+            return img, 1.0
+        if k not in shrunk:
+            shrunk[k] = cv2.resize(img, (img.shape[1] // k, img.shape[0] // k),
+                                   interpolation=cv2.INTER_AREA)
+        return shrunk[k], float(k)
+
     # a search pixel (i, j) covers full pixels k i .. k i + k - 1: its centre is k i + (k-1)/2
     to_full = lambda xy: xy * k + 0.5 * (k - 1) + off  # noqa: E731
-    s_noise = noise / k
     xy_l, kind_l, size_l, con_l = [], [], [], []
     extra = {}
     qs_xy, qs_hs = np.zeros((0, 2)), 0.0
     if QS in kinds:
+        search, k = search_image(QS)
+        s_noise = noise / k
         cand, half, score = _find_qs(search, s_noise, None if qs_half is None else qs_half / k,
                                      min_contrast)
         if cand.shape[0]:
@@ -289,8 +309,21 @@ def detect_markers(frame: np.ndarray, *, kinds=(COG, QS), cog_radius=None, qs_ha
             con_l.append(fit.contrast[good])
             extra["qs_params"] = fit.params[good]
     if COG in kinds:
+        search, k = search_image(COG)
+        s_noise = noise / k
         r_range = cog_radius_range if cog_radius is None else (0.7 * cog_radius, 1.3 * cog_radius)
-        cand, radii = _find_cog(search, s_noise, (r_range[0] / k, r_range[1] / k), min_contrast)
+        cand, radii, check = _find_cog(search, s_noise, (r_range[0] / k, r_range[1] / k),
+                                       min_contrast, shrunk=k > 1)
+        if check.any():  # blobs of the shrunk image that fill their box: discs at full size?
+            keep = ~check
+            for i in np.flatnonzero(check):
+                cx, cy = (int(round(v)) for v in cand[i] * k + 0.5 * (k - 1))
+                pad = int(4 * r_range[1]) + 2
+                xa, ya = max(cx - pad, 0), max(cy - pad, 0)
+                found = _find_cog(img[ya:cy + pad + 1, xa:cx + pad + 1], noise, r_range,
+                                  min_contrast)[0]
+                keep[i] = bool((np.hypot(*(found + [xa, ya] - [cx, cy]).T) < 2.0).any())
+            cand, radii = cand[keep], radii[keep]
         if cand.shape[0]:
             cand, radii = to_full(cand), radii * k
             if qs_xy.shape[0]:  # light quarters of a checker are not discs

@@ -13,11 +13,12 @@ fitted centre is the centre of quadrant symmetry.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 
-from ._refine import cut_disc, cut_windows
+from ._refine import _disc_offsets, cut_disc, cut_windows
 
 N_PARAMS = 11  # x0, y0, θ, blur_u, blur_v, A, a_x, a_y, B, b_x, b_y
 _A, _B = 5, 8  # offset plane and contrast plane start here
@@ -43,26 +44,32 @@ class QsFit:
     dof: np.ndarray | None = None
 
 
+# the four corners z = u + 1/2 + b/2, u + 1/2 - b/2, u - 1/2 + b/2, u - 1/2 - b/2
+_CORNER_U = np.array([0.5, 0.5, -0.5, -0.5])[:, None]
+_CORNER_B = np.array([0.5, -0.5, 0.5, -0.5])[:, None]
+_SIGNS = np.array([1.0, -1.0, -1.0, 1.0])  # the four corners' signs
+_SUMS = np.array([_SIGNS, [1.0, 1.0, -1.0, -1.0]])  # Σ ± z for dS/du, and for dS/db
+
+
 def _edge(u, b, derivatives=True):
     """A straight edge seen by the camera: a step blurred by two boxes - the pixel (1 px)
     and the blur across the edge (b px: motion blur and optics) - as a value in [-1, 1].
 
-    u: (M, N) signed distance from the edge, px; b: (M, 1) blur width, px.
-    Returns S, and with `derivatives` dS/du and dS/db (each (M, N)).
+    u: (..., N) signed distance from the edge, px; b: (..., 1) blur width, px.
+    Returns S, and with `derivatives` dS/du and dS/db (each (..., N)).
     """
     # the unit step convolved with two boxes: Σ ± (z)₊² / 2b over the four corners
-    # z = u ± 1/2 ± b/2 (a piecewise quadratic ramp from -(1+b)/2 to (1+b)/2)
-    hb = 0.5 * b
-    z1 = np.maximum(u + (0.5 + hb), 0.0)
-    z2 = np.maximum(u + (0.5 - hb), 0.0)
-    z3 = np.maximum(u - (0.5 - hb), 0.0)
-    z4 = np.maximum(u - (0.5 + hb), 0.0)
+    # z = u ± 1/2 ± b/2 (a piecewise quadratic ramp from -(1+b)/2 to (1+b)/2); the four
+    # corners as one array (..., 4, N)
+    z = u[..., None, :] + (_CORNER_U + _CORNER_B * b[..., None])
+    np.maximum(z, 0.0, out=z)
     inv = 1.0 / b
-    e = (z1 * z1 - z2 * z2 - z3 * z3 + z4 * z4) * (0.5 * inv)
+    e = (_SIGNS @ (z * z)) * (0.5 * inv)
     if not derivatives:
         return 2.0 * e - 1.0
-    du = (z1 - z2 - z3 + z4) * (2.0 * inv)
-    db = (z1 + z2 - z3 - z4 - 2.0 * e) * inv
+    sums = _SUMS @ z  # (..., 2, N)
+    du = sums[..., 0, :] * (2.0 * inv)
+    db = (sums[..., 1, :] - 2.0 * e) * inv
     return 2.0 * e - 1.0, du, db
 
 
@@ -105,46 +112,62 @@ def qs_coarse(win: np.ndarray, half_q: int, search: int):
     return np.stack([off[ix] + fx, off[iy] + fy], axis=1), score[rows, iy, ix]
 
 
-def _model(win, rfit, x, y, p, jacobian=True):
+# cos(θ - phase) gives the rotation [[cos θ, sin θ], [-sin θ, cos θ]] in one call
+_ROT_PHASE = np.array([[0.0, 0.5 * np.pi], [-0.5 * np.pi, 0.0]])
+
+
+def _model(win, rfit, xy, basis, p, jacobian=True):
     """Weighted residuals (M, N), their Jacobian (M, N_PARAMS, N) (None unless asked for),
-    the cost (M,) and the sum of the weights (M,), for pixels at offsets x, y (N,) from the
-    window centre."""
-    dx, dy = x - p[:, 0, None], y - p[:, 1, None]
-    m = np.minimum(np.maximum(rfit + 0.5 - np.sqrt(dx * dx + dy * dy), 0.0), 1.0)
-    c, s = np.cos(p[:, 2, None]), np.sin(p[:, 2, None])
-    u, v = c * dx + s * dy, c * dy - s * dx
-    gain = p[:, _B, None] + p[:, _B + 1, None] * x + p[:, _B + 2, None] * y
-    base = p[:, _A, None] + p[:, _A + 1, None] * x + p[:, _A + 2, None] * y
+    the cost (M,) and the sum of the weights (M,), for pixels at offsets xy (2, N) from the
+    window centre; basis (3, N): 1, x, y of those pixels.
+
+    Both edges and both planes are evaluated as one stacked array each (the arrays are
+    small: the cost is in the number of numpy calls, not in their sizes)."""
+    m_ = p.shape[0]
+    d = xy - p[:, :2, None]  # (M, 2, N)
+    m = np.sqrt(np.einsum("mkn,mkn->mn", d, d))
+    np.subtract(rfit + 0.5, m, out=m)
+    np.maximum(m, 0.0, out=m)
+    np.minimum(m, 1.0, out=m)
+    rot = np.cos(p[:, 2, None, None] - _ROT_PHASE)  # (M, 2, 2)
+    uv = rot @ d  # u, v: along the two edges' normals
+    planes = p[:, _A:, None].reshape(m_, 2, 3) @ basis  # offset and contrast planes
+    base, gain = planes[:, 0], planes[:, 1]
     if not jacobian:
-        prod = _edge(u, p[:, 3, None], False) * _edge(v, p[:, 4, None], False)
-        res = (win - base - gain * prod) * m
-        return res, None, (res * res).sum(axis=1), m.sum(axis=1)
-    su, du, dbu = _edge(u, p[:, 3, None])
-    sv, dv, dbv = _edge(v, p[:, 4, None])
-    prod = su * sv
+        sg = _edge(uv, p[:, 3:5, None], False)
+        res = (win - base - gain * sg[:, 0] * sg[:, 1]) * m
+        return res, None, np.einsum("mn,mn->m", res, res), m.sum(axis=1)
+    sg, ds, db = _edge(uv, p[:, 3:5, None])
+    prod = sg[:, 0] * sg[:, 1]
     res = (win - base - gain * prod) * m
-    gm = gain * m
-    a, b = gm * du * sv, gm * su * dv
-    jac = np.empty((p.shape[0], N_PARAMS, x.size))
-    jac[:, 0] = s * b - c * a
-    jac[:, 1] = -(s * a + c * b)
-    jac[:, 2] = v * a - u * b
-    jac[:, 3] = gm * dbu * sv
-    jac[:, 4] = gm * su * dbv
-    jac[:, 5] = m
-    jac[:, 6] = x * m
-    jac[:, 7] = y * m
-    jac[:, 8] = prod * m
-    jac[:, 9] = x * jac[:, 8]
-    jac[:, 10] = y * jac[:, 8]
-    return res, jac, (res * res).sum(axis=1), m.sum(axis=1)
+    gm = (gain * m)[:, None]
+    swap = sg[:, ::-1]  # (sv, su)
+    ab = gm * ds * swap  # a = gm du sv, b = gm su dv
+    jac = np.empty((m_, N_PARAMS, xy.shape[1]))
+    # d/dx0, d/dy0: -(rotation transposed) (a, b); d/dθ: v a - u b
+    jac[:, 0:2] = -rot.transpose(0, 2, 1) @ ab
+    jac[:, 2] = uv[:, 1] * ab[:, 0] - uv[:, 0] * ab[:, 1]
+    np.multiply(gm * db, swap, out=jac[:, 3:5])
+    np.multiply(m[:, None], basis, out=jac[:, _A:_A + 3])
+    np.multiply((prod * m)[:, None], basis, out=jac[:, _B:_B + 3])
+    return res, jac, np.einsum("mn,mn->m", res, res), m.sum(axis=1)
 
 
 _SLOPES = np.array([_A + 1, _A + 2, _B + 1, _B + 2])  # the planes' slopes
 EXTRA_STEPS = 3
+# held slopes: their rows and columns of the damped normal matrix zeroed, 1 on the diagonal
+_FREE = np.ones(N_PARAMS)
+_FREE[_SLOPES] = 0.0
+_HOLD_KEEP = _FREE[:, None] * _FREE[None, :]
+_SLOPE_BLOCK = (_SLOPES[:, None] * N_PARAMS + _SLOPES[None, :]).ravel()  # in a flat (11 x 11)
+# bounds of a step (centre 1 px, blur widths 0.25 px) and of the blur widths
+_STEP_HI = np.full(N_PARAMS, np.inf)
+_STEP_HI[:2], _STEP_HI[3:5] = 1.0, 0.25
+_WIDTH_LO, _WIDTH_HI = np.full(N_PARAMS, -np.inf), np.full(N_PARAMS, np.inf)
+_WIDTH_LO[3:5], _WIDTH_HI[3:5] = 0.05, 8.0
 
 
-def _fit(win, rfit, x, y, p, n_iter, prior=None, hold=False):
+def _fit(win, rfit, xy, basis, p, n_iter, prior=None, hold=False):
     """Levenberg-Marquardt on the checker model, all markers at once.
 
     p (M, N_PARAMS) is the start; returns the best parameters found and the residual RMS.
@@ -159,21 +182,17 @@ def _fit(win, rfit, x, y, p, n_iter, prior=None, hold=False):
     the centre); the slopes this frame's data alone would give at the fitted centre (one
     Gauss-Newton step) come back as the third result (else the fitted ones).
     """
-    diag = np.arange(N_PARAMS)
-    lam = np.full(p.shape[0], 1e-3)
+    m_ = p.shape[0]
+    lam = np.full(m_, 1e-3)
     best, best_cost = p, np.full(p.shape[0], np.inf)
     best_data = weight = hess = grad = pw = at = None
     moved = np.zeros(p.shape[0], dtype=bool)  # a step after the start was accepted
     it, extra = 0, 0
     while True:
-        # a marker whose steps were all rejected gets up to EXTRA_STEPS more (its centre
-        # would otherwise be its start)
-        last = it >= n_iter and (moved.all() or extra >= EXTRA_STEPS or n_iter == 0)
-        if it >= n_iter and not last:
-            extra += 1
+        # the evaluations after the n_iter-th step only check it: no Jacobian needed
+        last = it >= n_iter
         it += 1
-        # the last evaluation only checks the last step: no Jacobian needed
-        res, jac, data_cost, w = _model(win, rfit, x, y, p, jacobian=not last)
+        res, jac, data_cost, w = _model(win, rfit, xy, basis, p, jacobian=not last)
         cost = data_cost
         if prior is not None:
             dev = p[:, 3:5] - prior
@@ -188,7 +207,13 @@ def _fit(win, rfit, x, y, p, n_iter, prior=None, hold=False):
                 best_data = np.where(better, data_cost, best_data)
                 weight = np.where(better, w, weight)
             if last:
-                break
+                # a marker whose steps were all rejected gets up to EXTRA_STEPS more, each
+                # damped more (its centre would otherwise be its start; its normal equations
+                # are still those of its start); the others stay where they are
+                stuck = ~moved
+                if n_iter == 0 or extra >= EXTRA_STEPS or not stuck.any():
+                    break
+                extra += 1
         else:
             h = jac @ jac.transpose(0, 2, 1)
             gr = (jac @ res[:, :, None])[..., 0]
@@ -207,15 +232,15 @@ def _fit(win, rfit, x, y, p, n_iter, prior=None, hold=False):
             at = best  # where hess and grad were taken
         best_cost = np.where(better, cost, best_cost)
         lam = np.where(better, 0.3 * lam, 10.0 * lam)
-        damped = hess.copy()
-        damped[:, diag, diag] *= 1.0 + lam[:, None]
-        damped[:, diag, diag] += 1e-9
-        g = grad.copy()
+        damped = hess * _HOLD_KEEP if hold else hess.copy()
+        dg = damped.reshape(m_, -1)[:, ::N_PARAMS + 1]  # the diagonal (a view)
+        dg *= 1.0 + lam[:, None]
+        dg += 1e-9
         if hold:
-            damped[:, _SLOPES, :] = 0.0
-            damped[:, :, _SLOPES] = 0.0
-            damped[:, _SLOPES, _SLOPES] = 1.0
-            g[:, _SLOPES] = 0.0
+            dg[:, _SLOPES] = 1.0
+            g = grad * _FREE
+        else:
+            g = grad.copy()
         step = np.linalg.solve(damped, g[..., None])[..., 0]
         # after a rejected step the next one is taken with the blur widths held: near their
         # lower bound (a still marker, no motion blur) the cost is flat in them, their
@@ -232,19 +257,29 @@ def _fit(win, rfit, x, y, p, n_iter, prior=None, hold=False):
                 dh[:, k, k] = 1.0
                 gh[:, k] = 0.0
             step[held] = np.linalg.solve(dh, gh[..., None])[..., 0]
-        step[:, :2] = np.clip(step[:, :2], -1.0, 1.0)
-        step[:, 3:5] = np.clip(step[:, 3:5], -0.25, 0.25)
+        if last:
+            step[~stuck] = 0.0
+        np.minimum(step, _STEP_HI, out=step)
+        np.maximum(step, -_STEP_HI, out=step)
         p = best + step
-        p[:, 3:5] = np.clip(p[:, 3:5], 0.05, 8.0)
+        np.maximum(p, _WIDTH_LO, out=p)
+        np.minimum(p, _WIDTH_HI, out=p)
     dof = np.maximum(weight - N_PARAMS, 1)
     rms = np.sqrt(best_data / dof)
     slopes = best[:, _SLOPES].copy()
     if hold and hess is not None:
         # the gradient at the final parameters, linearised from where it was taken
         g = grad - (hess @ (best - at)[..., None])[..., 0]
-        sub = hess[:, _SLOPES[:, None], _SLOPES[None, :]] + 1e-9 * np.eye(4)
+        sub = hess.reshape(m_, -1)[:, _SLOPE_BLOCK].reshape(m_, 4, 4) + 1e-9 * np.eye(4)
         slopes += np.linalg.solve(sub, g[:, _SLOPES, None])[..., 0]
     return best, rms, slopes, dof
+
+
+@functools.lru_cache(maxsize=64)
+def _offsets_basis(radius):
+    """Offsets (2, N) of the pixels of `cut_disc`'s disc and the planes' basis (3, N): 1, x, y."""
+    x, y = _disc_offsets(radius)[3:5]
+    return np.stack([x, y]), np.stack([np.ones_like(x), x, y])
 
 
 def _edge_widths(win):
@@ -299,7 +334,9 @@ def refine_qs(frame: np.ndarray, xy0: np.ndarray, half_size, *, params: np.ndarr
         p[:, _A] -= p[:, _A + 1] * p[:, 0] + p[:, _A + 2] * p[:, 1]
         p[:, _B] -= p[:, _B + 1] * p[:, 0] + p[:, _B + 2] * p[:, 1]
     rfit = np.maximum(hs - 1.0 - 0.5 * p[:, 3:5].max(axis=1) - 0.25, 2.5)[:, None]
-    win, x, y, ins = cut_disc(frame, base, float(rfit.max()) + 1.25)
+    reach = np.ceil((float(rfit.max()) + 1.25) * 4.0) / 4.0
+    win, x, y, ins = cut_disc(frame, base, reach)
+    xy_b, basis = _offsets_basis(reach)
     inside &= ins
     if params is None:  # levels from the data: mean, and the checker's signed half-contrast
         mask = ((x - p[:, :1]) ** 2 + (y - p[:, 1:2]) ** 2 <= rfit ** 2).astype(np.float64)
@@ -308,8 +345,8 @@ def refine_qs(frame: np.ndarray, xy0: np.ndarray, half_size, *, params: np.ndarr
         sign = np.sign(x - p[:, :1]) * np.sign(y - p[:, 1:2])
         p[:, _B] = ((win - p[:, _A, None]) * sign * mask).sum(axis=1) / n
     hold = hold_slopes and params is not None
-    p, rms, slopes, dof = _fit(win, rfit, x, y, p, n_iter, None if params is None else params[:, 3:5],
-                          hold=hold)
+    prior = None if params is None else params[:, 3:5]
+    p, rms, slopes, dof = _fit(win, rfit, xy_b, basis, p, n_iter, prior, hold=hold)
     xy = base + p[:, :2]
     bad = ~inside | ~np.isfinite(xy).all(axis=1) | (np.abs(p[:, :2]) > 2).any(axis=1)
     xy[bad] = np.nan

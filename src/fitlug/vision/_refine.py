@@ -58,14 +58,37 @@ def _disc_offsets(radius: float):
     return half, xs, ys, fx, fy, basis
 
 
+@functools.lru_cache(maxsize=64)
+def _flat_offsets(radius: float, width: int):
+    """Offsets of the disc's pixels in a flattened frame `width` px wide."""
+    half, xs, ys = _disc_offsets(radius)[:3]
+    return ys.astype(np.int64) * width + xs
+
+
+@functools.lru_cache(maxsize=64)
+def _disc_f32(radius: float):
+    """The disc's offsets X, Y (N,), basis (N, 6), distance from the centre (N,) and the
+    plane's basis (3, N): 1, X, Y, float32."""
+    fx, fy, basis = _disc_offsets(radius)[3:]
+    f32 = np.float32
+    b32 = basis.astype(f32)
+    return (fx.astype(f32), fy.astype(f32), b32, np.sqrt(fx * fx + fy * fy).astype(f32),
+            np.ascontiguousarray(b32[:, :3].T))
+
+
 def cut_disc(frame: np.ndarray, centres: np.ndarray, radius: float, dtype=np.float64):
     """The pixels within `radius` of integer centres (M, 2): values (M, N) of `dtype`, their
     offsets X, Y (N,) from the centre, and `inside` (M,) as in `cut_windows`."""
-    half, xs, ys, fx, fy, _ = _disc_offsets(np.ceil(float(radius) * 4.0) / 4.0)  # few sizes
+    radius = np.ceil(float(radius) * 4.0) / 4.0  # few sizes
+    half, xs, ys, fx, fy, _ = _disc_offsets(radius)
     h, w = frame.shape
     cx, cy = centres[:, 0], centres[:, 1]
     inside = (cx - half >= 0) & (cx + half < w) & (cy - half >= 0) & (cy + half < h)
-    if inside.all():
+    if inside.all() and frame.flags.c_contiguous:
+        # one take from the flattened frame (a view): a few times faster than indexing
+        # rows and columns
+        vals = frame.reshape(-1).take((cy * w + cx)[:, None] + _flat_offsets(radius, w))
+    elif inside.all():
         vals = frame[cy[:, None] + ys, cx[:, None] + xs]
     else:
         vals = frame[np.clip(cy[:, None] + ys, 0, h - 1), np.clip(cx[:, None] + xs, 0, w - 1)]
@@ -98,18 +121,17 @@ class CogFit:
     inside: np.ndarray
 
 
+_NORMAL = np.array([0, 1, 2, 1, 3, 4, 2, 4, 5])  # the 3x3 normal matrix from 1, x, y, x², xy, y²
+_RIDGE = 1e-9 * np.eye(3)  # (no weight at all: a zero plane, as by Cramer's rule before)
+
+
 def _weighted_plane(weights, values, basis):
     """Least-squares plane a + b x + c y through `values` (M, N) with `weights` (M, N).
 
     basis: (N, 6) columns 1, x, y, x², xy, y². Returns coefficients (M, 3)."""
-    s0, sx, sy, sxx, sxy, syy = (weights @ basis).astype(np.float64).T  # normal matrix
-    b0, b1, b2 = ((weights * values) @ basis[:, :3]).astype(np.float64).T  # (Cramer's rule)
-    c00, c01, c02 = syy * sxx - sxy * sxy, sxy * sy - syy * sx, sx * sxy - sxx * sy
-    c11, c12, c22 = s0 * syy - sy * sy, sx * sy - s0 * sxy, s0 * sxx - sx * sx
-    det = s0 * c00 + sx * c01 + sy * c02
-    det = np.where(np.abs(det) > 1e-12, det, 1.0)
-    return np.stack([c00 * b0 + c01 * b1 + c02 * b2, c01 * b0 + c11 * b1 + c12 * b2,
-                     c02 * b0 + c12 * b1 + c22 * b2], axis=1) / det[:, None]
+    normal = (weights @ basis).astype(np.float64)[:, _NORMAL].reshape(-1, 3, 3) + _RIDGE
+    rhs = ((weights * values) @ basis[:, :3]).astype(np.float64)
+    return np.linalg.solve(normal, rhs[:, :, None])[:, :, 0]
 
 
 def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, blur_dir=None,
@@ -128,68 +150,72 @@ def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, blur_
     xy0 = np.asarray(xy0, dtype=np.float64).reshape(-1, 2)
     m = xy0.shape[0]
     f32 = np.float32  # the sums below need no more: float32 halves the memory traffic
+    # (the per-frame cost is in the number of numpy calls on small arrays: few of them)
     r = np.broadcast_to(np.asarray(radius, dtype=f32), (m,))[:, None]
-    blur = np.broadcast_to(np.asarray(blur_px, dtype=f32), (m,))[:, None]
-    ra = r + f32(1.0) + f32(0.5) * blur  # aperture: disc, anti-aliased edge, blur
+    half = f32(0.5) * np.broadcast_to(np.asarray(blur_px, dtype=f32), (m,))[:, None]
+    ra = r + f32(1.0) + half  # aperture: disc, anti-aliased edge, blur
     ok = np.isfinite(xy0).all(axis=1)
-    base = np.where(ok[:, None], np.rint(xy0), 0).astype(np.int64)
+    base = np.rint(np.where(ok[:, None], xy0, 0.0)).astype(np.int64)
     reach = np.ceil((float(ra.max()) + 3.0 if m else 1.0) * 4.0) / 4.0
-    win, gx, gy, inside = cut_disc(frame, base, reach, dtype=f32)
-    basis = _disc_offsets(reach)[5].astype(f32)
-    rho0 = np.sqrt(gx * gx + gy * gy)
+    win, _, _, inside = cut_disc(frame, base, reach, dtype=f32)
+    gx, gy, basis, rho0, basis3t = _disc_f32(reach)
     # 1. local background: a plane through an annulus outside the disc (about the window
     #    centre, within half a pixel of the guess)
-    ring = ((rho0 >= ra + f32(0.5)) & (rho0 <= ra + f32(2.75))).astype(f32)
-    coef = _weighted_plane(ring, win, basis).astype(f32)
-    win -= coef @ basis[:, :3].T
+    ring = (np.abs(rho0 - (ra + f32(1.625))) <= f32(1.125)).astype(f32)
+    win -= _weighted_plane(ring, win, basis).astype(f32) @ basis3t
     # the annulus may reach past the dark surround of a small disc (the lug's edge, the
     # lighter surface beyond it): pixels well above the plane are not background. Their
     # spread is measured on the pixels below the plane (which they do not reach); fit
     # again without them.
+    n_ring = ring.sum(axis=1)
     for _ in range(2):
         below = ring * (win < 0)
-        scale = np.sqrt((below * win * win).sum(axis=1, keepdims=True)
-                        / np.maximum(below.sum(axis=1, keepdims=True), 1))
-        keep = ring * (win <= f32(3.0) * scale + f32(0.5))
-        if (keep.sum(axis=1) == ring.sum(axis=1)).all():
+        scale = np.sqrt(np.einsum("mn,mn,mn->m", below, win, win)
+                        / np.maximum(below.sum(axis=1), 1))
+        keep = ring * (win <= f32(3.0) * scale[:, None] + f32(0.5))
+        n_keep = keep.sum(axis=1)
+        if (n_keep == n_ring).all():
             break
-        coef2 = _weighted_plane(keep, win, basis).astype(f32)
-        win -= coef2 @ basis[:, :3].T
-        ring = keep
-    noise = np.sqrt((ring * win * win).sum(axis=1, dtype=np.float64)
-                    / np.maximum(ring.sum(axis=1, dtype=np.float64) - 3, 1))
+        win -= _weighted_plane(keep, win, basis).astype(f32) @ basis3t
+        ring, n_ring = keep, n_keep
+    noise = np.sqrt(np.einsum("mn,mn,mn->m", ring, win, win, dtype=np.float64)
+                    / np.maximum(n_ring.astype(np.float64) - 3, 1))
     # 2. plain centroid steps in the aperture
-    c = np.where(ok[:, None], xy0 - base, 0.0).astype(f32)
+    c = (xy0 - base).astype(f32)
+    c[~ok] = 0.0
     for _ in range(n_iter):
         dx, dy = gx - c[:, :1], gy - c[:, 1:]
-        wgt = win * np.minimum(np.maximum(ra + f32(0.5) - np.sqrt(dx * dx + dy * dy), 0), 1)
+        wgt = np.sqrt(dx * dx + dy * dy)
+        np.subtract(ra + f32(0.5), wgt, out=wgt)
+        np.maximum(wgt, 0, out=wgt)
+        np.minimum(wgt, 1, out=wgt)
+        wgt *= win
         mom = (wgt @ basis[:, :3]).astype(np.float64)
         c = (mom[:, 1:3] / np.where(mom[:, :1] > 0, mom[:, :1], 1.0)).astype(f32)
     # 3. flat-fielded centroid, the interior replaced by its fitted level
     dx, dy = gx - c[:, :1], gy - c[:, 1:]
     rho = np.sqrt(dx * dx + dy * dy)
     if blur_dir is None:
-        wi = np.minimum(np.maximum(r - f32(0.5) - f32(0.5) * blur - rho, 0), 1)
-        ap = np.minimum(np.maximum(ra + f32(0.5) - rho, 0), 1)
+        wi = r - f32(0.5) - half - rho
+        ap = ra + f32(0.5) - rho
     else:
         # a disc swept along a segment: covered by all its positions inside both end discs
         # (the lens), by none beyond the disc's reach from the segment (the stadium)
         u = np.asarray(blur_dir, dtype=f32).reshape(-1, 2)
         along = np.abs(dx * u[:, :1] + dy * u[:, 1:])
         across2 = np.maximum(rho * rho - along * along, 0)
-        half = f32(0.5) * blur
-        far = np.sqrt(across2 + (along + half) ** 2)
-        seg = np.sqrt(across2 + np.maximum(along - half, 0) ** 2)
-        wi = np.minimum(np.maximum(r - f32(0.5) - far, 0), 1)
-        ap = np.minimum(np.maximum(r + f32(1.5) - seg, 0), 1)
-    coef = _weighted_plane(wi, win, basis).astype(np.float64)
+        wi = r - f32(0.5) - np.sqrt(across2 + (along + half) ** 2)
+        ap = r + f32(1.5) - np.sqrt(across2 + np.maximum(along - half, 0) ** 2)
+    for a in (wi, ap):
+        np.maximum(a, 0, out=a)
+        np.minimum(a, 1, out=a)
+    coef = _weighted_plane(wi, win, basis)
     cc = c.astype(np.float64)
     level = coef[:, 0] + coef[:, 1] * cc[:, 0] + coef[:, 2] * cc[:, 1]
-    safe = np.where(np.abs(level) > 0, level, 1.0)
-    fitted = coef[:, 1:3] / safe[:, None]
-    rel = fitted if gain_slope is None else np.asarray(gain_slope, dtype=np.float64).reshape(-1, 2)
-    rel32 = rel.astype(f32)
-    flat = win / (f32(1.0) + rel32[:, :1] * dx + rel32[:, 1:] * dy)
+    fitted = coef[:, 1:3] / np.where(np.abs(level) > 0, level, 1.0)[:, None]
+    rel = (fitted if gain_slope is None else np.asarray(gain_slope, dtype=np.float64)).astype(f32)
+    rel = rel.reshape(-1, 2)
+    flat = win / (f32(1.0) + rel[:, :1] * dx + rel[:, 1:] * dy)
     wgt = (flat + wi * (level.astype(f32)[:, None] - flat)) * ap
     mom = (wgt @ basis).astype(np.float64)  # raw moments about the window centre
     flux = mom[:, 0]
@@ -202,8 +228,11 @@ def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, blur_
     radius_m = 2.0 * np.sqrt(np.maximum(half_tr - half_diff - 1.0 / 12.0, 0.0))
     streak = np.sqrt(24.0 * half_diff)
     contrast = flux / (np.pi * np.maximum(radius_m, 1e-9) ** 2)
-    xy = base + np.stack([mx, my], axis=1)
+    xy = np.empty((m, 2))
+    xy[:, 0], xy[:, 1] = mx, my
+    xy += base
     bad = ~(ok & inside & (flux > 0))
     xy[bad] = np.nan
-    shear = np.stack([0.5 * (mxx - myy), mxy], axis=1)
+    shear = np.empty((m, 2))
+    shear[:, 0], shear[:, 1] = 0.5 * (mxx - myy), mxy
     return CogFit(xy, flux, contrast, radius_m, streak, shear, noise, level, fitted, inside & ok)
