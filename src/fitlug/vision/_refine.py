@@ -122,16 +122,34 @@ class CogFit:
 
 
 _NORMAL = np.array([0, 1, 2, 1, 3, 4, 2, 4, 5])  # the 3x3 normal matrix from 1, x, y, x², xy, y²
-_RIDGE = 1e-9 * np.eye(3)  # (no weight at all: a zero plane, as by Cramer's rule before)
+_RIDGE = np.array([1e-9, 0, 0, 1e-9, 0, 1e-9])  # 1e-9 on its diagonal (no weight at all: a
+# zero plane)
+# its adjugate (symmetric, the same six places): cofactor k = n[a] n[b] - n[c] n[d]
+_COFACTORS = np.array([[3, 2, 1, 0, 1, 0], [5, 4, 4, 5, 2, 3],
+                       [4, 1, 2, 2, 0, 1], [4, 5, 3, 2, 4, 1]])
 
 
 def _weighted_plane(weights, values, basis):
     """Least-squares plane a + b x + c y through `values` (M, N) with `weights` (M, N).
 
-    basis: (N, 6) columns 1, x, y, x², xy, y². Returns coefficients (M, 3)."""
-    normal = (weights @ basis).astype(np.float64)[:, _NORMAL].reshape(-1, 3, 3) + _RIDGE
+    basis: (N, 6) columns 1, x, y, x², xy, y². Returns coefficients (M, 3).
+
+    The 3x3 normal equations are solved in closed form (adjugate over determinant,
+    vectorised over markers): a handful of numpy calls rather than a batched LAPACK solve,
+    whose per-call cost is several times theirs for these tiny systems."""
+    n = (weights @ basis).astype(np.float64) + _RIDGE  # (M, 6) the normal matrix's entries
     rhs = ((weights * values) @ basis[:, :3]).astype(np.float64)
-    return np.linalg.solve(normal, rhs[:, :, None])[:, :, 0]
+    g = n[:, _COFACTORS]  # (M, 4, 6)
+    cof = g[:, 0] * g[:, 1] - g[:, 2] * g[:, 3]  # c00, c01, c02, c11, c12, c22
+    det = np.einsum("mk,mk->m", n[:, :3], cof[:, :3])
+    return np.einsum("mij,mj->mi", cof[:, _NORMAL].reshape(-1, 3, 3), rhs) / det[:, None]
+
+
+def _per_marker(v, m, dtype):
+    """A scalar or (M,) as a column (M, 1) of `dtype` (np.broadcast_to costs more than the
+    rest of a small step)."""
+    v = np.asarray(v, dtype=dtype)
+    return np.full((m, 1), v, dtype=dtype) if v.ndim == 0 else v.reshape(m, 1)
 
 
 def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, blur_dir=None,
@@ -151,8 +169,8 @@ def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, blur_
     m = xy0.shape[0]
     f32 = np.float32  # the sums below need no more: float32 halves the memory traffic
     # (the per-frame cost is in the number of numpy calls on small arrays: few of them)
-    r = np.broadcast_to(np.asarray(radius, dtype=f32), (m,))[:, None]
-    half = f32(0.5) * np.broadcast_to(np.asarray(blur_px, dtype=f32), (m,))[:, None]
+    r = _per_marker(radius, m, f32)
+    half = f32(0.5) * _per_marker(blur_px, m, f32)
     ra = r + f32(1.0) + half  # aperture: disc, anti-aliased edge, blur
     ok = np.isfinite(xy0).all(axis=1)
     base = np.rint(np.where(ok[:, None], xy0, 0.0)).astype(np.int64)
