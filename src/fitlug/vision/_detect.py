@@ -71,7 +71,10 @@ def _find_cog(img, noise, r_range, min_contrast, shrunk=False):
     bg = cv2.blur(img, (k, k), borderType=cv2.BORDER_REFLECT)
     thresh = max(8.0 * noise, float(min_contrast))
     mask = ((img - bg) > thresh).astype(np.uint8)
-    n, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    # 16-bit labels when they cannot overflow (fewer set pixels than labels): the same
+    # labelling, three times cheaper than 32-bit ones on a whole frame
+    ltype = cv2.CV_16U if cv2.countNonZero(mask) < 65535 else cv2.CV_32S
+    n, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=ltype)
     if n <= 1:
         return np.zeros((0, 2)), np.zeros(0), np.zeros(0, bool)
     x, y, w, h, area = (stats[1:, i].astype(np.float64) for i in range(5))
@@ -132,13 +135,19 @@ def _find_qs(img, noise, qs_half, min_contrast, max_candidates=200):
     ixy = cv2.Sobel(g, cv2.CV_32F, 1, 1, ksize=3)
     resp = ixy * ixy - ixx * iyy  # minus the Hessian determinant: large at saddles
     k = int(2 * round(max(3.0, 0.5 * (qs_half or 6))) + 1)
-    peaks = (resp >= cv2.dilate(resp, np.ones((k, k), np.uint8))) & (resp > 0)
-    ys, xs = np.nonzero(peaks)
-    if xs.size == 0:
+    # local maxima above 2 % of the strongest (the strongest is one): the threshold first,
+    # so that few pixels are left to list
+    top_val = np.float32(cv2.minMaxLoc(resp)[1])
+    if not top_val > 0:
         return np.zeros((0, 2)), np.zeros(0), np.zeros(0)
+    peaks = (resp >= cv2.dilate(resp, np.ones((k, k), np.uint8))) & (resp > np.float32(0.02) * top_val)
+    pts = cv2.findNonZero(peaks.view(np.uint8))  # (n, 1, 2) x, y in raster order
+    if pts is None:
+        return np.zeros((0, 2)), np.zeros(0), np.zeros(0)
+    pts = pts.reshape(-1, 2).astype(np.intp)
+    xs, ys = pts[:, 0], pts[:, 1]
     vals = resp[ys, xs]
     top = np.argsort(vals)[::-1][:max_candidates]
-    top = top[vals[top] > 0.02 * vals[top[0]]]
     cand = np.stack([xs[top], ys[top]], axis=1).astype(np.float64)
     # to a fraction of a pixel by a parabola through the peak: the circles below are small
     h, w = resp.shape
