@@ -70,7 +70,8 @@ def _find_cog(img, noise, r_range, min_contrast, shrunk=False):
     k = int(2 * round(3 * r_hi) + 1)
     bg = cv2.blur(img, (k, k), borderType=cv2.BORDER_REFLECT)
     thresh = max(8.0 * noise, float(min_contrast))
-    mask = ((img - bg) > thresh).astype(np.uint8)
+    np.subtract(img, bg, out=bg)  # (in place, and the mask a view: no fresh whole-frame
+    mask = (bg > thresh).view(np.uint8)  # arrays to fault in)
     # 16-bit labels when they cannot overflow (fewer set pixels than labels): the same
     # labelling, three times cheaper than 32-bit ones on a whole frame
     ltype = cv2.CV_16U if cv2.countNonZero(mask) < 65535 else cv2.CV_32S
@@ -133,20 +134,20 @@ def _find_qs(img, noise, qs_half, min_contrast, max_candidates=200):
     ixx = cv2.Sobel(g, cv2.CV_32F, 2, 0, ksize=3)
     iyy = cv2.Sobel(g, cv2.CV_32F, 0, 2, ksize=3)
     ixy = cv2.Sobel(g, cv2.CV_32F, 1, 1, ksize=3)
-    resp = ixy * ixy - ixx * iyy  # minus the Hessian determinant: large at saddles
+    resp = np.multiply(ixy, ixy, out=ixy)  # minus the Hessian determinant: large at saddles
+    resp -= np.multiply(ixx, iyy, out=ixx)  # (in place: no fresh whole-frame arrays)
     k = int(2 * round(max(3.0, 0.5 * (qs_half or 6))) + 1)
     # local maxima above 2 % of the strongest (the strongest is one): the threshold first,
     # so that few pixels are left to list
     top_val = np.float32(cv2.minMaxLoc(resp)[1])
     if not top_val > 0:
         return np.zeros((0, 2)), np.zeros(0), np.zeros(0)
-    peaks = (resp >= cv2.dilate(resp, np.ones((k, k), np.uint8))) & (resp > np.float32(0.02) * top_val)
-    pts = cv2.findNonZero(peaks.view(np.uint8))  # (n, 1, 2) x, y in raster order
-    if pts is None:
-        return np.zeros((0, 2)), np.zeros(0), np.zeros(0)
+    pts = cv2.findNonZero((resp > np.float32(0.02) * top_val).view(np.uint8))  # raster order
     pts = pts.reshape(-1, 2).astype(np.intp)
     xs, ys = pts[:, 0], pts[:, 1]
     vals = resp[ys, xs]
+    peak = vals >= cv2.dilate(resp, np.ones((k, k), np.uint8))[ys, xs]
+    xs, ys, vals = xs[peak], ys[peak], vals[peak]
     top = np.argsort(vals)[::-1][:max_candidates]
     cand = np.stack([xs[top], ys[top]], axis=1).astype(np.float64)
     # to a fraction of a pixel by a parabola through the peak: the circles below are small
