@@ -159,10 +159,12 @@ class Tracker:
         # with a round aperture before the blur's direction was known: wider tolerances
         young = 1.0 if t.confirmed else 3.0
         ds = math.hypot(shear[0] - t.shear[0], shear[1] - t.shear[1])
-        return min(score(area / t.area - 1, young * max(0.006, 3.5 * 1.3 * rel)),
-                   score(radius / t.radius - 1, young * max(0.005, 3.5 * 1.1 * rel)),
-                   score(ds, young * max(0.12, 3.5 * 1.6 * rel * t.radius)
-                         + 0.2 * math.hypot(*t.shear)))
+        # the least of three `score`s (1 - |dev| / 2 tol, clipped to [0, 1]): the clip once
+        return min(max(min(
+            1.0 - 0.5 * abs(area / t.area - 1) / (young * max(0.006, 3.5 * 1.3 * rel)),
+            1.0 - 0.5 * abs(radius / t.radius - 1) / (young * max(0.005, 3.5 * 1.1 * rel)),
+            1.0 - 0.5 * ds / (young * max(0.12, 3.5 * 1.6 * rel * t.radius)
+                              + 0.2 * math.hypot(*t.shear))), 0.0), 1.0)
 
     @staticmethod
     def _qs_contrast_tol(t):
@@ -186,28 +188,33 @@ class Tracker:
 
     def _refine_cog(self, frame, frame_no, items, found):
         tracks = [it[0] for it in items]
-        pred = np.array([it[1] for it in items])
-        radius = np.array([t.size for t in tracks])
         blur = [self._blur(t) for t in tracks]
         known = all(d is not None for _, d in blur)
         # the lighting's slope across each disc, averaged along its track: fitted on the
         # few interior pixels of a small disc in one frame it is noisy enough to move the
         # centre by more than the slope itself does
         slopes = [t.slope for t in tracks]
-        gain = np.array(slopes) if all(g is not None for g in slopes) else None
-        fit = refine_cog(frame, pred, radius, blur_px=np.array([b for b, _ in blur]),
-                         blur_dir=np.array([d for _, d in blur]) if known else None,
-                         gain_slope=gain)
+        known_slopes = all(g is not None for g in slopes)
+        # one array for the per-marker inputs: prediction, radius, streak, its direction
+        # and the slope (one conversion from Python floats, not five)
+        cols = np.array([(it[1][0], it[1][1], t.size, b) + (d if known else (0.0, 0.0))
+                         + (tuple(g) if known_slopes else (0.0, 0.0))
+                         for it, t, (b, d), g in zip(items, tracks, blur, slopes)])
+        fit = refine_cog(frame, cols[:, 0:2], cols[:, 2], blur_px=cols[:, 3],
+                         blur_dir=cols[:, 4:6] if known else None,
+                         gain_slope=cols[:, 6:8] if known_slopes else None)
         area = (fit.flux / np.where(fit.level > 0, fit.level, np.inf)).tolist()
         xy, radii, shear = fit.xy.tolist(), fit.radius.tolist(), fit.shear.tolist()
         slope = fit.slope.tolist()
+        quality = self._cog_quality
         for i, t in enumerate(tracks):
             x, y = xy[i]
             if x != x:  # NaN: the window left the frame
                 continue
-            q = self._cog_quality(t, area[i], radii[i], shear[i])
-            if math.hypot(x - pred[i, 0], y - pred[i, 1]) <= 1.0 + 3.0 * items[i][2]:
-                found[t.uid] = (fit.xy[i], q, (area[i], radii[i], shear[i], slope[i]))
+            it = items[i]
+            if math.hypot(x - it[1][0], y - it[1][1]) <= 1.0 + 3.0 * it[2]:
+                found[t.uid] = (xy[i], quality(t, area[i], radii[i], shear[i]),
+                                (area[i], radii[i], shear[i], slope[i]))
 
     def _refine_qs(self, frame, frame_no, items, found):
         cfg = self.config
@@ -235,18 +242,21 @@ class Tracker:
                              n_iter=4, hold_slopes=warm)
             for name in ("xy", "rms", "contrast", "params", "dof"):
                 getattr(fit, name)[slow] = getattr(more, name)
+        xy, contrast, rms, dof = fit.xy.tolist(), fit.contrast.tolist(), fit.rms.tolist(), \
+            fit.dof.tolist()
         for i, t in enumerate(tracks):
-            if not np.isfinite(fit.xy[i, 0]):
+            x, y = xy[i]
+            if not (abs(x) < math.inf):
                 continue
-            q = score(fit.contrast[i] / t.contrast - 1, self._qs_contrast_tol(t))
+            q = score(contrast[i] / t.contrast - 1, self._qs_contrast_tol(t))
             if t.rms is not None:  # occlusion or a wrong fit: the residual jumps
                 # (by more than its own scatter: ~1/sqrt(2 dof) relative, large for the few
                 # pixels of a small checker)
-                tol = max(0.25, 3.5 / math.sqrt(2.0 * max(float(fit.dof[i]), 1.0)))
-                q = min(q, score(max(fit.rms[i] / max(t.rms, self.noise) - 1, 0.0), tol))
-            d = np.hypot(*(fit.xy[i] - pred[i]))
-            if d <= 1.0 + 3.0 * items[i][2]:
-                found[t.uid] = (fit.xy[i], q, (fit.rms[i], fit.contrast[i], fit.params[i]))
+                tol = max(0.25, 3.5 / math.sqrt(2.0 * max(dof[i], 1.0)))
+                q = min(q, score(max(rms[i] / max(t.rms, self.noise) - 1, 0.0), tol))
+            it = items[i]
+            if math.hypot(x - it[1][0], y - it[1][1]) <= 1.0 + 3.0 * it[2]:
+                found[t.uid] = (xy[i], q, (rms[i], contrast[i], fit.params[i]))
 
     def _search(self, frame, frame_no, t, xy, unc, found):
         cfg = self.config
@@ -301,12 +311,15 @@ class Tracker:
             if len(t.frames) >= cfg.min_length:
                 t.confirmed = True
             if t.kind == COG:
-                t.area, t.radius = ema(t.area, extra[0]), ema(t.radius, extra[1])
-                t.shear = extra[2] if t.shear is None else \
-                    [0.8 * t.shear[0] + 0.2 * extra[2][0], 0.8 * t.shear[1] + 0.2 * extra[2][1]]
+                if t.area is None:
+                    t.area, t.radius, t.shear, t.slope = extra
+                else:  # (ema, written out)
+                    t.area = 0.8 * t.area + 0.2 * extra[0]
+                    t.radius = 0.8 * t.radius + 0.2 * extra[1]
+                    sh, sl = extra[2], extra[3]
+                    t.shear = [0.8 * t.shear[0] + 0.2 * sh[0], 0.8 * t.shear[1] + 0.2 * sh[1]]
+                    t.slope = [0.9 * t.slope[0] + 0.1 * sl[0], 0.9 * t.slope[1] + 0.1 * sl[1]]
                 t.size = t.radius
-                t.slope = extra[3] if t.slope is None else \
-                    [0.9 * t.slope[0] + 0.1 * extra[3][0], 0.9 * t.slope[1] + 0.1 * extra[3][1]]
             else:
                 if extra[0] is not None:
                     t.rms = ema(t.rms, extra[0])
