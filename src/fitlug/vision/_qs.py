@@ -160,6 +160,7 @@ _FREE = np.ones(N_PARAMS)
 _FREE[_SLOPES] = 0.0
 _HOLD_KEEP = _FREE[:, None] * _FREE[None, :]
 _SLOPE_BLOCK = (_SLOPES[:, None] * N_PARAMS + _SLOPES[None, :]).ravel()  # in a flat (11 x 11)
+_RIDGE4 = 1e-9 * np.eye(4)
 # bounds of a step (centre 1 px, blur widths 0.25 px) and of the blur widths
 _STEP_HI = np.full(N_PARAMS, np.inf)
 _STEP_HI[:2], _STEP_HI[3:5] = 1.0, 0.25
@@ -270,7 +271,7 @@ def _fit(win, rfit, xy, basis, p, n_iter, prior=None, hold=False):
     if hold and hess is not None:
         # the gradient at the final parameters, linearised from where it was taken
         g = grad - (hess @ (best - at)[..., None])[..., 0]
-        sub = hess.reshape(m_, -1)[:, _SLOPE_BLOCK].reshape(m_, 4, 4) + 1e-9 * np.eye(4)
+        sub = hess.reshape(m_, -1)[:, _SLOPE_BLOCK].reshape(m_, 4, 4) + _RIDGE4
         slopes += np.linalg.solve(sub, g[:, _SLOPES, None])[..., 0]
     return best, rms, slopes, dof
 
@@ -312,7 +313,8 @@ def refine_qs(frame: np.ndarray, xy0: np.ndarray, half_size, *, params: np.ndarr
     xy0 = np.asarray(xy0, dtype=np.float64).reshape(-1, 2)
     m = xy0.shape[0]
     ok = np.isfinite(xy0).all(axis=1)
-    hs = np.broadcast_to(np.asarray(half_size, dtype=np.float64), (m,))
+    hs = np.asarray(half_size, dtype=np.float64)
+    hs = np.full(m, hs) if hs.ndim == 0 else hs.reshape(m)  # (not np.broadcast_to: slower)
     base = np.where(ok[:, None], np.rint(xy0), 0).astype(np.int64)
     inside = ok.copy()
     if search > 0:
@@ -331,8 +333,8 @@ def refine_qs(frame: np.ndarray, xy0: np.ndarray, half_size, *, params: np.ndarr
         p[:, 3:5] = _edge_widths(sq)
     else:  # levels come at the marker's centre: refer them to this window's centre
         p[:, 2:] = params[:, 2:]
-        p[:, _A] -= p[:, _A + 1] * p[:, 0] + p[:, _A + 2] * p[:, 1]
-        p[:, _B] -= p[:, _B + 1] * p[:, 0] + p[:, _B + 2] * p[:, 1]
+        planes = p[:, _A:].reshape(m, 2, 3)  # (a view) both planes at once
+        planes[:, :, 0] -= planes[:, :, 1] * p[:, :1] + planes[:, :, 2] * p[:, 1:2]
     rfit = np.maximum(hs - 1.0 - 0.5 * p[:, 3:5].max(axis=1) - 0.25, 2.5)[:, None]
     reach = np.ceil((float(rfit.max()) + 1.25) * 4.0) / 4.0
     win, x, y, ins = cut_disc(frame, base, reach)
@@ -352,7 +354,7 @@ def refine_qs(frame: np.ndarray, xy0: np.ndarray, half_size, *, params: np.ndarr
     xy[bad] = np.nan
     out = p.copy()  # levels at the marker's centre, position in the frame: for warm starts
     out[:, :2] = xy
-    out[:, _A] += p[:, _A + 1] * p[:, 0] + p[:, _A + 2] * p[:, 1]
-    out[:, _B] += p[:, _B + 1] * p[:, 0] + p[:, _B + 2] * p[:, 1]
+    planes = out[:, _A:].reshape(m, 2, 3)
+    planes[:, :, 0] += planes[:, :, 1] * p[:, :1] + planes[:, :, 2] * p[:, 1:2]
     out[:, _SLOPES] = slopes
     return QsFit(xy, p[:, 2].copy(), p[:, 3:5].copy(), out[:, _B].copy(), rms, inside, out, dof)
