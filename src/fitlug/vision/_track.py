@@ -288,14 +288,22 @@ class Tracker:
         uids = list(found)
         # two tracks on one marker: neither sample can be trusted
         if len(uids) > 1:
-            xy = np.array([found[u][0] for u in uids])
-            size = np.array([self.tracks[u].size for u in uids])
-            d = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
-            np.fill_diagonal(d, np.inf)
-            clash = (d < np.maximum(size[:, None], size[None, :])).any(axis=1)
-            for u, c in zip(uids, clash):
-                if c:
-                    del found[u]
+            # pairs nearer than the larger of their sizes; in order of x, only the pairs
+            # closer in x than the largest size need the distance (a few Python
+            # comparisons rather than an all-pairs array)
+            pts = sorted((float(found[u][0][0]), float(found[u][0][1]), self.tracks[u].size, u)
+                         for u in uids)
+            reach = max(p[2] for p in pts)
+            clash = set()
+            for i, (xi, yi, si, ui) in enumerate(pts):
+                for xj, yj, sj, uj in pts[i + 1:]:
+                    if xj - xi >= reach:
+                        break
+                    if math.hypot(xj - xi, yj - yi) < max(si, sj):
+                        clash.add(ui)
+                        clash.add(uj)
+            for u in clash:
+                del found[u]
         for t in list(self._live):
             got = found.get(t.uid)
             if got is None or got[1] < cfg.min_quality:
@@ -307,7 +315,11 @@ class Tracker:
                         self._watch.append((t, frame_no + cfg.watch_frames))
                 continue
             xy, q, extra = got
-            t.add(frame_no, xy, q)
+            t.frames.append(frame_no)  # (Track.add, inlined)
+            t.xs.append(float(xy[0]))
+            t.ys.append(float(xy[1]))
+            t.qs.append(float(q))
+            t.misses = 0
             if len(t.frames) >= cfg.min_length:
                 t.confirmed = True
             if t.kind == COG:
