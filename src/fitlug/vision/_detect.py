@@ -146,12 +146,21 @@ def _find_qs(img, noise, qs_half, min_contrast, max_candidates=200):
     pts = pts.reshape(-1, 2).astype(np.intp)
     xs, ys = pts[:, 0], pts[:, 1]
     vals = resp[ys, xs]
-    peak = vals >= cv2.dilate(resp, np.ones((k, k), np.uint8))[ys, xs]
+    # local maxima: the greatest in the k x k square around them (as a dilation says; for
+    # a few pixels, only at them: indices clipped to the image repeat pixels of the
+    # square, which leaves its maximum as it is)
+    h, w = resp.shape
+    if vals.size * k * k < resp.size // 4:
+        off = np.arange(k) - k // 2
+        around = resp[np.clip(ys[:, None, None] + off[:, None], 0, h - 1),
+                      np.clip(xs[:, None, None] + off[None, :], 0, w - 1)]
+        peak = vals >= around.reshape(vals.size, -1).max(axis=1)
+    else:
+        peak = vals >= cv2.dilate(resp, np.ones((k, k), np.uint8))[ys, xs]
     xs, ys, vals = xs[peak], ys[peak], vals[peak]
     top = np.argsort(vals)[::-1][:max_candidates]
     cand = np.stack([xs[top], ys[top]], axis=1).astype(np.float64)
     # to a fraction of a pixel by a parabola through the peak: the circles below are small
-    h, w = resp.shape
     x0, y0 = np.clip(xs[top], 1, w - 2), np.clip(ys[top], 1, h - 2)
     for axis, (lo, hi) in enumerate((((y0, x0 - 1), (y0, x0 + 1)), ((y0 - 1, x0), (y0 + 1, x0)))):
         rm, r0, rp = resp[lo], resp[y0, x0], resp[hi]
