@@ -167,3 +167,24 @@ def test_windows_leaving_the_frame_give_no_position():
     assert np.isnan(fit.xy).all() and not fit.inside.any()
     q = refine_qs(img, np.array([[50.0, 97.0]]), HALF_QS)
     assert np.isnan(q.xy).all()
+
+
+def test_markers_already_followed_are_left_out():
+    # a tracker's searches pass the markers its live tracks follow: their candidates are
+    # not refined nor returned, the others come out as without them
+    rng = np.random.default_rng(9)
+    kinds = ["cog", "qs", "cog", "qs", "cog", "cog"]
+    (img, truth), = _frames(kinds, 1, rng)
+    cog = [k for k, kind in enumerate(kinds) if kind == "cog"]
+    qs = [k for k, kind in enumerate(kinds) if kind == "qs"]
+    # followed: two discs and one checker, their positions as a track would have them
+    known = {"cog": (truth[cog[:2]] + 0.3, [R_COG, R_COG]), "qs": (truth[qs[:1]] - 0.2, [HALF_QS])}
+    for scale in (1, 2):
+        det = detect_markers(img, cog_radius=R_COG, qs_half=HALF_QS, scale=scale, known=known)
+        assert len(det) == len(kinds) - 3
+        for k in cog[2:] + qs[1:]:
+            d = np.hypot(*(det.xy - truth[k]).T)
+            j = int(np.argmin(d))
+            assert d[j] < 0.03 and det.kind[j] == kinds[k]
+        for k in cog[:2] + qs[:1]:
+            assert np.hypot(*(det.xy - truth[k]).T).min() > 2 * R_COG

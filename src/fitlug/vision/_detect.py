@@ -259,7 +259,7 @@ def _suppress(xy, score, radius):
 
 def detect_markers(frame: np.ndarray, *, kinds=(COG, QS), cog_radius=None, qs_half=None,
                    cog_radius_range=(3.5, 40.0), min_contrast: float = 0.0, roi=None,
-                   noise: float | None = None, scale: int = 1) -> Detections:
+                   noise: float | None = None, scale: int = 1, known=None) -> Detections:
     """Find and refine COG and QS markers in a frame.
 
     frame: (H, W) grey image; kinds: which marker types to look for; cog_radius: disc
@@ -268,7 +268,11 @@ def detect_markers(frame: np.ndarray, *, kinds=(COG, QS), cog_radius=None, qs_ha
     default threshold is 8x the noise); roi: (x0, y0, x1, y1) px to search only there;
     noise: pixel noise std if known; scale: search on the frame shrunk by this factor
     (1 or 2; faster, for markers of known size), refine at full resolution; a dict
-    {kind: factor} gives each kind its own.
+    {kind: factor} gives each kind its own; known: {kind: (xy (K, 2), radius (K,))} markers
+    already followed (a tracker's live tracks): a candidate of that kind nearer to one of
+    them than its radius is not refined nor returned (a tracker drops detections within
+    twice the radius of its tracks), and known checkers keep discs off their light
+    quarters as found ones do.
     Returns Detections in full-frame pixels.
     """
     import cv2
@@ -303,6 +307,16 @@ def detect_markers(frame: np.ndarray, *, kinds=(COG, QS), cog_radius=None, qs_ha
     xy_l, kind_l, size_l, con_l = [], [], [], []
     extra = {}
     qs_xy, qs_hs = np.zeros((0, 2)), 0.0
+    known = known or {}
+
+    def unknown(kind, cand):
+        """Which candidates (n, 2) lie farther from every known marker of `kind` than
+        its radius."""
+        if kind not in known or len(known[kind][0]) == 0 or cand.shape[0] == 0:
+            return np.ones(cand.shape[0], bool)
+        kxy, kr = (np.asarray(v, dtype=np.float64) for v in known[kind])
+        d = np.hypot(*(cand[:, None, :] - kxy[None, :, :]).transpose(2, 0, 1))
+        return (d >= kr[None, :]).all(axis=1)
     if QS in kinds:
         search, k = search_image(QS)
         s_noise = noise / k
@@ -311,6 +325,9 @@ def detect_markers(frame: np.ndarray, *, kinds=(COG, QS), cog_radius=None, qs_ha
         if cand.shape[0]:
             keep = _suppress(cand, score, max(4.0, float(np.median(half))))
             cand, half = to_full(cand[keep]), half[keep] * k
+            new = unknown(QS, cand)
+            cand, half = cand[new], half[new]
+        if cand.shape[0]:
             hs = half if qs_half is None else np.full(half.shape, float(qs_half))
             fit = refine_qs(frame, cand, hs, search=max(2, int(k) + 1), n_iter=8)
             if qs_half is None:  # the ring scan gives the size to a pixel: measure it
@@ -327,6 +344,9 @@ def detect_markers(frame: np.ndarray, *, kinds=(COG, QS), cog_radius=None, qs_ha
             size_l.append(hs[good])
             con_l.append(fit.contrast[good])
             extra["qs_params"] = fit.params[good]
+        if QS in known and len(known[QS][0]):
+            qs_xy = np.concatenate([qs_xy, np.asarray(known[QS][0], np.float64).reshape(-1, 2)])
+            qs_hs = max(qs_hs, float(np.max(known[QS][1])))
     if COG in kinds:
         search, k = search_image(COG)
         s_noise = noise / k
@@ -349,6 +369,9 @@ def detect_markers(frame: np.ndarray, *, kinds=(COG, QS), cog_radius=None, qs_ha
                 d = np.hypot(*(cand[:, None, :] - qs_xy[None, :, :]).transpose(2, 0, 1))
                 far = (d > 2.0 * qs_hs).all(axis=1)
                 cand, radii = cand[far], radii[far]
+            new = unknown(COG, cand)
+            cand, radii = cand[new], radii[new]
+        if cand.shape[0]:
             r = radii if cog_radius is None else np.full(radii.shape, float(cog_radius))
             fit = refine_cog(frame, cand, r, blur_px=1.0, n_iter=3)
             good = np.isfinite(fit.xy).all(axis=1) & (fit.contrast > max(8.0 * noise, min_contrast))

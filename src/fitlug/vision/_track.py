@@ -85,11 +85,11 @@ class Tracker:
         self._watch: list = []  # (closed track, last frame to search for its marker)
 
     # -- helpers ---------------------------------------------------------------------------
-    def _detect(self, frame, roi=None, kinds=None, scale=1):
+    def _detect(self, frame, roi=None, kinds=None, scale=1, known=None):
         cfg = self.config
         det = detect_markers(frame, kinds=kinds or cfg.kinds, cog_radius=self.cog_radius,
                              qs_half=self.qs_half, min_contrast=cfg.min_contrast, roi=roi,
-                             noise=self.noise, scale=scale)
+                             noise=self.noise, scale=scale, known=known)
         # sizes measured on the first markers found make the later searches cheaper
         if self.cog_radius is None and np.any(det.kind == COG):
             self.cog_radius = float(np.median(det.size[det.kind == COG]))
@@ -350,9 +350,22 @@ class Tracker:
         return {COG: 2 if self.cog_radius is not None and self.cog_radius >= 3.5 else 1,
                 QS: 2 if self.qs_half is not None and self.qs_half >= 4.75 else 1}
 
+    def _known(self, frame_no):
+        """The markers the live tracks sampled in this frame, {kind: (xy, radius)}: a
+        search for new markers need not refine the candidates on them (`_add_new` would
+        drop their detections, which lie within twice the radius)."""
+        out = {}
+        for t in self._live:
+            if t.frames[-1] == frame_no:
+                xy, r = out.setdefault(t.kind, ([], []))
+                xy.append((t.xs[-1], t.ys[-1]))
+                r.append(t.size)
+        return out
+
     def _pick_up(self, frame, frame_no):
         """Whole-frame search for markers no track follows."""
-        self._add_new(self._detect(frame, scale=self._search_scale()), frame_no)
+        self._add_new(self._detect(frame, scale=self._search_scale(),
+                                   known=self._known(frame_no)), frame_no)
 
     def _pick_up_lost(self, frame, frame_no):
         """Search where the markers of recently closed tracks would be now (their
@@ -373,7 +386,7 @@ class Tracker:
                 continue  # gone out of the picture
             n_before = len(self.tracks)
             det = self._detect(frame, roi=(px - pad, py - pad, px + pad + 1, py + pad + 1),
-                               kinds=(t.kind,))
+                               kinds=(t.kind,), known=self._known(frame_no))
             if len(det):
                 d = np.hypot(*(det.xy - np.array([px, py])).T)
                 near = d <= reach
@@ -409,7 +422,8 @@ class Tracker:
                 continue
             pad = int(2 * max(known)) + 2  # markers straddling the strip's inner side too
             roi = (max(x0 - pad, 0), max(y0 - pad, 0), min(x1 + pad, w), min(y1 + pad, h))
-            self._add_new(self._detect(frame, roi=roi, scale=self._search_scale()), frame_no)
+            self._add_new(self._detect(frame, roi=roi, scale=self._search_scale(),
+                                       known=self._known(frame_no)), frame_no)
 
     def _add_new(self, det, frame_no):
         """Start a track for each detection that no live track is following."""
