@@ -243,7 +243,7 @@ def main(argv=None):
     search = []
     for _ in range(5):
         c0 = time.process_time()
-        tracker._pick_up(frames[-1], len(frames) - 1)  # the frame just tracked
+        tracker._pick_up(frames[tracker.frames[-1]], tracker.frames[-1])  # the frame just tracked
         search.append(time.process_time() - c0)
     search = min(search)
     redetect = TrackerConfig().redetect_every
@@ -355,7 +355,7 @@ for _ in range(int(sys.argv[3])):
 search = []
 for _ in range(5):
     c1 = time.process_time()
-    tr._pick_up(frames[len(frames) - 1], len(frames) - 1)
+    tr._pick_up(frames[tr.frames[-1]], tr.frames[-1])
     search.append(time.process_time() - c1)
 from fitlug.vision import TrackerConfig
 np.savez(sys.argv[2], xy=res.xy_px, wall=wall, cpu=cpu, blocks=np.array(blocks),
