@@ -107,7 +107,8 @@ class CogFit:
     background at its centre, fitted on its interior), `slope` (M, 2) relative brightness
     slope of the disc fitted on its interior in this frame, 1/px (used for flat-fielding
     unless `gain_slope` was given), `inside` (bool). flux / level is the
-    disc's area whatever the lighting: a partly hidden disc shows less."""
+    disc's area whatever the lighting: a partly hidden disc shows less. `contrast`,
+    `streak` and `noise` are None when refine_cog was asked for no `stats`."""
 
     xy: np.ndarray
     flux: np.ndarray
@@ -153,7 +154,7 @@ def _per_marker(v, m, dtype):
 
 
 def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, blur_dir=None,
-               n_iter: int = 1, gain_slope=None) -> CogFit:
+               n_iter: int = 1, gain_slope=None, stats: bool = True) -> CogFit:
     """Centre of gravity of bright discs near first guesses.
 
     frame: (H, W) grey image (any numeric dtype); xy0: (M, 2) first guesses, px, within
@@ -163,7 +164,8 @@ def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, blur_
     the streak's shape, a stadium and a lens, rather than widening all round); n_iter:
     plain centroid steps before the final one (1 is enough from a guess within a pixel);
     gain_slope: (M, 2) relative brightness slope of each disc, 1/px, if known, else
-    fitted on the disc's interior.
+    fitted on the disc's interior; stats: also `contrast`, `streak` and `noise` (else None:
+    a tracker following the discs has no use for them).
     """
     xy0 = np.asarray(xy0, dtype=np.float64).reshape(-1, 2)
     m = xy0.shape[0]
@@ -197,7 +199,7 @@ def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, blur_
         win -= _weighted_plane(keep, win, basis).astype(f32) @ basis3t
         ring, n_ring = keep, n_keep
     noise = np.sqrt(np.einsum("mn,mn,mn->m", ring, win, win, dtype=np.float64)
-                    / np.maximum(n_ring.astype(np.float64) - 3, 1))
+                    / np.maximum(n_ring.astype(np.float64) - 3, 1)) if stats else None
     # 2. plain centroid steps in the aperture
     c = (xy0 - base).astype(f32)
     c[~ok] = 0.0
@@ -244,8 +246,10 @@ def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, blur_
     # moments R²/4 + 1/12 across the streak and R²/4 + 1/12 + L²/12 along it.
     half_tr, half_diff = 0.5 * (mxx + myy), np.sqrt(0.25 * (mxx - myy) ** 2 + mxy ** 2)
     radius_m = 2.0 * np.sqrt(np.maximum(half_tr - half_diff - 1.0 / 12.0, 0.0))
-    streak = np.sqrt(24.0 * half_diff)
-    contrast = flux / (np.pi * np.maximum(radius_m, 1e-9) ** 2)
+    streak = contrast = None
+    if stats:
+        streak = np.sqrt(24.0 * half_diff)
+        contrast = flux / (np.pi * np.maximum(radius_m, 1e-9) ** 2)
     xy = np.empty((m, 2))
     xy[:, 0], xy[:, 1] = mx, my
     xy += base

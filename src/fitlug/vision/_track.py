@@ -202,7 +202,7 @@ class Tracker:
                          for it, t, (b, d), g in zip(items, tracks, blur, slopes)])
         fit = refine_cog(frame, cols[:, 0:2], cols[:, 2], blur_px=cols[:, 3],
                          blur_dir=cols[:, 4:6] if known else None,
-                         gain_slope=cols[:, 6:8] if known_slopes else None)
+                         gain_slope=cols[:, 6:8] if known_slopes else None, stats=False)
         area = (fit.flux / np.where(fit.level > 0, fit.level, np.inf)).tolist()
         xy, radii, shear = fit.xy.tolist(), fit.radius.tolist(), fit.shear.tolist()
         slope = fit.slope.tolist()
@@ -272,7 +272,8 @@ class Tracker:
         if d[j] > reach or (d.size > 1 and d[order[1]] < 1.5 * d[j] + 2.0):
             return  # nothing there, or not clearly one marker
         if t.kind == COG:
-            fit = refine_cog(frame, det.xy[j:j + 1], t.size, blur_px=self._blur(t)[0], n_iter=3)
+            fit = refine_cog(frame, det.xy[j:j + 1], t.size, blur_px=self._blur(t)[0], n_iter=3,
+                             stats=False)
             area = fit.flux[0] / fit.level[0] if fit.level[0] > 0 else 0.0
             extra = (area, fit.radius[0], fit.shear[0], fit.slope[0].tolist())
             q = self._cog_quality(t, area, fit.radius[0], fit.shear[0])
