@@ -259,7 +259,8 @@ def _suppress(xy, score, radius):
 
 def detect_markers(frame: np.ndarray, *, kinds=(COG, QS), cog_radius=None, qs_half=None,
                    cog_radius_range=(3.5, 40.0), min_contrast: float = 0.0, roi=None,
-                   noise: float | None = None, scale: int = 1, known=None) -> Detections:
+                   noise: float | None = None, scale: int = 1, known=None,
+                   refine: bool = True) -> Detections:
     """Find and refine COG and QS markers in a frame.
 
     frame: (H, W) grey image; kinds: which marker types to look for; cog_radius: disc
@@ -272,7 +273,9 @@ def detect_markers(frame: np.ndarray, *, kinds=(COG, QS), cog_radius=None, qs_ha
     already followed (a tracker's live tracks): a candidate of that kind nearer to one of
     them than its radius is not refined nor returned (a tracker drops detections within
     twice the radius of its tracks), and known checkers keep discs off their light
-    quarters as found ones do.
+    quarters as found ones do; refine: False gives the COG candidates unrefined (their
+    blobs' centroids, their equivalent radii, contrast NaN), for a caller that refines
+    them its own way.
     Returns Detections in full-frame pixels.
     """
     import cv2
@@ -371,7 +374,12 @@ def detect_markers(frame: np.ndarray, *, kinds=(COG, QS), cog_radius=None, qs_ha
                 cand, radii = cand[far], radii[far]
             new = unknown(COG, cand)
             cand, radii = cand[new], radii[new]
-        if cand.shape[0]:
+        if cand.shape[0] and not refine:
+            xy_l.append(cand)
+            kind_l.append(np.full(cand.shape[0], COG))
+            size_l.append(radii)
+            con_l.append(np.full(cand.shape[0], np.nan))
+        elif cand.shape[0]:
             r = radii if cog_radius is None else np.full(radii.shape, float(cog_radius))
             fit = refine_cog(frame, cand, r, blur_px=1.0, n_iter=3)
             good = np.isfinite(fit.xy).all(axis=1) & (fit.contrast > max(8.0 * noise, min_contrast))

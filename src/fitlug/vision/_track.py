@@ -85,11 +85,11 @@ class Tracker:
         self._watch: list = []  # (closed track, last frame to search for its marker)
 
     # -- helpers ---------------------------------------------------------------------------
-    def _detect(self, frame, roi=None, kinds=None, scale=1, known=None):
+    def _detect(self, frame, roi=None, kinds=None, scale=1, known=None, refine=True):
         cfg = self.config
         det = detect_markers(frame, kinds=kinds or cfg.kinds, cog_radius=self.cog_radius,
                              qs_half=self.qs_half, min_contrast=cfg.min_contrast, roi=roi,
-                             noise=self.noise, scale=scale, known=known)
+                             noise=self.noise, scale=scale, known=known, refine=refine)
         # sizes measured on the first markers found make the later searches cheaper
         if self.cog_radius is None and np.any(det.kind == COG):
             self.cog_radius = float(np.median(det.size[det.kind == COG]))
@@ -263,26 +263,36 @@ class Tracker:
         reach = cfg.max_step if unc is None else min(unc * 3.0 + 2.0, cfg.max_step * 2)
         pad = reach + 2.5 * t.size + 4
         roi = (xy[0] - pad, xy[1] - pad, xy[0] + pad + 1, xy[1] + pad + 1)
-        det = self._detect(frame, roi=roi, kinds=(t.kind,))
+        # discs: the blobs found, refined once, with the track's radius and streak (the
+        # same filter as a detection's: a contrast of 8 x the noise)
+        det = self._detect(frame, roi=roi, kinds=(t.kind,), refine=t.kind != COG)
         if len(det) == 0:
             return
-        d = np.hypot(*(det.xy - np.asarray(xy)).T)
+        if t.kind == COG:
+            fit = refine_cog(frame, det.xy, t.size, blur_px=self._blur(t)[0], n_iter=3)
+            good = np.flatnonzero(np.isfinite(fit.xy[:, 0])
+                                  & (fit.contrast > max(8.0 * self.noise, cfg.min_contrast)))
+            if good.size == 0:
+                return
+            pos = fit.xy[good]
+        else:
+            pos = det.xy
+        d = np.hypot(*(pos - np.asarray(xy)).T)
         order = np.argsort(d)
         j = order[0]
         if d[j] > reach or (d.size > 1 and d[order[1]] < 1.5 * d[j] + 2.0):
             return  # nothing there, or not clearly one marker
         if t.kind == COG:
-            fit = refine_cog(frame, det.xy[j:j + 1], t.size, blur_px=self._blur(t)[0], n_iter=3,
-                             stats=False)
-            area = fit.flux[0] / fit.level[0] if fit.level[0] > 0 else 0.0
-            extra = (area, fit.radius[0], fit.shear[0], fit.slope[0].tolist())
-            q = self._cog_quality(t, area, fit.radius[0], fit.shear[0])
+            i = good[j]
+            area = fit.flux[i] / fit.level[i] if fit.level[i] > 0 else 0.0
+            extra = (area, fit.radius[i], fit.shear[i], fit.slope[i].tolist())
+            q = self._cog_quality(t, area, fit.radius[i], fit.shear[i])
         else:
             row = int(np.flatnonzero(det.kind[:j + 1] == QS).size - 1)
             p = det.extra["qs_params"][row]
             q = score(p[_B] / t.contrast - 1, self._qs_contrast_tol(t))
             extra = (None, p[_B], p)
-        found[t.uid] = (det.xy[j], q, extra)
+        found[t.uid] = (pos[j], q, extra)
 
     def _accept(self, frame_no, found):
         cfg = self.config
