@@ -231,10 +231,13 @@ class Tracker:
         # above": by more than the residual's own scatter (~1/sqrt(2 dof) relative, 17 % for
         # the few pixels of a small checker, which 1.2 x alone sent on 4 more steps in one
         # frame of six, converged fits all but never changed by them)
-        ref = np.array([max(t.rms, self.noise) if t.rms is not None else np.inf for t in tracks])
-        rise = np.maximum(0.2, 2.0 / np.sqrt(2.0 * np.maximum(fit.dof, 1.0)))
-        slow = np.isfinite(fit.xy[:, 0]) & (fit.rms > (1.0 + rise) * ref)
-        if slow.any():
+        xy, contrast, rms, dof = fit.xy.tolist(), fit.contrast.tolist(), fit.rms.tolist(), \
+            fit.dof.tolist()
+        slow = [i for i, t in enumerate(tracks) if abs(xy[i][0]) < math.inf
+                and t.rms is not None and rms[i] > (1.0 + max(0.2, 2.0 / math.sqrt(
+                    2.0 * max(dof[i], 1.0)))) * max(t.rms, self.noise)]
+        if slow:
+            slow = np.array(slow)
             held = fit.params[slow].copy()
             if warm:
                 held[:, _SLOPES] = params[slow][:, _SLOPES]
@@ -242,8 +245,8 @@ class Tracker:
                              n_iter=4, hold_slopes=warm)
             for name in ("xy", "rms", "contrast", "params", "dof"):
                 getattr(fit, name)[slow] = getattr(more, name)
-        xy, contrast, rms, dof = fit.xy.tolist(), fit.contrast.tolist(), fit.rms.tolist(), \
-            fit.dof.tolist()
+            xy, contrast, rms, dof = fit.xy.tolist(), fit.contrast.tolist(), fit.rms.tolist(), \
+                fit.dof.tolist()
         for i, t in enumerate(tracks):
             x, y = xy[i]
             if not (abs(x) < math.inf):
