@@ -145,8 +145,8 @@ def _model(win, rfit, xy, basis, p, jacobian=True):
     ab = gm * ds * swap  # a = gm du sv, b = gm su dv
     jac = np.empty((m_, N_PARAMS, xy.shape[1]))
     # d/dx0, d/dy0: -(rotation transposed) (a, b); d/dθ: v a - u b
-    jac[:, 0:2] = -rot.transpose(0, 2, 1) @ ab
-    jac[:, 2] = uv[:, 1] * ab[:, 0] - uv[:, 0] * ab[:, 1]
+    np.matmul(-rot.transpose(0, 2, 1), ab, out=jac[:, 0:2])
+    np.subtract(uv[:, 1] * ab[:, 0], uv[:, 0] * ab[:, 1], out=jac[:, 2])
     np.multiply(gm * db, swap, out=jac[:, 3:5])
     np.multiply(m[:, None], basis, out=jac[:, _A:_A + 3])
     np.multiply((prod * m)[:, None], basis, out=jac[:, _B:_B + 3])
@@ -164,6 +164,7 @@ _RIDGE4 = 1e-9 * np.eye(4)
 # bounds of a step (centre 1 px, blur widths 0.25 px) and of the blur widths
 _STEP_HI = np.full(N_PARAMS, np.inf)
 _STEP_HI[:2], _STEP_HI[3:5] = 1.0, 0.25
+_STEP_LO = -_STEP_HI
 _WIDTH_LO, _WIDTH_HI = np.full(N_PARAMS, -np.inf), np.full(N_PARAMS, np.inf)
 _WIDTH_LO[3:5], _WIDTH_HI[3:5] = 0.05, 8.0
 
@@ -261,7 +262,7 @@ def _fit(win, rfit, xy, basis, p, n_iter, prior=None, hold=False):
         if last:
             step[~stuck] = 0.0
         np.minimum(step, _STEP_HI, out=step)
-        np.maximum(step, -_STEP_HI, out=step)
+        np.maximum(step, _STEP_LO, out=step)
         p = best + step
         np.maximum(p, _WIDTH_LO, out=p)
         np.minimum(p, _WIDTH_HI, out=p)
