@@ -130,6 +130,9 @@ _COFACTORS = np.array([[3, 2, 1, 0, 1, 0], [5, 4, 4, 5, 2, 3],
                        [4, 1, 2, 2, 0, 1], [4, 5, 3, 2, 4, 1]])
 
 
+_FIRST_A, _FIRST_B = np.array([0, 0, 1]), np.array([0, 1, 1])  # x x, x y, y y from x, y
+
+
 def _weighted_plane(weights, values, basis):
     """Least-squares plane a + b x + c y through `values` (M, N) with `weights` (M, N).
 
@@ -175,7 +178,8 @@ def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, blur_
     half = f32(0.5) * _per_marker(blur_px, m, f32)
     ra = r + f32(1.0) + half  # aperture: disc, anti-aliased edge, blur
     ok = np.isfinite(xy0).all(axis=1)
-    base = np.rint(np.where(ok[:, None], xy0, 0.0)).astype(np.int64)
+    xy0 = np.where(ok[:, None], xy0, 0.0)  # (a guess that is not one: the window at 0, 0)
+    base = np.rint(xy0).astype(np.int64)
     reach = np.ceil((float(ra.max()) + 3.0 if m else 1.0) * 4.0) / 4.0
     win, _, _, inside = cut_disc(frame, base, reach, dtype=f32)
     gx, gy, basis, rho0, basis3t = _disc_f32(reach)
@@ -202,7 +206,6 @@ def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, blur_
                     / np.maximum(n_ring.astype(np.float64) - 3, 1)) if stats else None
     # 2. plain centroid steps in the aperture
     c = (xy0 - base).astype(f32)
-    c[~ok] = 0.0
     for _ in range(n_iter):
         dx, dy = gx - c[:, :1], gy - c[:, 1:]
         wgt = np.sqrt(dx * dx + dy * dy)
@@ -240,21 +243,20 @@ def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, blur_
     mom = (wgt @ basis).astype(np.float64)  # raw moments about the window centre
     flux = mom[:, 0]
     f = np.where(flux > 0, flux, 1.0)
-    mx, my = mom[:, 1] / f, mom[:, 2] / f
-    mxx, mxy, myy = mom[:, 3] / f - mx * mx, mom[:, 4] / f - mx * my, mom[:, 5] / f - my * my
+    nm = mom[:, 1:] / f[:, None]  # x, y, x², xy, y² normalised; central second moments:
+    mxx, mxy, myy = (nm[:, 2:] - nm[:, _FIRST_A] * nm[:, _FIRST_B]).T
     # A disc of radius R blurred along a streak of length L, sampled by pixels: second
     # moments R²/4 + 1/12 across the streak and R²/4 + 1/12 + L²/12 along it.
-    half_tr, half_diff = 0.5 * (mxx + myy), np.sqrt(0.25 * (mxx - myy) ** 2 + mxy ** 2)
+    diff = mxx - myy
+    half_tr, half_diff = 0.5 * (mxx + myy), np.sqrt(0.25 * diff ** 2 + mxy ** 2)
     radius_m = 2.0 * np.sqrt(np.maximum(half_tr - half_diff - 1.0 / 12.0, 0.0))
     streak = contrast = None
     if stats:
         streak = np.sqrt(24.0 * half_diff)
         contrast = flux / (np.pi * np.maximum(radius_m, 1e-9) ** 2)
-    xy = np.empty((m, 2))
-    xy[:, 0], xy[:, 1] = mx, my
-    xy += base
-    bad = ~(ok & inside & (flux > 0))
-    xy[bad] = np.nan
+    xy = nm[:, :2] + base
+    good = ok & inside
+    xy[~(good & (flux > 0))] = np.nan
     shear = np.empty((m, 2))
-    shear[:, 0], shear[:, 1] = 0.5 * (mxx - myy), mxy
-    return CogFit(xy, flux, contrast, radius_m, streak, shear, noise, level, fitted, inside & ok)
+    shear[:, 0], shear[:, 1] = 0.5 * diff, mxy
+    return CogFit(xy, flux, contrast, radius_m, streak, shear, noise, level, fitted, good)
