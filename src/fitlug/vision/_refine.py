@@ -217,8 +217,9 @@ def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, blur_
         c = (mom[:, 1:3] / np.where(mom[:, :1] > 0, mom[:, :1], 1.0)).astype(f32)
     # 3. flat-fielded centroid, the interior replaced by its fitted level
     dx, dy = gx - c[:, :1], gy - c[:, 1:]
-    rho = np.sqrt(dx * dx + dy * dy)
+    rho2 = dx * dx + dy * dy
     if blur_dir is None:
+        rho = np.sqrt(rho2)
         wi = r - f32(0.5) - half - rho
         ap = ra + f32(0.5) - rho
     else:
@@ -226,7 +227,7 @@ def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, blur_
         # (the lens), by none beyond the disc's reach from the segment (the stadium)
         u = np.asarray(blur_dir, dtype=f32).reshape(-1, 2)
         along = np.abs(dx * u[:, :1] + dy * u[:, 1:])
-        across2 = np.maximum(rho * rho - along * along, 0)
+        across2 = np.maximum(rho2 - along * along, 0)
         wi = r - f32(0.5) - np.sqrt(across2 + (along + half) ** 2)
         ap = r + f32(1.5) - np.sqrt(across2 + np.maximum(along - half, 0) ** 2)
     for a in (wi, ap):
@@ -234,7 +235,7 @@ def refine_cog(frame: np.ndarray, xy0: np.ndarray, radius, *, blur_px=0.0, blur_
         np.minimum(a, 1, out=a)
     coef = _weighted_plane(wi, win, basis)
     cc = c.astype(np.float64)
-    level = coef[:, 0] + coef[:, 1] * cc[:, 0] + coef[:, 2] * cc[:, 1]
+    level = coef[:, 0] + np.einsum("mk,mk->m", coef[:, 1:], cc)
     fitted = coef[:, 1:3] / np.where(np.abs(level) > 0, level, 1.0)[:, None]
     rel = (fitted if gain_slope is None else np.asarray(gain_slope, dtype=np.float64)).astype(f32)
     rel = rel.reshape(-1, 2)
