@@ -141,8 +141,8 @@ def _weighted_plane(weights, values, basis):
     The 3x3 normal equations are solved in closed form (adjugate over determinant,
     vectorised over markers): a handful of numpy calls rather than a batched LAPACK solve,
     whose per-call cost is several times theirs for these tiny systems."""
-    n = (weights @ basis).astype(np.float64) + _RIDGE  # (M, 6) the normal matrix's entries
-    rhs = ((weights * values) @ basis[:, :3]).astype(np.float64)
+    n = (weights @ basis) + _RIDGE  # (M, 6) the normal matrix's entries (float64 from here)
+    rhs = (weights * values) @ basis[:, :3]  # (cast to float64 by the product below)
     g = n[:, _COFACTORS]  # (M, 4, 6)
     cof = g[:, 0] * g[:, 1] - g[:, 2] * g[:, 3]  # c00, c01, c02, c11, c12, c22
     det = np.einsum("mk,mk->m", n[:, :3], cof[:, :3])
