@@ -202,7 +202,8 @@ def _fit(win, rfit, xy, basis, p, n_iter, prior=None, hold=False):
                 pw = 0.05 * np.einsum("mpn,mpn->mp", jac[:, 3:5], jac[:, 3:5])
             cost = cost + (pw * dev * dev).sum(axis=1)
         better = cost <= best_cost
-        moved |= better & np.isfinite(best_cost)
+        if it > 1:  # (the start's costs are all infinite: nothing moved yet)
+            moved |= better & np.isfinite(best_cost)
         if last or not better.any():
             if better.any():
                 best = np.where(better[:, None], p, best)
