@@ -317,9 +317,9 @@ def refine_qs(frame: np.ndarray, xy0: np.ndarray, half_size, *, params: np.ndarr
     ok = np.isfinite(xy0).all(axis=1)
     hs = np.asarray(half_size, dtype=np.float64)
     hs = np.full(m, hs) if hs.ndim == 0 else hs.reshape(m)  # (not np.broadcast_to: slower)
-    base = np.where(ok[:, None], np.rint(xy0), 0).astype(np.int64)
     inside = ok.copy()
     if search > 0:
+        base = np.where(ok[:, None], np.rint(xy0), 0).astype(np.int64)
         hq = max(2, int(0.7 * hs.min()))
         win, ins = cut_windows(frame, base, hq + search + 1)
         offs, _ = qs_coarse(win, hq, search)

@@ -78,21 +78,33 @@ def _disc_f32(radius: float):
 
 def cut_disc(frame: np.ndarray, centres: np.ndarray, radius: float, dtype=np.float64):
     """The pixels within `radius` of integer centres (M, 2): values (M, N) of `dtype`, their
-    offsets X, Y (N,) from the centre, and `inside` (M,) as in `cut_windows`."""
+    offsets X, Y (N,) from the centre (shared arrays: read-only), and `inside` (M,) as in
+    `cut_windows`."""
     radius = np.ceil(float(radius) * 4.0) / 4.0  # few sizes
-    half, xs, ys, fx, fy, _ = _disc_offsets(radius)
+    half, xs, ys = _disc_offsets(radius)[:3]
+    fx, fy = _typed_offsets(radius, np.dtype(dtype).str)
     h, w = frame.shape
+    inside = ((centres >= half) & (centres < (w - half, h - half))).all(axis=1)
     cx, cy = centres[:, 0], centres[:, 1]
-    inside = (cx - half >= 0) & (cx + half < w) & (cy - half >= 0) & (cy + half < h)
-    if inside.all() and frame.flags.c_contiguous:
+    all_inside = inside.all()
+    if all_inside and frame.flags.c_contiguous:
         # one take from the flattened frame (a view): a few times faster than indexing
         # rows and columns
         vals = frame.reshape(-1).take((cy * w + cx)[:, None] + _flat_offsets(radius, w))
-    elif inside.all():
+    elif all_inside:
         vals = frame[cy[:, None] + ys, cx[:, None] + xs]
     else:
         vals = frame[np.clip(cy[:, None] + ys, 0, h - 1), np.clip(cx[:, None] + xs, 0, w - 1)]
-    return vals.astype(dtype), fx.astype(dtype), fy.astype(dtype), inside
+    return vals.astype(dtype), fx, fy, inside
+
+
+@functools.lru_cache(maxsize=64)
+def _typed_offsets(radius: float, dtype: str):
+    """The disc's offsets X, Y (N,) as `dtype` (shared, read-only)."""
+    out = tuple(v.astype(dtype) for v in _disc_offsets(radius)[3:5])
+    for v in out:
+        v.flags.writeable = False
+    return out
 
 
 @dataclass
