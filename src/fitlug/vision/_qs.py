@@ -64,13 +64,13 @@ def _edge(u, b, derivatives=True):
     z = u[..., None, :] + (_CORNER_U + _CORNER_B * b[..., None])
     np.maximum(z, 0.0, out=z)
     inv = 1.0 / b
-    e = (_SIGNS @ (z * z)) * (0.5 * inv)
+    e2 = (_SIGNS @ (z * z)) * inv  # twice the ramp in [0, 1]
     if not derivatives:
-        return 2.0 * e - 1.0
+        return e2 - 1.0
     sums = _SUMS @ z  # (..., 2, N)
     du = sums[..., 0, :] * (2.0 * inv)
-    db = (sums[..., 1, :] - 2.0 * e) * inv
-    return 2.0 * e - 1.0, du, db
+    db = (sums[..., 1, :] - e2) * inv
+    return e2 - 1.0, du, db
 
 
 def qs_coarse(win: np.ndarray, half_q: int, search: int):
