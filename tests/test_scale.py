@@ -85,8 +85,9 @@ def test_chunked_normal_equations_equal_the_dense_jacobians():
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from test_model import _small_layout
 
-    from fitlug.fit._lsq import (Packing, RowChunks, chunk_plan, chunkable, normal_blocks,
-                                 normal_equations, residuals, time_blocks)
+    from fitlug.fit._lsq import (Packing, RowChunks, blocked_chi2, blocked_residuals,
+                                 chunk_plan, chunkable, normal_blocks, normal_equations,
+                                 residuals, time_blocks)
     from fitlug.model.effects import CATALOG
 
     effects = tuple(e for e in CATALOG if e not in ("lug_ripple", "wheel_runout"))
@@ -124,6 +125,10 @@ def test_chunked_normal_equations_equal_the_dense_jacobians():
         assert np.max(np.abs(A - A0) / scale) < 1e-8, max_rows
         assert np.max(np.abs(g - g0)) < 1e-10 * np.max(np.abs(g0)), max_rows
         assert abs(chi2 - r @ r) < 1e-10 * (r @ r)
+        # the residuals and chi^2 of the whole recording, one block's model at a time
+        rb = blocked_residuals(flat, fixed, lay, obs, packing, blocks)
+        np.testing.assert_allclose(rb, r, rtol=1e-12, atol=1e-12)
+        assert abs(blocked_chi2(flat, fixed, lay, obs, packing, blocks) - r @ r) < 1e-10 * (r @ r)
     # the same rows one time chunk at a time (RowChunks: the explanation's long path),
     # also one time block at a time
     for chunk in (9, "blocks"):
@@ -331,3 +336,26 @@ def test_engine_residuals_by_time_blocks_equal_the_whole_batch(sag_fit, monkeypa
     assert R.shape == R0.shape == (12, n_res)
     assert np.max(np.abs(R - R0)) < 1e-10 * np.max(np.abs(R0))
     assert np.max(np.abs(R0[3] - R0[0])) > 1.0  # the effects act
+
+
+def test_glitch_search_by_time_blocks_equals_the_whole_prediction(sag_fit, monkeypatch):
+    """The glitch search's model positions one time block at a time (long recordings)
+    equal the whole recording's prediction, and so do its z statistics and flags."""
+    import jax.numpy as jnp
+
+    from fitlug.fit import _glitches, _lsq
+    from fitlug.model import predict
+
+    prob = sag_fit.problem
+    p = {k: jnp.asarray(v, float) for k, v in sag_fit.params.items()}
+    whole = [np.asarray(a) for a in predict(p, prob.lay)]
+    found = _glitches.find(sag_fit)
+    assert _lsq.time_blocks(prob.lay, prob.obs) is None
+    monkeypatch.setattr(_lsq, "BLOCK_ROWS", len(sag_fit.residuals) // 4)
+    assert len(_lsq.time_blocks(prob.lay, prob.obs).lays) >= 4
+    for a, b in zip(_glitches._positions(p, prob.lay, prob.obs), whole):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
+    got = _glitches.find(sag_fit)
+    for role in ("lug", "body"):
+        np.testing.assert_array_equal(got[role], found[role])
+        np.testing.assert_allclose(got["z"][role], found["z"][role], rtol=1e-9, atol=1e-9)

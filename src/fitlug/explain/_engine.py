@@ -314,30 +314,28 @@ class Engine:
     def residuals(self, thetas) -> np.ndarray:
         """Weighted residuals of the all-effects model, (B, S) for (B, P) vectors."""
         thetas = np.atleast_2d(np.asarray(thetas, float))
-        out = []
+        out = np.empty((len(thetas), self.n_res))  # written in place: no stacked copy
         B = self.batch
         for i in range(0, len(thetas), B):
             blk = thetas[i:i + B]
             pad = np.vstack([blk, np.repeat(blk[-1:], B - len(blk), 0)])
             if self.blocks is None:
-                r = np.asarray(_res_batch(jnp.asarray(pad), self.packing, self.lay_all,
-                                          self.obs))
+                out[i:i + len(blk)] = np.asarray(_res_batch(
+                    jnp.asarray(pad), self.packing, self.lay_all, self.obs))[:len(blk)]
             else:
-                r = self._blocked_residuals(jnp.asarray(pad))
-            out.append(r[:len(blk)])
+                self._blocked_residuals(jnp.asarray(pad), out[i:i + len(blk)])
             self.evaluations += len(blk)
-        return np.vstack(out)
+        return out
 
-    def _blocked_residuals(self, pad) -> np.ndarray:
-        """:func:`_res_batch` on a long recording: one integration for the batch, the
-        samples by time blocks."""
+    def _blocked_residuals(self, pad, out) -> None:
+        """:func:`_res_batch` on a long recording, written into `out` (its first rows):
+        one integration for the batch, the samples by time blocks."""
         nodes = _nodes_batch(pad, self.packing, self.lay_all)
-        out = np.empty((pad.shape[0], self.n_res))
+        n = out.shape[0]
         for lay_k, obs_k, rows_k in zip(self.blocks.lays, self.blocks.obss, self.blocks.rows):
             rk = np.asarray(_res_from_nodes(pad, nodes, self.packing, lay_k, obs_k))
             real = rows_k >= 0
-            out[:, rows_k[real]] = rk[:, real]
-        return out
+            out[:, rows_k[real]] = rk[:n, real]
 
     def chi2_best(self, thetas) -> tuple:
         """(chi^2 of each vector (inf where not finite), index of the lowest, its residuals),

@@ -84,6 +84,28 @@ def _predict(p, lay):
     return predict(p, lay)
 
 
+def _positions(p: dict, lay, obs) -> tuple:
+    """The model's (lug_x, lug_y, body_x, body_y) at every sample (numpy); on a long
+    recording one time block's model evaluation at a time (:func:`fitlug.fit._lsq.
+    time_blocks`: the model's per-sample temporaries of one block, the same values)."""
+    from ._lsq import time_blocks
+
+    blocks = time_blocks(lay, obs)
+    if blocks is None:
+        return tuple(np.asarray(a) for a in _predict(p, lay))
+    S_l, S_b = lay.lug_t.shape[0], lay.body_t.shape[0]
+    out = (np.zeros(S_l), np.zeros(S_l), np.zeros(S_b), np.zeros(S_b))
+    for lay_k, rows_k in zip(blocks.lays, blocks.rows):
+        lx, ly, bx, by = (np.asarray(a) for a in _predict(p, lay_k))
+        nl, nb = len(lx), len(bx)
+        real_l, real_b = rows_k[:nl] >= 0, rows_k[2 * nl:2 * nl + nb] >= 0
+        il = rows_k[:nl][real_l]  # lug x rows are the lug sample indices
+        ib = rows_k[2 * nl:2 * nl + nb][real_b] - 2 * S_l  # body x rows: 2 S_l + index
+        out[0][il], out[1][il] = lx[real_l], ly[real_l]
+        out[2][ib], out[3][ib] = bx[real_b], by[real_b]
+    return out
+
+
 def standardised_residuals(res) -> dict:
     """Data minus model in units of the role's noise, for every valid sample (flagged too).
 
@@ -91,7 +113,7 @@ def standardised_residuals(res) -> dict:
     """
     prob = res.problem
     p = {k: jnp.asarray(v, float) for k, v in res.params.items()}
-    lx, ly, bx, by = (np.asarray(a) for a in _predict(p, prob.lay))
+    lx, ly, bx, by = _positions(p, prob.lay, prob.obs)
     rec = prob.rec
     out = {}
     for role, rows, mx, my in (("lug", prob.lug_rows, lx, ly), ("body", prob.body_rows, bx, by)):

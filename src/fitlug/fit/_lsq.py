@@ -814,7 +814,7 @@ class RowChunks:
         if blocks is None:
             self.r = np.asarray(self._prep(0)["r"])
         else:
-            self.r = np.asarray(_residuals_jit(self.flat, fixed, lay, obs, packing))
+            self.r = blocked_residuals(self.flat, fixed, lay, obs, packing, blocks)
         self.n_par = int(sum(packing.sizes))
         self._C = int(self._parts[0][2].rows.shape[0])  # chunks per part (one shape)
         self._rows, self._keep = [], []
@@ -935,6 +935,30 @@ def _residuals_jit(flat, fixed, lay, obs, packing: Packing):
     return residuals(packing.unpack(flat, fixed), lay, obs)
 
 
+def blocked_residuals(flat, fixed, lay, obs, packing: Packing,
+                      blocks: TimeBlocks | None) -> np.ndarray:
+    """The weighted residuals (numpy) of the whole recording, one time block's model
+    evaluation at a time (:func:`time_blocks`; the model's per-row temporaries of one
+    block); the whole recording at once when `blocks` is None."""
+    if blocks is None:
+        return np.asarray(_residuals_jit(jnp.asarray(flat), fixed, lay, obs, packing))
+    out = np.zeros(2 * (lay.lug_t.shape[0] + lay.body_t.shape[0]))
+    for lay_k, ob_k, rows_k in zip(blocks.lays, blocks.obss, blocks.rows):
+        rk = np.asarray(_residuals_jit(jnp.asarray(flat), fixed, lay_k, ob_k, packing))
+        real = rows_k >= 0
+        out[rows_k[real]] = rk[real]
+    return out
+
+
+def blocked_chi2(flat, fixed, lay, obs, packing: Packing, blocks: TimeBlocks | None) -> float:
+    """chi^2 of the weighted residuals, by time blocks as :func:`blocked_residuals` (the
+    blocks' padding rows have zero weight and add nothing)."""
+    if blocks is None:
+        return float(_chi2_jit(jnp.asarray(flat), fixed, lay, obs, packing))
+    return float(sum(float(_chi2_jit(jnp.asarray(flat), fixed, lay_k, ob_k, packing))
+                     for lay_k, ob_k in zip(blocks.lays, blocks.obss)))
+
+
 def _solve_chunked(flat0, fixed, lay, obs, packing: Packing, plan: ChunkPlan, max_steps: int,
                    rtol: float, atol: float):
     """Levenberg-Marquardt on the chunked normal equations (Nielsen's damping update), in
@@ -964,7 +988,7 @@ def _solve_chunked(flat0, fixed, lay, obs, packing: Packing, plan: ChunkPlan, ma
         return A, g, c2
 
     def chi2(f):
-        c2 = float(_chi2_jit(jnp.asarray(f), fixed, lay, obs, packing))
+        c2 = blocked_chi2(f, fixed, lay, obs, packing, blocks)
         if bounded:
             c2 += float(np.sum(bound(f)[0] ** 2))
         return c2
@@ -1004,7 +1028,7 @@ def _solve_chunked(flat0, fixed, lay, obs, packing: Packing, plan: ChunkPlan, ma
     if bounded:  # J^T J of the data alone, as returned by the dense solver
         pj = bound(flat)[1]
         A -= pj.T @ pj
-    r = np.asarray(_residuals_jit(jnp.asarray(flat), fixed, lay, obs, packing))
+    r = blocked_residuals(flat, fixed, lay, obs, packing, blocks)
     return flat, A, r, done, k
 
 
