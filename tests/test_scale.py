@@ -324,6 +324,7 @@ def test_engine_residuals_by_time_blocks_equal_the_whole_batch(sag_fit, monkeypa
     assert eng0.blocks is None and eng0.batch == CHUNK
     n_res = len(res.residuals)
     monkeypatch.setattr(_engine, "BATCH_ENTRIES", n_res)  # whole-recording batch of one
+    monkeypatch.setattr(_engine, "BLOCK_ENTRIES", n_res)  # blocks of n_res / CHUNK rows
     eng = Engine(res)
     assert eng.blocks is not None and len(eng.blocks.lays) >= 6 and eng.batch == CHUNK
     th = eng.theta0

@@ -46,8 +46,12 @@ _LAMBDAS = np.array([0.0, 1e-6, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0])
 #: dense Jacobian entries above which the engine works on chunked normal equations
 CHUNKED_ENTRIES = LARGE_ENTRIES
 #: residual entries per batched model evaluation (the batch shrinks on long recordings,
-#: or, where time blocks apply, the samples' part runs in blocks of BATCH_ENTRIES / CHUNK)
+#: or, where time blocks apply, the samples' part runs in blocks of BLOCK_ENTRIES / CHUNK)
 BATCH_ENTRIES = 4_000_000
+#: residual entries (rows x lanes) of one time block's batched evaluation on the blocked
+#: path: XLA's temporaries there are ~14 doubles per entry (memray, 30 000 frames: 385 MB
+#: at 8 lanes x 420 000 rows), so 1 M entries hold them near 110 MB at any length
+BLOCK_ENTRIES = 1_000_000
 #: residual entries a batch's output may hold on the blocked path (128 MB)
 RESULT_ENTRIES = 16_000_000
 
@@ -261,7 +265,7 @@ class Engine:
             # scan over the grid costs about as much for one lane as for eight) as long as
             # its residual vectors stay under RESULT_ENTRIES; the samples' part of the
             # model, whose temporaries grow with the samples, runs by time blocks
-            blocks = time_blocks(self.lay_all, self.obs, max_rows=BATCH_ENTRIES // CHUNK)
+            blocks = time_blocks(self.lay_all, self.obs, max_rows=BLOCK_ENTRIES // CHUNK)
             if blocks is not None:
                 self.blocks = blocks
                 self.batch = int(max(1, min(CHUNK, RESULT_ENTRIES // max(n_res, 1))))

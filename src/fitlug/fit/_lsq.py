@@ -446,7 +446,9 @@ def _padded_plan(a: dict, C: int, R: int, BW: int | None = None) -> ChunkPlan:
 #: residual rows per time block of a chunked pass: the pass's per-row buffers (residuals,
 #: their X/psi derivatives, the non-kinematic columns and their temporaries: ~30 doubles
 #: a row) are built one block at a time, so its memory stops growing with the recording
-BLOCK_ROWS = 500_000
+#: (250 000 rows: ~60 MB of them; 500 000 before, whose passes stood out in the RSS trace
+#: of a 100 000-frame explanation)
+BLOCK_ROWS = 250_000
 
 
 class TimeBlocks(NamedTuple):
