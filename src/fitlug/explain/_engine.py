@@ -152,7 +152,10 @@ class NormalJacobian:
         fi = np.searchsorted(tu, t)
         nf = len(tu)
         # the difference columns' part: per-frame sums of F d (small), projected per chunk
-        Zf = _frame_sums(fi, self.F * d[:, None], nf)
+        # (a column at a time: F d and its sorted copy would be two more (S, m) arrays)
+        Zf = np.zeros((nf, self.F.shape[1]))
+        for j in range(self.F.shape[1]):
+            Zf[:, j] = np.bincount(fi, weights=self.F[:, j] * d, minlength=nf)
         out = np.zeros(nf)
         carry = np.zeros(M.shape[1])
         ch = self.chunks
