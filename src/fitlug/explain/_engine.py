@@ -268,7 +268,8 @@ class Engine:
             # scan over the grid costs about as much for one lane as for eight) as long as
             # its residual vectors stay under RESULT_ENTRIES; the samples' part of the
             # model, whose temporaries grow with the samples, runs by time blocks
-            blocks = time_blocks(self.lay_all, self.obs, max_rows=BLOCK_ENTRIES // CHUNK)
+            blocks = time_blocks(self.lay_all, self.obs, max_rows=BLOCK_ENTRIES // CHUNK,
+                                 plans=False)
             if blocks is not None:
                 self.blocks = blocks
                 self.batch = int(max(1, min(CHUNK, RESULT_ENTRIES // max(n_res, 1))))

@@ -39,7 +39,7 @@ def _polish(prob, p: dict, free: list) -> FitResult:
     fixed = {k: jnp.asarray(v, float) for k, v in p.items() if k not in packing.names}
     flat = np.asarray(packing.pack(p))
     lay, obs = prob.lay, prob.obs
-    blocks = time_blocks(lay, obs)  # long recordings: the model by time blocks
+    blocks = time_blocks(lay, obs, plans=False)  # long recordings: the model by blocks
 
     def res_of(f):
         if blocks is None:

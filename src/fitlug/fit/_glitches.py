@@ -90,7 +90,7 @@ def _positions(p: dict, lay, obs) -> tuple:
     time_blocks`: the model's per-sample temporaries of one block, the same values)."""
     from ._lsq import time_blocks
 
-    blocks = time_blocks(lay, obs)
+    blocks = time_blocks(lay, obs, plans=False)
     if blocks is None:
         return tuple(np.asarray(a) for a in _predict(p, lay))
     S_l, S_b = lay.lug_t.shape[0], lay.body_t.shape[0]

@@ -465,10 +465,12 @@ class TimeBlocks(NamedTuple):
 
 
 def time_blocks(lay, obs: dict, max_rows: int | None = None,
-                chunk: int = CHUNK_INTERVALS, margin: int = _MARGIN) -> TimeBlocks | None:
+                chunk: int = CHUNK_INTERVALS, margin: int = _MARGIN,
+                plans: bool = True) -> TimeBlocks | None:
     """:class:`TimeBlocks` of at most about `max_rows` (default BLOCK_ROWS) residual rows,
     or None when the recording fits in one (or a block would hold no lug or no body
-    sample)."""
+    sample). plans=False leaves the chunk plans out (`plans` None each: for a model
+    evaluation by blocks, which needs none; ~2 doubles a residual row less)."""
     max_rows = BLOCK_ROWS if max_rows is None else max_rows
     lt, bt = np.asarray(lay.lug_t), np.asarray(lay.body_t)
     S_l, S_b = len(lt), len(bt)
@@ -501,7 +503,10 @@ def time_blocks(lay, obs: dict, max_rows: int | None = None,
                              np.where(real_b, 2 * S_l + pb, -1),
                              np.where(real_b, 2 * S_l + S_b + pb, -1)])
         rows.append(rr)
-        raw.append(_plan_arrays(lay_k, chunk, margin))
+        if plans:
+            raw.append(_plan_arrays(lay_k, chunk, margin))
+    if not plans:
+        return TimeBlocks(lays, obss, [None] * nb, rows)
     # one shape for every block's plan (one compilation serves them all)
     C = max(a["rows"].shape[0] for a in raw)
     R = max(a["rows"].shape[1] for a in raw)
