@@ -17,7 +17,13 @@ import numpy as np
 import pytest
 
 SRC = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "src")
-MEMORY_CAP_BYTES = 1.5 * 1024 ** 3
+#: the whole child's peak (interpreter, JAX, the simulation and the fit): 0.73 GiB measured
+#: on 2026-11-25 (0.45 GiB of it before the fit), so 1 GiB leaves ~35 % of headroom
+MEMORY_CAP_BYTES = 1.0 * 1024 ** 3
+#: the fit's own growth of the high-water mark over the simulated recording's: 0.28 GiB
+#: measured (a dense Jacobian of this recording with its forward-mode intermediates alone
+#: went past the old 1.5 GiB cap)
+FIT_GROWTH_CAP_BYTES = 0.5 * 1024 ** 3
 
 _CHILD = r"""
 import json, resource, sys
@@ -68,6 +74,8 @@ def test_5000_frames_fit_in_bounded_memory_and_find_the_slip():
     assert out["chunked_calls"] >= 1  # the long-recording path, not the dense Jacobian
     assert out["converged"] and 0.8 < out["chi2_per_dof"] < 1.2
     assert out["peak"] < MEMORY_CAP_BYTES, f"peak RSS {out['peak'] / 2 ** 20:.0f} MiB"
+    grew = out["peak"] - out["before_fit"]
+    assert grew < FIT_GROWTH_CAP_BYTES, f"the fit raised the peak by {grew / 2 ** 20:.0f} MiB"
     assert 0 < out["std"] < 1e-3
     assert abs(out["slip"] - out["truth"]) < 3 * out["std"], out
     assert np.isfinite(out["slip"])
