@@ -35,7 +35,8 @@ import numpy as np
 
 from .. import _jaxconfig  # noqa: F401
 from ..fit import residuals
-from ..fit._lsq import LARGE_ENTRIES, Packing, RowChunks, chunkable, jacobian, time_blocks
+from ..fit._lsq import (LARGE_ENTRIES, Packing, RowChunks, chunkable, jacobian,
+                        time_blocks, trim_heap)
 from ..model import CATALOG, param_names
 
 COUPLED = ("s0", "beta", "R", "D", "e", "x_off", "y_off")
@@ -338,6 +339,7 @@ class Engine:
     def _blocked_residuals(self, pad, out) -> None:
         """:func:`_res_batch` on a long recording, written into `out` (its first rows):
         one integration for the batch, the samples by time blocks."""
+        trim_heap()
         nodes = _nodes_batch(pad, self.packing, self.lay_all)
         n = out.shape[0]
         for lay_k, obs_k, rows_k in zip(self.blocks.lays, self.blocks.obss, self.blocks.rows):
