@@ -130,6 +130,13 @@ class RssTrace:
             fh.write("largest RSS growth by stack (MB):\n")
             for k, v in sorted(growth.items(), key=lambda kv: -kv[1])[:25]:
                 fh.write(f"  {v / 2 ** 20:9.1f}  {k}\n")
+            fh.write("highest RSS by stack (GB; innermost 4 fitlug frames):\n")
+            high = {}
+            for _, r, st in s:
+                key = " < ".join(st.split(" < ")[:4])
+                high[key] = max(high.get(key, 0), r)
+            for k, v in sorted(high.items(), key=lambda kv: -kv[1])[:25]:
+                fh.write(f"  {v / GB:7.3f}  {k}\n")
             fh.write("time by stack (s; innermost fitlug frames):\n")
             spent = {}
             for a, b in zip(s, s[1:]):

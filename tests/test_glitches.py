@@ -234,3 +234,90 @@ def test_tracker_systematics_below_the_floor_are_not_physics():
         assert 0 < sysb["amplitude_um"] <= sysb["floor_um"]
         assert sysb["slip_effect"]["in_std"] < 1.0 and 0 <= sysb["share_of_misfit"] <= 1
         assert "floor" in sysb["note"]
+
+
+def _local_z_per_fit(t, ex, ey, ok, fps):
+    """The z statistic as first written: each sample's 3x3 normal matrix summed over its
+    neighbours' design rows and inverted by LAPACK (the reference of the closed-form,
+    blocked :func:`fitlug.fit._glitches._local_z`)."""
+    from fitlug.fit._glitches import FAR, NEAR, NEIGHBOUR_OUT
+
+    def fit_local(w, V, E, zi):
+        A = np.einsum("nk,nki,nkj->nij", w, V, V)
+        A[:, 2, 2] += np.all(V[:, :, 2] == 0, 1)
+        A += 1e-12 * np.eye(3)
+        Ainv = np.linalg.inv(A)
+        coefs, rss = [], np.zeros(len(w))
+        for e in E:
+            c = np.einsum("nij,nj->ni", Ainv, np.einsum("nk,nki,nk->ni", w, V, e[zi]))
+            rss += np.sum(w * (e[zi] - np.einsum("nki,ni->nk", V, c)) ** 2, 1)
+            coefs.append(c)
+        return coefs, Ainv[:, 0, 0], rss
+
+    n = len(t)
+    offs = np.r_[np.arange(-FAR, -NEAR + 1), np.arange(NEAR, FAR + 1)]
+    K = len(offs)
+    frame = np.rint((t - t[0]) * fps).astype(np.int64)
+    pos = np.full(int(frame[-1]) + 1, -1, np.int64)
+    pos[frame] = np.arange(n)
+    want = frame[:, None] + offs[None, :]
+    inside = (want >= 0) & (want <= frame[-1])
+    idx = np.where(inside, pos[np.clip(want, 0, len(pos) - 1)], -1)
+    zi = np.clip(idx, 0, n - 1)
+    have = (idx >= 0) & ok[zi]
+    u = np.broadcast_to(offs[None, :] / FAR, (n, K)).astype(float)
+    E = (ex, ey)
+
+    def local(hv):
+        n_left = np.sum(hv & (offs[None, :] < 0), 1)
+        n_right = np.sum(hv & (offs[None, :] > 0), 1)
+        n_nb = n_left + n_right
+        deg = np.where((n_left >= 2) & (n_right >= 2) & (n_nb >= 5), 2, 1)
+        V = np.stack([np.ones_like(u), u, np.where(deg[:, None] == 2, u * u, 0.0)], -1)
+        judged = (n_nb >= 3) & (((n_left >= 1) & (n_right >= 1)) | (n_nb >= 4))
+        coefs, h, rss = fit_local(hv.astype(float), V, E, zi)
+        return {"V": V, "c": coefs, "h": h, "rss": rss, "dof": 2 * (n_nb - (deg + 1)),
+                "judged": judged}
+
+    cur = local(have)
+    for k in range(K):
+        hv = have.copy()
+        hv[:, k] = False
+        alt = local(hv)
+        dev2 = sum((e[zi[:, k]] - np.einsum("ni,ni->n", alt["V"][:, k], c)) ** 2
+                   for e, c in zip(E, alt["c"]))
+        rough = np.maximum(1.0, alt["rss"] / np.maximum(alt["dof"], 1))
+        use = (have[:, k] & alt["judged"] & (dev2 > NEIGHBOUR_OUT ** 2 * rough)
+               & (alt["rss"] < cur["rss"]))
+        for key in ("h", "rss", "dof", "judged"):
+            cur[key] = np.where(use, alt[key], cur[key])
+        cur["c"] = [np.where(use[:, None], a, b) for a, b in zip(alt["c"], cur["c"])]
+    rough = np.where(cur["dof"] > 0, cur["rss"] / np.maximum(cur["dof"], 1), 1.0)
+    out2 = (ex - cur["c"][0][:, 0]) ** 2 + (ey - cur["c"][1][:, 0]) ** 2
+    z = np.sqrt(out2 / ((1.0 + cur["h"]) * np.maximum(1.0, rough)))
+    for side in (offs < 0, offs > 0):
+        hv = have & side[None, :]
+        m = hv.sum(1)
+        d2 = sum((e - np.sum(np.where(hv, e[zi], 0.0), 1) / np.maximum(m, 1)) ** 2 for e in E)
+        z = np.where(m > 0, np.minimum(z, np.sqrt(d2 / (1.0 + 1.0 / np.maximum(m, 1)))), z)
+    return np.where(cur["judged"], z, np.nan)
+
+
+def test_local_z_closed_form_in_blocks_equals_the_per_sample_fits():
+    """The z statistic from closed-form 3x3 inverses, by blocks of samples (several blocks
+    here), equals the per-sample LAPACK fits to rounding: gaps, unusable neighbours, a slow
+    misfit and glitches of 20 sigma."""
+    rng = np.random.default_rng(7)
+    for n in (700, 20_000):
+        t = np.arange(n) / 500.0
+        t = t[rng.uniform(size=n) > 0.03]
+        m = len(t)
+        ex, ey = rng.normal(size=m) + 3 * np.sin(7 * t), rng.normal(size=m)
+        gl = rng.choice(m, m // 300, replace=False)
+        ex[gl] += rng.normal(0, 20, len(gl))
+        ok = rng.uniform(size=m) > 0.01
+        z0, z1 = _local_z_per_fit(t, ex, ey, ok, 500.0), _local_z(t, ex, ey, ok, 500.0)
+        np.testing.assert_array_equal(np.isnan(z1), np.isnan(z0))
+        f = np.isfinite(z0)
+        np.testing.assert_allclose(z1[f], z0[f], rtol=1e-12, atol=1e-12)
+        assert np.sum(z0[f] > threshold(m)) >= len(gl) // 2  # the glitches stand out

@@ -35,7 +35,8 @@ import numpy as np
 
 from .. import _jaxconfig  # noqa: F401
 from ..fit import residuals
-from ..fit._lsq import LARGE_ENTRIES, Packing, RowChunks, chunkable, jacobian, time_blocks
+from ..fit._lsq import (LARGE_ENTRIES, Packing, RowChunks, chunkable, jacobian,
+                        time_blocks, trim_heap)
 from ..model import CATALOG, param_names
 
 COUPLED = ("s0", "beta", "R", "D", "e", "x_off", "y_off")
@@ -46,8 +47,12 @@ _LAMBDAS = np.array([0.0, 1e-6, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0])
 #: dense Jacobian entries above which the engine works on chunked normal equations
 CHUNKED_ENTRIES = LARGE_ENTRIES
 #: residual entries per batched model evaluation (the batch shrinks on long recordings,
-#: or, where time blocks apply, the samples' part runs in blocks of BATCH_ENTRIES / CHUNK)
+#: or, where time blocks apply, the samples' part runs in blocks of BLOCK_ENTRIES / CHUNK)
 BATCH_ENTRIES = 4_000_000
+#: residual entries (rows x lanes) of one time block's batched evaluation on the blocked
+#: path: XLA's temporaries there are ~14 doubles per entry (memray, 30 000 frames: 385 MB
+#: at 8 lanes x 420 000 rows), so 1 M entries hold them near 110 MB at any length
+BLOCK_ENTRIES = 1_000_000
 #: residual entries a batch's output may hold on the blocked path (128 MB)
 RESULT_ENTRIES = 16_000_000
 
@@ -148,7 +153,10 @@ class NormalJacobian:
         fi = np.searchsorted(tu, t)
         nf = len(tu)
         # the difference columns' part: per-frame sums of F d (small), projected per chunk
-        Zf = _frame_sums(fi, self.F * d[:, None], nf)
+        # (a column at a time: F d and its sorted copy would be two more (S, m) arrays)
+        Zf = np.zeros((nf, self.F.shape[1]))
+        for j in range(self.F.shape[1]):
+            Zf[:, j] = np.bincount(fi, weights=self.F[:, j] * d, minlength=nf)
         out = np.zeros(nf)
         carry = np.zeros(M.shape[1])
         ch = self.chunks
@@ -261,7 +269,8 @@ class Engine:
             # scan over the grid costs about as much for one lane as for eight) as long as
             # its residual vectors stay under RESULT_ENTRIES; the samples' part of the
             # model, whose temporaries grow with the samples, runs by time blocks
-            blocks = time_blocks(self.lay_all, self.obs, max_rows=BATCH_ENTRIES // CHUNK)
+            blocks = time_blocks(self.lay_all, self.obs, max_rows=BLOCK_ENTRIES // CHUNK,
+                                 plans=False)
             if blocks is not None:
                 self.blocks = blocks
                 self.batch = int(max(1, min(CHUNK, RESULT_ENTRIES // max(n_res, 1))))
@@ -314,30 +323,29 @@ class Engine:
     def residuals(self, thetas) -> np.ndarray:
         """Weighted residuals of the all-effects model, (B, S) for (B, P) vectors."""
         thetas = np.atleast_2d(np.asarray(thetas, float))
-        out = []
+        out = np.empty((len(thetas), self.n_res))  # written in place: no stacked copy
         B = self.batch
         for i in range(0, len(thetas), B):
             blk = thetas[i:i + B]
             pad = np.vstack([blk, np.repeat(blk[-1:], B - len(blk), 0)])
             if self.blocks is None:
-                r = np.asarray(_res_batch(jnp.asarray(pad), self.packing, self.lay_all,
-                                          self.obs))
+                out[i:i + len(blk)] = np.asarray(_res_batch(
+                    jnp.asarray(pad), self.packing, self.lay_all, self.obs))[:len(blk)]
             else:
-                r = self._blocked_residuals(jnp.asarray(pad))
-            out.append(r[:len(blk)])
+                self._blocked_residuals(jnp.asarray(pad), out[i:i + len(blk)])
             self.evaluations += len(blk)
-        return np.vstack(out)
+        return out
 
-    def _blocked_residuals(self, pad) -> np.ndarray:
-        """:func:`_res_batch` on a long recording: one integration for the batch, the
-        samples by time blocks."""
+    def _blocked_residuals(self, pad, out) -> None:
+        """:func:`_res_batch` on a long recording, written into `out` (its first rows):
+        one integration for the batch, the samples by time blocks."""
+        trim_heap()
         nodes = _nodes_batch(pad, self.packing, self.lay_all)
-        out = np.empty((pad.shape[0], self.n_res))
+        n = out.shape[0]
         for lay_k, obs_k, rows_k in zip(self.blocks.lays, self.blocks.obss, self.blocks.rows):
             rk = np.asarray(_res_from_nodes(pad, nodes, self.packing, lay_k, obs_k))
             real = rows_k >= 0
-            out[:, rows_k[real]] = rk[:, real]
-        return out
+            out[:, rows_k[real]] = rk[:n, real]
 
     def chi2_best(self, thetas) -> tuple:
         """(chi^2 of each vector (inf where not finite), index of the lowest, its residuals),

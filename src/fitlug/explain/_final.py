@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..fit import FitResult, free_parameters, residuals, residual_noise, reweighted
-from ..fit._lsq import Packing
+from ..fit._lsq import Packing, blocked_residuals, time_blocks
 from ..fit._result import compute_quantities
 from ._engine import covariance_of, gauss_newton_step
 
@@ -39,7 +39,14 @@ def _polish(prob, p: dict, free: list) -> FitResult:
     fixed = {k: jnp.asarray(v, float) for k, v in p.items() if k not in packing.names}
     flat = np.asarray(packing.pack(p))
     lay, obs = prob.lay, prob.obs
-    r = np.asarray(_res(jnp.asarray(flat), fixed, packing, lay, obs))
+    blocks = time_blocks(lay, obs, plans=False)  # long recordings: the model by blocks
+
+    def res_of(f):
+        if blocks is None:
+            return np.asarray(_res(jnp.asarray(f), fixed, packing, lay, obs))
+        return blocked_residuals(f, fixed, lay, obs, packing, blocks)
+
+    r = res_of(flat)
     chi2 = float(r @ r)
     converged, steps = False, 0
     for steps in range(1, MAX_STEPS + 1):
@@ -47,7 +54,7 @@ def _polish(prob, p: dict, free: list) -> FitResult:
         step, predicted = gauss_newton_step(flat, fixed, packing, lay, obs, r)
         for scale in (1.0, 0.5, 0.25, 0.1):
             f2 = flat + scale * step
-            r2 = np.asarray(_res(jnp.asarray(f2), fixed, packing, lay, obs))
+            r2 = res_of(f2)
             c2 = float(r2 @ r2)
             if np.isfinite(c2) and c2 <= chi2:
                 break

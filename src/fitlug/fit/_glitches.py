@@ -84,6 +84,28 @@ def _predict(p, lay):
     return predict(p, lay)
 
 
+def _positions(p: dict, lay, obs) -> tuple:
+    """The model's (lug_x, lug_y, body_x, body_y) at every sample (numpy); on a long
+    recording one time block's model evaluation at a time (:func:`fitlug.fit._lsq.
+    time_blocks`: the model's per-sample temporaries of one block, the same values)."""
+    from ._lsq import time_blocks
+
+    blocks = time_blocks(lay, obs, plans=False)
+    if blocks is None:
+        return tuple(np.asarray(a) for a in _predict(p, lay))
+    S_l, S_b = lay.lug_t.shape[0], lay.body_t.shape[0]
+    out = (np.zeros(S_l), np.zeros(S_l), np.zeros(S_b), np.zeros(S_b))
+    for lay_k, rows_k in zip(blocks.lays, blocks.rows):
+        lx, ly, bx, by = (np.asarray(a) for a in _predict(p, lay_k))
+        nl, nb = len(lx), len(bx)
+        real_l, real_b = rows_k[:nl] >= 0, rows_k[2 * nl:2 * nl + nb] >= 0
+        il = rows_k[:nl][real_l]  # lug x rows are the lug sample indices
+        ib = rows_k[2 * nl:2 * nl + nb][real_b] - 2 * S_l  # body x rows: 2 S_l + index
+        out[0][il], out[1][il] = lx[real_l], ly[real_l]
+        out[2][ib], out[3][ib] = bx[real_b], by[real_b]
+    return out
+
+
 def standardised_residuals(res) -> dict:
     """Data minus model in units of the role's noise, for every valid sample (flagged too).
 
@@ -91,7 +113,7 @@ def standardised_residuals(res) -> dict:
     """
     prob = res.problem
     p = {k: jnp.asarray(v, float) for k, v in res.params.items()}
-    lx, ly, bx, by = (np.asarray(a) for a in _predict(p, prob.lay))
+    lx, ly, bx, by = _positions(p, prob.lay, prob.obs)
     rec = prob.rec
     out = {}
     for role, rows, mx, my in (("lug", prob.lug_rows, lx, ly), ("body", prob.body_rows, bx, by)):
@@ -104,23 +126,41 @@ def standardised_residuals(res) -> dict:
     return out
 
 
-def _fit_local(w, V, E, zi):
+def _fit_local(w, u, q, E, zi):
     """Weighted local fits, per axis, of the residual series E on each sample's neighbours.
 
-    w (n, K) neighbour weights (0/1), V (n, K, 3) design (a zero third column: a line),
-    zi (n, K) neighbour positions. Returns (coefficients per axis (n, 3), the leverage of
-    the prediction at u = 0 in units of sigma^2, RSS over both axes).
+    w (n, K) neighbour weights (0/1), u (K,) the neighbours' offsets in units of FAR, q (n,)
+    1.0 where the fit is a quadratic in u, 0.0 where a line, zi (n, K) neighbour positions.
+    The 3x3 normal matrices come from the weighted power sums of u and are inverted in
+    closed form (cofactors), every sample at once. Returns (coefficients per axis (n, 3),
+    the leverage of the prediction at u = 0 in units of sigma^2, RSS over both axes).
     """
-    A = np.einsum("nk,nki,nkj->nij", w, V, V)
-    A[:, 2, 2] += np.all(V[:, :, 2] == 0, 1)  # a line: keep A invertible
-    A += 1e-12 * np.eye(3)
-    Ainv = np.linalg.inv(A)
+    u2 = u * u
+    one = np.ones_like(u)  # sums over the K neighbours as products (numpy's sum over a
+    s0, s1, s2 = w @ one, w @ u, w @ u2  # short last axis is ~30x slower)
+    s3, s4 = w @ (u * u2), w @ (u2 * u2)
+    # A = sum_k w_k V_k V_k^T with V_k = (1, u_k, q u_k^2); a line gets A22 = 1 (kept
+    # invertible), and every diagonal 1e-12
+    a, b, c = s0 + 1e-12, s1, q * s2
+    d, e, f = s2 + 1e-12, q * s3, q * s4 + (1.0 - q) + 1e-12
+    C00, C01, C02 = d * f - e * e, c * e - b * f, b * e - c * d
+    C11, C12, C22 = a * f - c * c, b * c - a * e, a * d - b * b
+    det = a * C00 + b * C01 + c * C02
+    inv = [x / det for x in (C00, C01, C02, C11, C12, C22)]
+    I00, I01, I02, I11, I12, I22 = inv
+    qu2 = q[:, None] * u2[None, :]
     coefs, rss = [], np.zeros(len(w))
-    for e in E:
-        c = np.einsum("nij,nj->ni", Ainv, np.einsum("nk,nki,nk->ni", w, V, e[zi]))
-        rss += np.sum(w * (e[zi] - np.einsum("nki,ni->nk", V, c)) ** 2, 1)
-        coefs.append(c)
-    return coefs, Ainv[:, 0, 0], rss
+    for ev in E:
+        ez = ev[zi]
+        we = w * ez
+        b0, b1, b2 = we @ one, we @ u, q * (we @ u2)
+        c0 = I00 * b0 + I01 * b1 + I02 * b2
+        c1 = I01 * b0 + I11 * b1 + I12 * b2
+        c2 = I02 * b0 + I12 * b1 + I22 * b2
+        fit = c0[:, None] + c1[:, None] * u[None, :] + c2[:, None] * qu2
+        rss += (w * (ez - fit) ** 2) @ one
+        coefs.append(np.stack([c0, c1, c2], 1))
+    return coefs, I00, rss
 
 
 def _local_z(t, ex, ey, ok, fps):
@@ -134,7 +174,6 @@ def _local_z(t, ex, ey, ok, fps):
     """
     n = len(t)
     offs = np.r_[np.arange(-FAR, -NEAR + 1), np.arange(NEAR, FAR + 1)]
-    K = len(offs)
     frame = np.rint((t - t[0]) * fps).astype(np.int64)
     pos = np.full(int(frame[-1]) + 1, -1, np.int64)
     pos[frame] = np.arange(n)
@@ -143,27 +182,43 @@ def _local_z(t, ex, ey, ok, fps):
     idx = np.where(inside, pos[np.clip(want, 0, len(pos) - 1)], -1)
     zi = np.clip(idx, 0, n - 1)
     have = (idx >= 0) & ok[zi]
-    u = np.broadcast_to(offs[None, :] / FAR, (n, K)).astype(float)
-    E = (ex, ey)
+    z = np.empty(n)
+    for b0 in range(0, n, _ROWS):  # blocks of samples: the (rows, K) buffers stay in cache
+        sl = slice(b0, min(b0 + _ROWS, n))
+        z[sl] = _local_z_rows(zi[sl], have[sl], (ex, ey), (ex[sl], ey[sl]), offs)
+    return z
+
+
+_ROWS = 8192  # samples per block of _local_z (8 neighbours: 0.5 MB per (rows, K) buffer)
+
+
+def _local_z_rows(zi, have, E, E_own, offs):
+    """:func:`_local_z` of a block of samples: zi (m, K) their neighbours' positions in the
+    series E (ex, ey), have (m, K) the usable ones, E_own the block's own residuals."""
+    K = len(offs)
+    u = offs / FAR
+    left, right = (offs < 0).astype(float), (offs > 0).astype(float)
 
     def local(hv):
-        n_left = np.sum(hv & (offs[None, :] < 0), 1)
-        n_right = np.sum(hv & (offs[None, :] > 0), 1)
+        w = hv.astype(float)
+        n_left = np.rint(w @ left).astype(np.int64)  # counts of 0/1: exact
+        n_right = np.rint(w @ right).astype(np.int64)
         n_nb = n_left + n_right
         deg = np.where((n_left >= 2) & (n_right >= 2) & (n_nb >= 5), 2, 1)
-        V = np.stack([np.ones_like(u), u, np.where(deg[:, None] == 2, u * u, 0.0)], -1)
+        q = (deg == 2).astype(float)
         judged = (n_nb >= 3) & (((n_left >= 1) & (n_right >= 1)) | (n_nb >= 4))
-        coefs, h, rss = _fit_local(hv.astype(float), V, E, zi)
+        coefs, h, rss = _fit_local(w, u, q, E, zi)
         dof = 2 * (n_nb - (deg + 1))
-        return {"V": V, "c": coefs, "h": h, "rss": rss, "dof": dof, "judged": judged}
+        return {"q": q, "c": coefs, "h": h, "rss": rss, "dof": dof, "judged": judged}
 
     cur = local(have)
     for k in range(K):  # drop-one robustness
         hv = have.copy()
         hv[:, k] = False
         alt = local(hv)
-        dev2 = sum((e[zi[:, k]] - np.einsum("ni,ni->n", alt["V"][:, k], c)) ** 2
-                   for e, c in zip(E, alt["c"]))
+        uk = u[k]
+        dev2 = sum((e[zi[:, k]] - (c[:, 0] + c[:, 1] * uk + c[:, 2] * (alt["q"] * (uk * uk))))
+                   ** 2 for e, c in zip(E, alt["c"]))
         rough = np.maximum(1.0, alt["rss"] / np.maximum(alt["dof"], 1))
         use = (have[:, k] & alt["judged"] & (dev2 > NEIGHBOUR_OUT ** 2 * rough)
                & (alt["rss"] < cur["rss"]))
@@ -172,13 +227,15 @@ def _local_z(t, ex, ey, ok, fps):
                 cur[key] = np.where(use, alt[key], cur[key])
             cur["c"] = [np.where(use[:, None], a, b) for a, b in zip(alt["c"], cur["c"])]
     rough = np.where(cur["dof"] > 0, cur["rss"] / np.maximum(cur["dof"], 1), 1.0)
+    ex, ey = E_own
     out2 = (ex - cur["c"][0][:, 0]) ** 2 + (ey - cur["c"][1][:, 0]) ** 2
     z = np.sqrt(out2 / ((1.0 + cur["h"]) * np.maximum(1.0, rough)))
     # a glitch stands off BOTH sides: the edge of a step agrees with the level of one side
     for side in (offs < 0, offs > 0):
         hv = have & side[None, :]
         m = hv.sum(1)
-        d2 = sum((e - np.sum(np.where(hv, e[zi], 0.0), 1) / np.maximum(m, 1)) ** 2 for e in E)
+        d2 = sum((e - np.sum(np.where(hv, ea[zi], 0.0), 1) / np.maximum(m, 1)) ** 2
+                 for e, ea in zip(E_own, E))
         z_side = np.sqrt(d2 / (1.0 + 1.0 / np.maximum(m, 1)))
         z = np.where(m > 0, np.minimum(z, z_side), z)
     return np.where(cur["judged"], z, np.nan)

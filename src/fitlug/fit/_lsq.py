@@ -385,6 +385,27 @@ def return_freed_memory() -> None:
         pass
 
 
+_libc = None
+
+
+def trim_heap() -> None:
+    """Hand the heap's free pages back to the system (glibc's malloc_trim(0), every arena),
+    between the time blocks of a long recording's passes: blocks under the mmap threshold
+    (:func:`return_freed_memory`), XLA's worker threads' among them, stay resident in the
+    arenas' free lists otherwise. A few ms a call; nothing where the C library is not
+    glibc. Measured on the 30 000-frame explanation of a belt sag: peak 1.03 against
+    1.06 GiB with the calls switched off (benchmarks/results/2026-11-25/trim*_ee_30k.log)."""
+    global _libc
+    try:
+        if _libc is None:
+            import ctypes
+
+            _libc = ctypes.CDLL(None)
+        _libc.malloc_trim(0)
+    except (OSError, AttributeError, TypeError):
+        pass
+
+
 def chunk_plan(lay, chunk: int = CHUNK_INTERVALS, margin: int = _MARGIN) -> ChunkPlan:
     """Time chunks of a layout's residual rows ([lug x, lug y, body x, body y])."""
     return_freed_memory()
@@ -447,7 +468,9 @@ def _padded_plan(a: dict, C: int, R: int, BW: int | None = None) -> ChunkPlan:
 #: residual rows per time block of a chunked pass: the pass's per-row buffers (residuals,
 #: their X/psi derivatives, the non-kinematic columns and their temporaries: ~30 doubles
 #: a row) are built one block at a time, so its memory stops growing with the recording
-BLOCK_ROWS = 500_000
+#: (250 000 rows: ~60 MB of them; 500 000 before, whose passes stood out in the RSS trace
+#: of a 100 000-frame explanation)
+BLOCK_ROWS = 250_000
 
 
 class TimeBlocks(NamedTuple):
@@ -464,10 +487,12 @@ class TimeBlocks(NamedTuple):
 
 
 def time_blocks(lay, obs: dict, max_rows: int | None = None,
-                chunk: int = CHUNK_INTERVALS, margin: int = _MARGIN) -> TimeBlocks | None:
+                chunk: int = CHUNK_INTERVALS, margin: int = _MARGIN,
+                plans: bool = True) -> TimeBlocks | None:
     """:class:`TimeBlocks` of at most about `max_rows` (default BLOCK_ROWS) residual rows,
     or None when the recording fits in one (or a block would hold no lug or no body
-    sample)."""
+    sample). plans=False leaves the chunk plans out (`plans` None each: for a model
+    evaluation by blocks, which needs none; ~2 doubles a residual row less)."""
     max_rows = BLOCK_ROWS if max_rows is None else max_rows
     lt, bt = np.asarray(lay.lug_t), np.asarray(lay.body_t)
     S_l, S_b = len(lt), len(bt)
@@ -500,7 +525,10 @@ def time_blocks(lay, obs: dict, max_rows: int | None = None,
                              np.where(real_b, 2 * S_l + pb, -1),
                              np.where(real_b, 2 * S_l + S_b + pb, -1)])
         rows.append(rr)
-        raw.append(_plan_arrays(lay_k, chunk, margin))
+        if plans:
+            raw.append(_plan_arrays(lay_k, chunk, margin))
+    if not plans:
+        return TimeBlocks(lays, obss, [None] * nb, rows)
     # one shape for every block's plan (one compilation serves them all)
     C = max(a["rows"].shape[0] for a in raw)
     R = max(a["rows"].shape[1] for a in raw)
@@ -520,6 +548,7 @@ def normal_blocks(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: Chu
     A = g = None
     c2 = 0.0
     for lay_k, ob_k, plan_k in zip(blocks.lays, blocks.obss, blocks.plans):
+        trim_heap()
         Ak, gk, ck = _normal_jit(jnp.asarray(flat), fixed, lay_k, ob_k, packing, plan_k)
         A = np.array(Ak) if A is None else A + np.asarray(Ak)
         g = np.array(gk) if g is None else g + np.asarray(gk)
@@ -815,7 +844,7 @@ class RowChunks:
         if blocks is None:
             self.r = np.asarray(self._prep(0)["r"])
         else:
-            self.r = np.asarray(_residuals_jit(self.flat, fixed, lay, obs, packing))
+            self.r = blocked_residuals(self.flat, fixed, lay, obs, packing, blocks)
         self.n_par = int(sum(packing.sizes))
         self._C = int(self._parts[0][2].rows.shape[0])  # chunks per part (one shape)
         self._rows, self._keep = [], []
@@ -835,6 +864,7 @@ class RowChunks:
         """The shared buffers of part k (the last part's are dropped)."""
         if self._cur[0] != k:
             self._cur = (None, None)
+            trim_heap()
             lay_k, obs_k, plan_k, _ = self._parts[k]
             self._cur = (k, _prepare_jit(self.flat, self.fixed, lay_k, obs_k, self.packing,
                                          plan_k))
@@ -936,6 +966,30 @@ def _residuals_jit(flat, fixed, lay, obs, packing: Packing):
     return residuals(packing.unpack(flat, fixed), lay, obs)
 
 
+def blocked_residuals(flat, fixed, lay, obs, packing: Packing,
+                      blocks: TimeBlocks | None) -> np.ndarray:
+    """The weighted residuals (numpy) of the whole recording, one time block's model
+    evaluation at a time (:func:`time_blocks`; the model's per-row temporaries of one
+    block); the whole recording at once when `blocks` is None."""
+    if blocks is None:
+        return np.asarray(_residuals_jit(jnp.asarray(flat), fixed, lay, obs, packing))
+    out = np.zeros(2 * (lay.lug_t.shape[0] + lay.body_t.shape[0]))
+    for lay_k, ob_k, rows_k in zip(blocks.lays, blocks.obss, blocks.rows):
+        rk = np.asarray(_residuals_jit(jnp.asarray(flat), fixed, lay_k, ob_k, packing))
+        real = rows_k >= 0
+        out[rows_k[real]] = rk[real]
+    return out
+
+
+def blocked_chi2(flat, fixed, lay, obs, packing: Packing, blocks: TimeBlocks | None) -> float:
+    """chi^2 of the weighted residuals, by time blocks as :func:`blocked_residuals` (the
+    blocks' padding rows have zero weight and add nothing)."""
+    if blocks is None:
+        return float(_chi2_jit(jnp.asarray(flat), fixed, lay, obs, packing))
+    return float(sum(float(_chi2_jit(jnp.asarray(flat), fixed, lay_k, ob_k, packing))
+                     for lay_k, ob_k in zip(blocks.lays, blocks.obss)))
+
+
 def _solve_chunked(flat0, fixed, lay, obs, packing: Packing, plan: ChunkPlan, max_steps: int,
                    rtol: float, atol: float):
     """Levenberg-Marquardt on the chunked normal equations (Nielsen's damping update), in
@@ -965,7 +1019,7 @@ def _solve_chunked(flat0, fixed, lay, obs, packing: Packing, plan: ChunkPlan, ma
         return A, g, c2
 
     def chi2(f):
-        c2 = float(_chi2_jit(jnp.asarray(f), fixed, lay, obs, packing))
+        c2 = blocked_chi2(f, fixed, lay, obs, packing, blocks)
         if bounded:
             c2 += float(np.sum(bound(f)[0] ** 2))
         return c2
@@ -1005,7 +1059,7 @@ def _solve_chunked(flat0, fixed, lay, obs, packing: Packing, plan: ChunkPlan, ma
     if bounded:  # J^T J of the data alone, as returned by the dense solver
         pj = bound(flat)[1]
         A -= pj.T @ pj
-    r = np.asarray(_residuals_jit(jnp.asarray(flat), fixed, lay, obs, packing))
+    r = blocked_residuals(flat, fixed, lay, obs, packing, blocks)
     return flat, A, r, done, k
 
 

@@ -59,6 +59,12 @@ _NONNEG = {"s0": "C_rr >= 0", "slide_mu": "F_max > 0"}
 _POSITIVE = {"beta": "k > 0"}
 
 
+#: residual entries (rows x thetas) of one time block's batch of exact chi^2 on a long
+#: recording: the vmapped model's temporaries and J^T R are ~10-15 doubles per entry, so
+#: 1 M entries hold them near 100 MB (LARGE_ENTRIES, 4 M, held ~400 MB)
+BLOCK_ENTRIES = 1_000_000
+
+
 def slip_law_parameters(res: FitResult) -> list[str]:
     """The sampled parameters: s0, beta and the free parameters of any replacing slip law."""
     names = ["s0", "beta"]
@@ -243,7 +249,8 @@ class _Marginal:
             # exact_chi2 holds a batch's residual vectors and their model temporaries
             # (~5 doubles per residual each): at most LARGE_ENTRIES residuals per call
             rows = n_res if self._blocks is None else len(self._blocks.rows[0])
-            self.batch = max(1, min(batch, LARGE_ENTRIES // max(rows, 1)))
+            cap = LARGE_ENTRIES if self._blocks is None else min(LARGE_ENTRIES, BLOCK_ENTRIES)
+            self.batch = max(1, min(batch, cap // max(rows, 1)))
             JtJ = normal_blocks(self._args[0], self._args[2], *self._args[3:],
                                 self._plan, self._blocks)[0]  # bounded buffers
         else:
