@@ -16,7 +16,9 @@ from fitlug.vision._calibration import Calibration
 
 cv2 = pytest.importorskip("cv2")
 
-REAL = "/work/shared/data/real/calibration"
+import shared_data  # noqa: E402 - tests/ is on sys.path (conftest)
+
+REAL = os.path.join(shared_data.REAL, "calibration")
 CHESS = sorted(glob.glob(os.path.join(REAL, "opencv_chessboard", "left*.jpg")))
 CHARUCO = sorted(glob.glob(os.path.join(REAL, "opencv_charuco", "img_*.jpg")))
 needs_real = pytest.mark.skipif(len(CHESS) != 13 or len(CHARUCO) != 4,

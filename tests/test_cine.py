@@ -22,7 +22,9 @@ from fitlug._errors import InputError
 from fitlug.vision._cine import CineFile, _unpack_10, _unpack_12
 from fitlug.vision._source import open_source
 
-CINE = "/work/shared/data/real/cine"
+import shared_data  # noqa: E402 - tests/ is on sys.path (conftest)
+
+CINE = os.path.join(shared_data.REAL, "cine")
 REFERENCES = sorted(glob.glob(os.path.join(CINE, "*_0.rawi")))
 EIGHT_BIT = {"phantom_v1610", "phantom_v1610_raw", "phantom_v9_raw_16bpp"}
 

@@ -24,7 +24,9 @@ from fitlug._errors import InputError
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 REF_CSV = os.path.join(ROOT, "data", "reference", "trajectories.csv")
 REF_RIG = os.path.join(ROOT, "data", "reference", "rig.toml")
-CINE_DIR = "/work/shared/data/real/cine"
+import shared_data  # noqa: E402 - tests/ is on sys.path (conftest)
+
+CINE_DIR = os.path.join(shared_data.REAL, "cine")
 CINE_BASES = ("phantom_v1610.cine", "packed_12bpp.cine", "cine_legacy.cine")
 
 # numbers and non-numbers a field may become
