@@ -35,8 +35,8 @@ import numpy as np
 
 from .. import _jaxconfig  # noqa: F401
 from ..fit import residuals
-from ..fit._lsq import (LARGE_ENTRIES, Packing, RowChunks, chunkable, jacobian,
-                        time_blocks, trim_heap)
+from ..fit._lsq import (BLOCK_ENTRIES, LARGE_ENTRIES, Packing, RowChunks, chunkable,
+                        jacobian, time_blocks, trim_heap)
 from ..model import CATALOG, param_names
 
 COUPLED = ("s0", "beta", "R", "D", "e", "x_off", "y_off")
@@ -49,10 +49,6 @@ CHUNKED_ENTRIES = LARGE_ENTRIES
 #: residual entries per batched model evaluation (the batch shrinks on long recordings,
 #: or, where time blocks apply, the samples' part runs in blocks of BLOCK_ENTRIES / CHUNK)
 BATCH_ENTRIES = 4_000_000
-#: residual entries (rows x lanes) of one time block's batched evaluation on the blocked
-#: path: XLA's temporaries there are ~14 doubles per entry (memray, 30 000 frames: 385 MB
-#: at 8 lanes x 420 000 rows), so 1 M entries hold them near 110 MB at any length
-BLOCK_ENTRIES = 1_000_000
 #: residual entries a batch's output may hold on the blocked path (128 MB)
 RESULT_ENTRIES = 16_000_000
 

@@ -254,7 +254,7 @@ def least_squares(p0: dict, free, lay, obs, *, max_steps: int = 200, rtol: float
                                            packing.pack(p0), fixed, lay, obs)
     flat = np.asarray(flat)  # unpacked in numpy: jax slices compile once per (offset, size)
     p = packing.unpack(flat, fixed)
-    return LsqOutput(params=p, flat=np.asarray(flat), J=np.asarray(J), r=np.asarray(r),
+    return LsqOutput(params=p, flat=flat, J=np.asarray(J), r=np.asarray(r),
                      converged=bool(ok), steps=int(steps), packing=packing)
 
 
@@ -471,6 +471,11 @@ def _padded_plan(a: dict, C: int, R: int, BW: int | None = None) -> ChunkPlan:
 #: (250 000 rows: ~60 MB of them; 500 000 before, whose passes stood out in the RSS trace
 #: of a 100 000-frame explanation)
 BLOCK_ROWS = 250_000
+#: residual entries (rows x lanes, or rows x parameter vectors) of one time block's batched
+#: model evaluation (the explanation engine's candidates, the posterior's exact chi^2):
+#: XLA's temporaries there are ~10-15 doubles per entry (memray, 30 000 frames: 385 MB at
+#: 8 lanes x 420 000 rows), so 1 M entries hold them near 100 MB at any length
+BLOCK_ENTRIES = 1_000_000
 
 
 class TimeBlocks(NamedTuple):

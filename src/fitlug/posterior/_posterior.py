@@ -46,8 +46,8 @@ from .. import _exported, _jaxconfig  # noqa: F401
 from .._errors import FitError
 from ..model._physics import C_RR_MIN, beta_max
 from ..model.effects import CATALOG
-from ..fit._lsq import (LARGE_ENTRIES, chunk_plan, chunkable, inverse_norms, jacobian,
-                        normal_blocks, normal_equations, residuals, time_blocks)
+from ..fit._lsq import (BLOCK_ENTRIES, LARGE_ENTRIES, chunk_plan, chunkable, inverse_norms,
+                        jacobian, normal_blocks, normal_equations, residuals, time_blocks)
 from ._identify import not_identifiable
 from ._mcmc import Chain, autocorr_time, run_ensemble
 from ..fit._result import Estimate, FitResult, derived
@@ -57,12 +57,6 @@ CHECK_SIGMA = 2.0
 REPORTED = ("slip", "delta_l_mm", "stiffness_N_per_mm", "rolling_resistance", "k_over_m")
 _NONNEG = {"s0": "C_rr >= 0", "slide_mu": "F_max > 0"}
 _POSITIVE = {"beta": "k > 0"}
-
-
-#: residual entries (rows x thetas) of one time block's batch of exact chi^2 on a long
-#: recording: the vmapped model's temporaries and J^T R are ~10-15 doubles per entry, so
-#: 1 M entries hold them near 100 MB (LARGE_ENTRIES, 4 M, held ~400 MB)
-BLOCK_ENTRIES = 1_000_000
 
 
 def slip_law_parameters(res: FitResult) -> list[str]:
@@ -246,10 +240,10 @@ class _Marginal:
             # in exact_chi2), accumulated in time chunks; no dense (N x p) Jacobian
             self._plan = chunk_plan(prob.lay)
             self._blocks = time_blocks(prob.lay, prob.obs)  # None: one block
-            # exact_chi2 holds a batch's residual vectors and their model temporaries
-            # (~5 doubles per residual each): at most LARGE_ENTRIES residuals per call
+            # exact_chi2 holds a batch's residual vectors and their model temporaries: at
+            # most LARGE_ENTRIES residuals per call, BLOCK_ENTRIES per time block
             rows = n_res if self._blocks is None else len(self._blocks.rows[0])
-            cap = LARGE_ENTRIES if self._blocks is None else min(LARGE_ENTRIES, BLOCK_ENTRIES)
+            cap = LARGE_ENTRIES if self._blocks is None else BLOCK_ENTRIES
             self.batch = max(1, min(batch, cap // max(rows, 1)))
             JtJ = normal_blocks(self._args[0], self._args[2], *self._args[3:],
                                 self._plan, self._blocks)[0]  # bounded buffers
