@@ -72,8 +72,8 @@ def _disc_f32(radius: float):
     fx, fy, basis = _disc_offsets(radius)[3:]
     f32 = np.float32
     b32 = basis.astype(f32)
-    return (fx.astype(f32), fy.astype(f32), b32, np.sqrt(fx * fx + fy * fy).astype(f32),
-            np.ascontiguousarray(b32[:, :3].T))
+    return (*_typed_offsets(radius, np.dtype(f32).str), b32,
+            np.sqrt(fx * fx + fy * fy).astype(f32), np.ascontiguousarray(b32[:, :3].T))
 
 
 def cut_disc(frame: np.ndarray, centres: np.ndarray, radius: float, dtype=np.float64):

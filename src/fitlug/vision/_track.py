@@ -159,12 +159,10 @@ class Tracker:
         # with a round aperture before the blur's direction was known: wider tolerances
         young = 1.0 if t.confirmed else 3.0
         ds = math.hypot(shear[0] - t.shear[0], shear[1] - t.shear[1])
-        # the least of three `score`s (1 - |dev| / 2 tol, clipped to [0, 1]): the clip once
-        return min(max(min(
-            1.0 - 0.5 * abs(area / t.area - 1) / (young * max(0.006, 3.5 * 1.3 * rel)),
-            1.0 - 0.5 * abs(radius / t.radius - 1) / (young * max(0.005, 3.5 * 1.1 * rel)),
-            1.0 - 0.5 * ds / (young * max(0.12, 3.5 * 1.6 * rel * t.radius)
-                              + 0.2 * math.hypot(*t.shear))), 0.0), 1.0)
+        return min(score(area / t.area - 1, young * max(0.006, 3.5 * 1.3 * rel)),
+                   score(radius / t.radius - 1, young * max(0.005, 3.5 * 1.1 * rel)),
+                   score(ds, young * max(0.12, 3.5 * 1.6 * rel * t.radius)
+                         + 0.2 * math.hypot(*t.shear)))
 
     @staticmethod
     def _qs_contrast_tol(t):
