@@ -84,10 +84,26 @@ def _predict(p, lay):
     return predict(p, lay)
 
 
+@jax.jit
+def _integrate(p, lay):
+    from ..model import integrate
+
+    return integrate(p, lay)
+
+
+@jax.jit
+def _predict_from_nodes(p, lay, nodes):
+    from ..model import positions
+    from ..model._model import sampled_from_nodes
+
+    return positions(p, lay, *sampled_from_nodes(p, lay, nodes))
+
+
 def _positions(p: dict, lay, obs) -> tuple:
     """The model's (lug_x, lug_y, body_x, body_y) at every sample (numpy); on a long
     recording one time block's model evaluation at a time (:func:`fitlug.fit._lsq.
-    time_blocks`: the model's per-sample temporaries of one block, the same values)."""
+    time_blocks`: the model's per-sample temporaries of one block, the node values
+    integrated once; the same values)."""
     from ._lsq import time_blocks
 
     blocks = time_blocks(lay, obs, plans=False)
@@ -95,8 +111,9 @@ def _positions(p: dict, lay, obs) -> tuple:
         return tuple(np.asarray(a) for a in _predict(p, lay))
     S_l, S_b = lay.lug_t.shape[0], lay.body_t.shape[0]
     out = (np.zeros(S_l), np.zeros(S_l), np.zeros(S_b), np.zeros(S_b))
+    nodes = _integrate(p, lay)
     for lay_k, rows_k in zip(blocks.lays, blocks.rows):
-        lx, ly, bx, by = (np.asarray(a) for a in _predict(p, lay_k))
+        lx, ly, bx, by = (np.asarray(a) for a in _predict_from_nodes(p, lay_k, nodes))
         nl, nb = len(lx), len(bx)
         real_l, real_b = rows_k[:nl] >= 0, rows_k[2 * nl:2 * nl + nb] >= 0
         il = rows_k[:nl][real_l]  # lug x rows are the lug sample indices

@@ -32,7 +32,7 @@ import lineax as lx
 import numpy as np
 import optimistix as optx
 
-from ..model import KINEMATIC, positions, predict, sampled_kinematics
+from ..model import CATALOG, KINEMATIC, positions, predict, sampled_kinematics
 from .. import _exported
 from ..model._physics import beta_max
 
@@ -352,7 +352,9 @@ class ChunkPlan(eqx.Module):
     rows: jax.Array  # (C, R) residual rows (padded with row 0)
     mask: jax.Array  # (C, R) 1.0 for real rows
     ws: jax.Array  # (C,) first node of each chunk's window
-    seg: jax.Array  # (G - 1,) segment of each interval: number of window starts <= k
+    l0: jax.Array  # () first grid interval of the plan's span (the prefix sums' part)
+    lseg: jax.Array  # (span,) segment of interval l0 + i: window starts <= it (C + 1: before
+    #                  the first window, already in the prefix at ws[0])
     cb: jax.Array  # (C,) first spline coefficient of each chunk's band
     W: int = eqx.field(static=True)  # nodes per window
     BW: int = eqx.field(static=True)  # spline coefficients a window's rows touch locally
@@ -449,20 +451,32 @@ def _plan_arrays(lay, chunk: int, margin: int) -> dict:
     return {"rows": rows, "mask": mask, "ws": ws, "G": G, "W": W, "BW": BW, "lo": lo, "K": K}
 
 
-def _padded_plan(a: dict, C: int, R: int, BW: int | None = None) -> ChunkPlan:
+def _span(a: dict) -> int:
+    """Grid intervals from a plan's first window start to its last (>= 1)."""
+    return max(int(a["ws"][-1] - a["ws"][0]), 1)
+
+
+def _padded_plan(a: dict, C: int, R: int, BW: int | None = None,
+                 span: int | None = None) -> ChunkPlan:
     """A :class:`ChunkPlan` of the arrays `a` padded to C chunks of R rows (padding: no
-    rows, windows at the last chunk's)."""
+    rows, windows at the last chunk's), its prefix sums over `span` intervals from its first
+    window (the longest of the time blocks': one shape for all)."""
     c, r = a["rows"].shape
     rows = np.zeros((C, R), np.int64)
     mask = np.zeros((C, R))
     rows[:c, :r], mask[:c, :r] = a["rows"], a["mask"]
     ws = np.r_[a["ws"], np.full(C - c, a["ws"][-1])]
     lo = np.r_[a["lo"], np.full(C - c, a["lo"][-1])]
-    seg = np.searchsorted(a["ws"], np.arange(a["G"] - 1), side="right")
+    n_int = a["G"] - 1
+    span = min(_span(a) if span is None else span, n_int)
+    l0 = int(np.clip(a["ws"][0], 0, n_int - span))  # the span inside the grid
+    k = l0 + np.arange(span)
+    lseg = np.where(k < a["ws"][0], C + 1, np.searchsorted(a["ws"], k, side="right"))
     BW = a["BW"] if BW is None else BW
     cb = np.clip(lo, 0, a["K"] - BW)
     return ChunkPlan(rows=jnp.asarray(rows), mask=jnp.asarray(mask), ws=jnp.asarray(ws),
-                     seg=jnp.asarray(seg), cb=jnp.asarray(cb), W=a["W"], BW=BW)
+                     l0=jnp.asarray(l0), lseg=jnp.asarray(lseg), cb=jnp.asarray(cb),
+                     W=a["W"], BW=BW)
 
 
 #: residual rows per time block of a chunked pass: the pass's per-row buffers (residuals,
@@ -538,7 +552,8 @@ def time_blocks(lay, obs: dict, max_rows: int | None = None,
     C = max(a["rows"].shape[0] for a in raw)
     R = max(a["rows"].shape[1] for a in raw)
     BW = max(a["BW"] for a in raw)
-    plans = [_padded_plan(a, C, R, BW) for a in raw]
+    span = max(_span(a) for a in raw)
+    plans = [_padded_plan(a, C, R, BW, span) for a in raw]
     return TimeBlocks(lays, obss, plans, rows)
 
 
@@ -552,9 +567,10 @@ def normal_blocks(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: Chu
         return np.array(A), np.array(g), float(c2)
     A = g = None
     c2 = 0.0
-    for lay_k, ob_k, plan_k in zip(blocks.lays, blocks.obss, blocks.plans):
+    shared = block_shared(flat, fixed, lay, packing, blocks.plans)
+    for lay_k, ob_k, plan_k, sh_k in zip(blocks.lays, blocks.obss, blocks.plans, shared):
         trim_heap()
-        Ak, gk, ck = _normal_jit(jnp.asarray(flat), fixed, lay_k, ob_k, packing, plan_k)
+        Ak, gk, ck = _normal_jit(jnp.asarray(flat), fixed, lay_k, ob_k, packing, plan_k, sh_k)
         A = np.array(Ak) if A is None else A + np.asarray(Ak)
         g = np.array(gk) if g is None else g + np.asarray(gk)
         c2 += float(ck)
@@ -622,13 +638,14 @@ def _scatter_rows(vals, cols, width):
 
 
 def normal_equations(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: ChunkPlan,
-                     v=None, with_A: bool = True):
+                     v=None, with_A: bool = True, shared: dict | None = None):
     """(J^T J, J^T r, chi^2) of the weighted residuals, in memory linear in the samples and
     without the dense Jacobian; J is the same exact Jacobian as :func:`jacobian`.
 
     With `v` (a residual-shaped vector, or (m, N) for m of them) the second output is J^T v
-    instead ((p,) or (m, p)); with_A=False skips J^T J (returned as None)."""
-    prep = _prepare(flat, fixed, lay, obs, packing, plan)
+    instead ((p,) or (m, p)); with_A=False skips J^T J (returned as None). `shared`: the
+    plan's :func:`block_shared` dict when `lay` is one time block of a longer recording."""
+    prep = _prepare(flat, fixed, lay, obs, packing, plan, shared)
     r = prep["r"]
     n_par = flat.shape[0]
 
@@ -662,15 +679,27 @@ def normal_equations(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: 
     return (A if with_A else None), g, jnp.sum(r * r)
 
 
-def _window_nodes(prep: dict, lay, rows, ws, W: int, nk: int):
+def _window_nodes(prep: dict, lay, rows, ws, W: int, nk: int, cb=None, BW: int | None = None):
     """d(X, psi)/d theta (kinematic columns) at the W nodes of a chunk's window, summed from
     the window's first node (the prefix before it is the caller's), their time derivatives
     at the nodes, and each row's window interval and Hermite weights:
-    ((DX, DP, VX, VP), il, (w00, w10, w01, w11))."""
+    ((DX, DP, VX, VP), il, (w00, w10, w01, w11)).
+
+    With `cb` and `BW` the columns are the window's band only (spline coefficients
+    cb..cb+BW-1, then s0 and beta: BW + 2), which hold every nonzero of the window (see
+    :func:`_plan_arrays`): W (BW + 2) entries instead of W nk, nk growing with the
+    recording's duration."""
     sl_n = lambda a: jax.lax.dynamic_slice_in_dim(a, ws, W, 0)  # noqa: E731
     sl_i = lambda a: jax.lax.dynamic_slice_in_dim(a, ws, W - 1, 0)  # noqa: E731
-    zero = jnp.zeros((1, nk))
     icol, ncol = sl_i(prep["icol"]), sl_n(prep["ncol"])
+    if cb is not None:  # global kinematic column -> column of the band
+        K = nk - 2
+
+        def local(c):
+            return jnp.where(c >= K, c - K + BW, c - cb)
+
+        icol, ncol, nk = local(icol), local(ncol), BW + 2
+    zero = jnp.zeros((1, nk))
     DX = jnp.concatenate([zero, jnp.cumsum(_scatter_rows(sl_i(prep["ix"]), icol, nk), 0)])
     DP = jnp.concatenate([zero, jnp.cumsum(_scatter_rows(sl_i(prep["ipsi"]), icol, nk), 0)])
     VX = _scatter_rows(sl_n(prep["nx"]), ncol, nk)
@@ -696,8 +725,8 @@ def _chunk_factors(prep: dict, lay, packing: Packing, plan: ChunkPlan, rows, mas
     sig_pos = jnp.asarray(np.arange(sl["sigma0"].start, sl["sigma0"].stop))
     n_sig = sig_pos.shape[0]
     cols = jnp.concatenate([cb + jnp.arange(BW), jnp.array([K, K + 1])])  # band, s0, beta
-    (DX, DP, VX, VP), il, (w00, w10, w01, w11) = _window_nodes(prep, lay, rows, ws, W, nk)
-    DX, DP, VX, VP = (a[:, cols] for a in (DX, DP, VX, VP))
+    (DX, DP, VX, VP), il, (w00, w10, w01, w11) = _window_nodes(prep, lay, rows, ws, W, nk,
+                                                               cb, BW)
     # the Hermite weights of the two node values add up to one: the prefix factors out
     lX = w00 * DX[il] + w10 * VX[il] + w01 * DX[il + 1] + w11 * VX[il + 1]
     lP = w00 * DP[il] + w10 * VP[il] + w01 * DP[il + 1] + w11 * VP[il + 1]
@@ -715,54 +744,46 @@ def _chunk_factors(prep: dict, lay, packing: Packing, plan: ChunkPlan, rows, mas
     return U, P, jnp.concatenate(blocks, 1), jnp.concatenate(pos)
 
 
-def _prepare(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: ChunkPlan) -> dict:
-    """What every time chunk's Jacobian rows need (all of it linear in the samples): the
-    residuals, their derivatives along X and psi, the columns of the few non-kinematic
-    parameters, the banded kinematic derivatives and their prefix sums per chunk."""
-    from ..model._model import _true_times
+def _node_params(lay, packing: Packing) -> list:
+    """The free non-kinematic parameters that reach the node values of
+    :func:`fitlug.model.integrate` (a replacing slip law's: the chunked path has no speed
+    hook); every other non-kinematic parameter acts on the samples alone."""
+    names = []
+    for e in lay.effects:
+        if CATALOG[e].slip is not None:
+            names += [k for k in CATALOG[e].defaults if k in packing.names]
+    return names
 
-    sl = packing.slices()
+
+def _shared(flat, fixed: dict, lay, packing: Packing, starts) -> dict:
+    """What the time blocks of one pass share, over the whole grid, computed once per
+    parameter vector (not once per block: a block's own work is then linear in its rows,
+    and the pass linear in the recording): the node values of X and psi and their tangents
+    along the node parameters (:func:`_node_params`), the banded kinematic derivatives, the
+    gauge's derivative and the prefix sums of the increments at each block's first window
+    start `starts` ((nb,), sorted): "preX0"/"preP0" (nb, nk)."""
+    from ..model._model import integrate
+
     p = packing.unpack(flat, fixed)
-    n_par = flat.shape[0]
-    K = lay.n_coef
-    nk = K + 2
+    nk = lay.n_coef + 2
     G = lay.grid.shape[0]
-    n_l, n_b = lay.lug_t.shape[0], lay.body_t.shape[0]
-
-    def stage2(Xl, psil, Xb, psib):
-        return _weighted(positions(p, lay, Xl, psil, Xb, psib), obs)
-
-    prim = sampled_kinematics(p, lay)
-    one_l, one_b = jnp.ones(n_l), jnp.ones(n_b)
-    zero_l, zero_b = jnp.zeros(n_l), jnp.zeros(n_b)
-    r, dr_dX = jax.jvp(stage2, prim, (one_l, zero_l, one_b, zero_b))
-    _, dr_dpsi = jax.jvp(stage2, prim, (zero_l, one_l, zero_b, one_b))
-    tl, tb = _true_times(p, lay, lay.lug_t), _true_times(p, lay, lay.body_t)
-    t_row = jnp.concatenate([tl, tl, tb, tb])
-    sig_col = jnp.concatenate([lay.lug_i, lay.lug_i, jnp.zeros(2 * n_b, lay.lug_i.dtype)])
-    sig_val = jnp.concatenate([dr_dpsi[:2 * n_l], jnp.zeros(2 * n_b)])
-
-    # the remaining parameters: one forward derivative each through the whole model
-    rest_idx = _rest_index(packing)
-
-    def rest_column(e):
-        return jax.jvp(lambda f: residuals(packing.unpack(f, fixed), lay, obs), (flat,),
-                       (e,))[1]
-
-    if len(rest_idx):
-        E = jnp.zeros((len(rest_idx), n_par)).at[np.arange(len(rest_idx)), rest_idx].set(1.0)
-        J_rest = jax.lax.map(rest_column, E)  # (n_rest, N): no transposed copy of it
+    nodes = integrate(p, lay)
+    names = _node_params(lay, packing)
+    if names:
+        sl = packing.slices()
+        idx = np.array([sl[k].start for k in names])
+        E = jnp.zeros((len(idx), flat.shape[0])).at[np.arange(len(idx)), idx].set(1.0)
+        node_tan = jax.lax.map(lambda e: jax.jvp(
+            lambda f: integrate(packing.unpack(f, fixed), lay), (flat,), (e,))[1], E)
     else:
-        J_rest = jnp.zeros((0, r.shape[0]))
-
+        node_tan = tuple(jnp.zeros((0, G)) for _ in range(4))
     (nx, npsi, ncol), (ix, ipsi, icol) = _kinematic_bands(p, lay)
-    # prefix sums of the increments at every window start: per-segment sums, cumulated
-    n_seg = plan.ws.shape[0] + 1
-    seg_rows = plan.seg[:, None] * nk + icol
-    segX = jnp.zeros(n_seg * nk).at[seg_rows].add(ix).reshape(n_seg, nk)
-    segP = jnp.zeros(n_seg * nk).at[seg_rows].add(ipsi).reshape(n_seg, nk)
-    preX, preP = jnp.cumsum(segX, 0)[:-1], jnp.cumsum(segP, 0)[:-1]  # (C, nk)
-
+    # prefix sums of the increments before each block's first window
+    gseg = jnp.searchsorted(jnp.asarray(starts), jnp.arange(G - 1), side="right")
+    nb = starts.shape[0]
+    seg_rows = gseg[:, None] * nk + icol
+    segX = jnp.zeros((nb + 1) * nk).at[seg_rows].add(ix).reshape(nb + 1, nk)
+    segP = jnp.zeros((nb + 1) * nk).at[seg_rows].add(ipsi).reshape(nb + 1, nk)
     # the gauge X(t_ref) = psi(t_ref) = 0: derivative of the value at t_ref
     u0 = (lay.t_ref - lay.grid[0]) / lay.h
     i0 = jnp.clip(jnp.floor(u0).astype(int), 0, G - 2)
@@ -777,10 +798,106 @@ def _prepare(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: ChunkPla
     hw0 = _hermite_weights(tau0, lay.h)
     refX = hw0[0] * X0 + hw0[1] * vX[0] + hw0[2] * (X0 + inc0X) + hw0[3] * vX[1]
     refP = hw0[0] * P0 + hw0[1] * vP[0] + hw0[2] * (P0 + inc0P) + hw0[3] * vP[1]
+    return {"nodes": nodes, "node_tan": node_tan, "nx": nx, "npsi": npsi, "ncol": ncol,
+            "ix": ix, "ipsi": ipsi, "icol": icol, "refX": refX, "refP": refP,
+            "preX0": jnp.cumsum(segX, 0)[:-1], "preP0": jnp.cumsum(segP, 0)[:-1]}
+
+
+@eqx.filter_jit
+def _shared_jit(flat, fixed, lay, packing: Packing, starts):
+    return _shared(flat, fixed, lay, packing, starts)
+
+
+def block_shared(flat, fixed: dict, lay, packing: Packing, plans) -> list:
+    """:func:`_shared` of the whole recording `lay` once, handed to each of `plans` (its
+    time blocks', in time order) with its own prefix: one dict per plan."""
+    starts = jnp.asarray(np.array([int(pl.ws[0]) for pl in plans]))
+    sh = _shared_jit(jnp.asarray(flat), fixed, lay, packing, starts)
+    return [{**sh, "preX0": sh["preX0"][k], "preP0": sh["preP0"][k]}
+            for k in range(len(plans))]
+
+
+def _prepare(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: ChunkPlan,
+             shared: dict | None = None) -> dict:
+    """What every time chunk's Jacobian rows need (all of it linear in the samples): the
+    residuals, their derivatives along X and psi, the columns of the few non-kinematic
+    parameters, the banded kinematic derivatives and their prefix sums per chunk.
+    `shared`: :func:`block_shared`'s dict of this plan (computed here when None: `lay` is
+    then the whole recording's)."""
+    from ..model._model import _true_times, sampled_from_nodes
+
+    if shared is None:
+        shared = _shared(flat, fixed, lay, packing, plan.ws[:1])
+        shared = {**shared, "preX0": shared["preX0"][0], "preP0": shared["preP0"][0]}
+    p = packing.unpack(flat, fixed)
+    n_par = flat.shape[0]
+    nk = lay.n_coef + 2
+    n_l, n_b = lay.lug_t.shape[0], lay.body_t.shape[0]
+    nodes = shared["nodes"]
+
+    def stage2(Xl, psil, Xb, psib):
+        return _weighted(positions(p, lay, Xl, psil, Xb, psib), obs)
+
+    prim = sampled_from_nodes(p, lay, nodes)
+    one_l, one_b = jnp.ones(n_l), jnp.ones(n_b)
+    zero_l, zero_b = jnp.zeros(n_l), jnp.zeros(n_b)
+    r, dr_dX = jax.jvp(stage2, prim, (one_l, zero_l, one_b, zero_b))
+    _, dr_dpsi = jax.jvp(stage2, prim, (zero_l, one_l, zero_b, one_b))
+    tl, tb = _true_times(p, lay, lay.lug_t), _true_times(p, lay, lay.body_t)
+    t_row = jnp.concatenate([tl, tl, tb, tb])
+    sig_col = jnp.concatenate([lay.lug_i, lay.lug_i, jnp.zeros(2 * n_b, lay.lug_i.dtype)])
+    sig_val = jnp.concatenate([dr_dpsi[:2 * n_l], jnp.zeros(2 * n_b)])
+
+    # the remaining parameters: one forward derivative each through the samples' model,
+    # the node values' tangent given (zero but for a replacing slip law's parameters)
+    rest_idx = _rest_index(packing)
+
+    def res_of(f, nd):
+        q = packing.unpack(f, fixed)
+        return _weighted(positions(q, lay, *sampled_from_nodes(q, lay, nd)), obs)
+
+    if len(rest_idx):
+        sl = packing.slices()
+        node_idx = [sl[k].start for k in _node_params(lay, packing)]
+        plain = np.array([i for i in rest_idx if i not in node_idx], np.int64)
+        cols, order = [], []
+        if len(plain):
+            E = jnp.zeros((len(plain), n_par)).at[np.arange(len(plain)), plain].set(1.0)
+            zero_nodes = tuple(jnp.zeros_like(a) for a in nodes)
+            cols.append(jax.lax.map(
+                lambda e: jax.jvp(res_of, (flat, nodes), (e, zero_nodes))[1], E))
+            order.append(plain)
+        if node_idx:
+            ni = np.array(node_idx, np.int64)
+            E = jnp.zeros((len(ni), n_par)).at[np.arange(len(ni)), ni].set(1.0)
+            cols.append(jax.lax.map(
+                lambda a: jax.jvp(res_of, (flat, nodes), (a[0], a[1]))[1],
+                (E, shared["node_tan"])))
+            order.append(ni)
+        J_rest = jnp.concatenate(cols, 0)  # (n_rest, N): no transposed copy of it
+        perm = np.argsort(np.concatenate(order))  # back to rest_idx's (packed) order
+        if not np.array_equal(perm, np.arange(len(perm))):
+            J_rest = J_rest[perm]
+    else:
+        J_rest = jnp.zeros((0, r.shape[0]))
+
+    # prefix sums of the increments at every window start: the prefix at the first window
+    # (shared) plus per-segment sums over the plan's own span of intervals, cumulated
+    C = plan.ws.shape[0]
+    span = plan.lseg.shape[0]
+    icol = jax.lax.dynamic_slice_in_dim(shared["icol"], plan.l0, span, 0)
+    seg_rows = plan.lseg[:, None] * nk + icol
+    segX = jnp.zeros((C + 2) * nk).at[seg_rows].add(
+        jax.lax.dynamic_slice_in_dim(shared["ix"], plan.l0, span, 0)).reshape(C + 2, nk)
+    segP = jnp.zeros((C + 2) * nk).at[seg_rows].add(
+        jax.lax.dynamic_slice_in_dim(shared["ipsi"], plan.l0, span, 0)).reshape(C + 2, nk)
+    preX = shared["preX0"] + jnp.cumsum(segX[:C + 1], 0)[:-1]  # (C, nk)
+    preP = shared["preP0"] + jnp.cumsum(segP[:C + 1], 0)[:-1]
     return {"r": r, "dr_dX": dr_dX, "dr_dpsi": dr_dpsi, "t_row": t_row, "sig_col": sig_col,
-            "sig_val": sig_val, "J_rest": J_rest, "nx": nx, "npsi": npsi, "ncol": ncol,
-            "ix": ix, "ipsi": ipsi, "icol": icol, "preX": preX, "preP": preP, "refX": refX,
-            "refP": refP}
+            "sig_val": sig_val, "J_rest": J_rest, "nx": shared["nx"], "npsi": shared["npsi"],
+            "ncol": shared["ncol"], "ix": shared["ix"], "ipsi": shared["ipsi"],
+            "icol": shared["icol"], "preX": preX, "preP": preP, "refX": shared["refX"],
+            "refP": shared["refP"]}
 
 
 def _rest_index(packing: Packing) -> np.ndarray:
@@ -812,8 +929,8 @@ def _chunk_jacobian(prep: dict, lay, packing: Packing, W: int, rows, mask, ws, p
 
 
 @eqx.filter_jit
-def _prepare_jit(flat, fixed, lay, obs, packing: Packing, plan: ChunkPlan):
-    return _prepare(flat, fixed, lay, obs, packing, plan)
+def _prepare_jit(flat, fixed, lay, obs, packing: Packing, plan: ChunkPlan, shared=None):
+    return _prepare(flat, fixed, lay, obs, packing, plan, shared)
 
 
 @eqx.filter_jit
@@ -846,6 +963,9 @@ class RowChunks:
         else:
             self._parts = list(zip(blocks.lays, blocks.obss, blocks.plans, blocks.rows))
         self._cur = (None, None)
+        # what the blocks share over the whole grid, once (None: one part, its own)
+        self._shared = (None if blocks is None else
+                        block_shared(self.flat, fixed, lay, packing, blocks.plans))
         if blocks is None:
             self.r = np.asarray(self._prep(0)["r"])
         else:
@@ -872,7 +992,8 @@ class RowChunks:
             trim_heap()
             lay_k, obs_k, plan_k, _ = self._parts[k]
             self._cur = (k, _prepare_jit(self.flat, self.fixed, lay_k, obs_k, self.packing,
-                                         plan_k))
+                                         plan_k, None if self._shared is None
+                                         else self._shared[k]))
         return self._cur[1]
 
     @property
@@ -956,8 +1077,8 @@ def _hermite_weights(tau, h):
 
 
 @eqx.filter_jit
-def _normal_jit(flat, fixed, lay, obs, packing: Packing, plan: ChunkPlan):
-    return normal_equations(flat, fixed, lay, obs, packing, plan)
+def _normal_jit(flat, fixed, lay, obs, packing: Packing, plan: ChunkPlan, shared=None):
+    return normal_equations(flat, fixed, lay, obs, packing, plan, shared=shared)
 
 
 @eqx.filter_jit
@@ -971,16 +1092,44 @@ def _residuals_jit(flat, fixed, lay, obs, packing: Packing):
     return residuals(packing.unpack(flat, fixed), lay, obs)
 
 
+@eqx.filter_jit
+def _nodes_jit(flat, fixed, lay, packing: Packing):
+    from ..model._model import integrate
+
+    return integrate(packing.unpack(flat, fixed), lay)
+
+
+def _residuals_from_nodes(flat, fixed, lay, obs, packing: Packing, nodes):
+    from ..model._model import sampled_from_nodes
+
+    p = packing.unpack(flat, fixed)
+    return _weighted(positions(p, lay, *sampled_from_nodes(p, lay, nodes)), obs)
+
+
+@eqx.filter_jit
+def _block_residuals_jit(flat, fixed, lay, obs, packing: Packing, nodes):
+    return _residuals_from_nodes(flat, fixed, lay, obs, packing, nodes)
+
+
+@eqx.filter_jit
+def _block_chi2_jit(flat, fixed, lay, obs, packing: Packing, nodes):
+    r = _residuals_from_nodes(flat, fixed, lay, obs, packing, nodes)
+    return jnp.sum(r * r)
+
+
 def blocked_residuals(flat, fixed, lay, obs, packing: Packing,
                       blocks: TimeBlocks | None) -> np.ndarray:
     """The weighted residuals (numpy) of the whole recording, one time block's model
     evaluation at a time (:func:`time_blocks`; the model's per-row temporaries of one
-    block); the whole recording at once when `blocks` is None."""
+    block, the node values integrated once over the whole grid); the whole recording at
+    once when `blocks` is None."""
     if blocks is None:
         return np.asarray(_residuals_jit(jnp.asarray(flat), fixed, lay, obs, packing))
+    flat = jnp.asarray(flat)
+    nodes = _nodes_jit(flat, fixed, lay, packing)
     out = np.zeros(2 * (lay.lug_t.shape[0] + lay.body_t.shape[0]))
     for lay_k, ob_k, rows_k in zip(blocks.lays, blocks.obss, blocks.rows):
-        rk = np.asarray(_residuals_jit(jnp.asarray(flat), fixed, lay_k, ob_k, packing))
+        rk = np.asarray(_block_residuals_jit(flat, fixed, lay_k, ob_k, packing, nodes))
         real = rows_k >= 0
         out[rows_k[real]] = rk[real]
     return out
@@ -991,7 +1140,9 @@ def blocked_chi2(flat, fixed, lay, obs, packing: Packing, blocks: TimeBlocks | N
     blocks' padding rows have zero weight and add nothing)."""
     if blocks is None:
         return float(_chi2_jit(jnp.asarray(flat), fixed, lay, obs, packing))
-    return float(sum(float(_chi2_jit(jnp.asarray(flat), fixed, lay_k, ob_k, packing))
+    flat = jnp.asarray(flat)
+    nodes = _nodes_jit(flat, fixed, lay, packing)
+    return float(sum(float(_block_chi2_jit(flat, fixed, lay_k, ob_k, packing, nodes))
                      for lay_k, ob_k in zip(blocks.lays, blocks.obss)))
 
 
