@@ -646,8 +646,16 @@ def normal_equations(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: 
     instead ((p,) or (m, p)); with_A=False skips J^T J (returned as None). `shared`: the
     plan's :func:`block_shared` dict when `lay` is one time block of a longer recording."""
     prep = _prepare(flat, fixed, lay, obs, packing, plan, shared)
+    A, g = contract(prep, lay, packing, plan, v, with_A)
+    return A, g, jnp.sum(prep["r"] ** 2)
+
+
+def contract(prep: dict, lay, packing: Packing, plan: ChunkPlan, v=None, with_A: bool = True):
+    """(J^T J, J^T v) from one plan's :func:`_prepare` buffers (`v`: residual-shaped, (N,)
+    or (m, N); None: the residuals), chunk by chunk; J^T J is None without with_A. The
+    buffers at one parameter vector serve any number of vectors `v`."""
     r = prep["r"]
-    n_par = flat.shape[0]
+    n_par = int(sum(packing.sizes))
 
     sl = packing.slices()
     kin_pos = jnp.asarray(np.r_[np.arange(sl["v"].start, sl["v"].stop), sl["s0"].start,
@@ -676,7 +684,7 @@ def normal_equations(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: 
     init = (jnp.zeros((n_par, n_par)) if with_A else jnp.zeros(()), g0)
     (A, g), _ = jax.lax.scan(chunk, init, (plan.rows, plan.mask, plan.ws, plan.cb,
                                            prep["preX"], prep["preP"]))
-    return (A if with_A else None), g, jnp.sum(r * r)
+    return (A if with_A else None), g
 
 
 def _window_nodes(prep: dict, lay, rows, ws, W: int, nk: int, cb=None, BW: int | None = None):
