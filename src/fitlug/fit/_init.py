@@ -186,6 +186,9 @@ def lug_geometry(rec, lug_ids, tX, X):
     return {"R": R, "D": D, "e": e, "x_off": x_off, "y_off": ylo + e}, rel
 
 
+SPREAD_SAMPLES = 20_000
+
+
 def slip_and_phases(rel, geom, tX, X, P):
     """(s, sigma0 per lug marker) by a 1-D search on the belt-coordinate consistency."""
     us = []
@@ -193,7 +196,13 @@ def slip_and_phases(rel, geom, tX, X, P):
         u = _project(xr - geom["x_off"], y - geom["y_off"], geom["R"], geom["D"], geom["e"])
         us.append((t, u))
 
-    Xt = [(u, np.interp(t, tX, X)) for t, u in us]  # belt travel at each sample
+    # belt travel at each sample; a long recording's markers evenly thinned to SPREAD_SAMPLES
+    # samples each (a start value: the circular means of 20 000 samples are as sharp, and
+    # the search's ~300 slips x every sample cost 10 s at 100 000 frames)
+    Xt = []
+    for t, u in us:
+        k = max(1, -(-len(u) // SPREAD_SAMPLES))
+        Xt.append((u[::k], np.interp(t[::k], tX, X)))
 
     def spread(s):
         """Total circular spread of the belt coordinates and each marker's mean phase, for
