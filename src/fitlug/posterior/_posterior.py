@@ -183,12 +183,10 @@ def _jacobian_tuple(flat, fixed, lay, obs, packing):
 
 
 @eqx.filter_jit
-def _exact_chi2(thetas, flat, idx, fixed, lay, obs, packing, Je, Minv):
-    """|P r(theta, eta_hat)|^2 for a batch of theta, (m, d) -> (m,)."""
+def _project_dense(thetas, flat, idx, fixed, lay, obs, packing, Je):
+    """J_eta^T r(theta, eta_hat) for a batch of theta, (m, n_eta)."""
     def one(th):
-        r = residuals(packing.unpack(flat.at[idx].set(th), fixed), lay, obs)
-        b = Je.T @ r
-        return jnp.sum(r * r) - b @ (Minv @ b)
+        return Je.T @ residuals(packing.unpack(flat.at[idx].set(th), fixed), lay, obs)
 
     return jax.vmap(one)(thetas)
 
@@ -199,15 +197,23 @@ def _normal(flat, fixed, lay, obs, packing, plan):
 
 
 @eqx.filter_jit
-def _exact_chi2_chunked(thetas, flat, idx, rest, fixed, lay, obs, packing, plan, Minv):
-    """:func:`_exact_chi2` with J_eta^T r from time chunks (no dense Jacobian)."""
+def _project_chunked(thetas, flat, idx, rest, fixed, lay, obs, packing, plan):
+    """:func:`_project_dense` with J_eta^T r from time chunks (no dense Jacobian)."""
     def res_of(th):
         return residuals(packing.unpack(flat.at[idx].set(th), fixed), lay, obs)
 
     R = jax.vmap(res_of)(thetas)  # (m, N)
     _, b, _ = normal_equations(flat, fixed, lay, obs, packing, plan, v=R, with_A=False)
-    b = b[:, rest]
-    return jnp.sum(R * R, axis=1) - jnp.einsum("mi,ij,mj->m", b, Minv, b)
+    return b[:, rest]
+
+
+@eqx.filter_jit
+def _chi2_flats(flats, fixed, lay, obs, packing):
+    def one(f):
+        r = residuals(packing.unpack(f, fixed), lay, obs)
+        return jnp.sum(r * r)
+
+    return jax.vmap(one)(flats)
 
 
 #: node values (4 x grid nodes per theta) the blocked exact chi^2 holds at once: 128 MB;
@@ -223,15 +229,31 @@ def _theta_nodes(thetas, flat, idx, fixed, lay, packing):
 
 
 @eqx.filter_jit
-def _exact_parts_block(thetas, nodes, flat, idx, rest, fixed, lay, obs, packing, plan, prep):
-    """(|r|^2, J_eta^T r) of a batch of theta on one time block (summed over the blocks),
-    from the thetas' node values and the block's buffers at the optimum (`prep`)."""
+def _flat_nodes(flats, fixed, lay, packing):
+    """integrate()'s node values for a batch of parameter vectors: 4 x (m, G)."""
+    return jax.vmap(lambda f: integrate(packing.unpack(f, fixed), lay))(flats)
+
+
+@eqx.filter_jit
+def _project_block(thetas, nodes, flat, idx, rest, fixed, lay, obs, packing, plan, prep):
+    """J_eta^T r(theta, eta_hat) of a batch of theta on one time block (summed over the
+    blocks), from the thetas' node values and the block's buffers at the optimum."""
     def res_of(th, nd):
         return _residuals_from_nodes(flat.at[idx].set(th), fixed, lay, obs, packing, nd)
 
     R = jax.vmap(res_of)(thetas, nodes)  # (m, N_block)
     _, b = contract(prep, lay, packing, plan, v=R, with_A=False)
-    return jnp.sum(R * R, axis=1), b[:, rest]
+    return b[:, rest]
+
+
+@eqx.filter_jit
+def _chi2_block(flats, nodes, fixed, lay, obs, packing):
+    """chi^2 of a batch of parameter vectors on one time block, from their node values."""
+    def one(f, nd):
+        r = _residuals_from_nodes(f, fixed, lay, obs, packing, nd)
+        return jnp.sum(r * r)
+
+    return jax.vmap(one)(flats, nodes)
 
 
 class _Marginal:
@@ -332,45 +354,81 @@ class _Marginal:
         return self.theta_hat + (np.atleast_2d(thetas) - self.theta_hat) @ self.stretch.T
 
     def exact_chi2(self, thetas: np.ndarray) -> np.ndarray:
-        """|P r(theta, eta_hat)|^2 for (m, d) thetas, in fixed-size vmapped batches."""
+        """The marginal chi^2 of (m, d) thetas: chi^2 at theta with the nuisance parameters
+        moved by one Gauss-Newton step from eta_hat, eta = eta_hat - M^+ J_eta^T r(theta,
+        eta_hat) (the profile over eta to second order; its linear prediction
+        |P r(theta, eta_hat)|^2 leaves out the curvature of r along that step, which grows
+        with the recording: a slip-law change moves the belt phase of every later sample,
+        and the phases' shift is not linear in the path's coordinates). Two passes over
+        the recording in fixed-size vmapped batches."""
         thetas = np.atleast_2d(thetas)
         m, b = len(thetas), self.batch
         pad = np.concatenate([thetas, np.repeat(thetas[-1:], (-m) % b, 0)])
+        bb = self._projections(pad)
+        flats = np.repeat(np.asarray(self._args[0])[None, :], len(pad), 0)
+        flats[:, self.idx] = pad
+        flats[:, self._rest] -= bb @ self.Minv  # Minv symmetric
+        return self._chi2_of_flats(flats)[:m]
+
+    def _projections(self, pad: np.ndarray) -> np.ndarray:
+        """J_eta^T r(theta, eta_hat) for the (padded) thetas, (m, n_eta)."""
+        b = self.batch
+        a = self._args
+        rest = jnp.asarray(self._rest)
         if self._plan is not None and self._blocks is not None:
             # the thetas' node values once over the whole grid, then block by block: the
             # block's buffers at the optimum once, its residuals for every theta in
             # batches (time linear in the recording, memory one block's)
-            a, bl = self._args, self._blocks
-            rest = jnp.asarray(self._rest)
+            bl = self._blocks
             G = int(a[3].grid.shape[0])
             group = max(b, (NODE_ENTRIES // (4 * G)) // b * b)
             out = []
             for g0 in range(0, len(pad), group):
                 thg = jnp.asarray(pad[g0:g0 + group])
                 nodes = _theta_nodes(thg, a[0], a[1], a[2], a[3], a[5])
-                rr, bb = np.zeros(len(thg)), np.zeros((len(thg), len(self._rest)))
+                bb = np.zeros((len(thg), len(self._rest)))
                 for k, (lay_k, ob_k, plan_k) in enumerate(zip(bl.lays, bl.obss, bl.plans)):
                     prep = _prepare_jit(a[0], a[2], lay_k, ob_k, a[5], plan_k,
                                         self._shared[k])
                     for i in range(0, len(thg), b):
                         nd = tuple(x[i:i + b] for x in nodes)
-                        r2, bk = _exact_parts_block(thg[i:i + b], nd, a[0], a[1], rest, a[2],
-                                                    lay_k, ob_k, a[5], plan_k, prep)
-                        rr[i:i + b] += np.asarray(r2)
-                        bb[i:i + b] += np.asarray(bk)
+                        bb[i:i + b] += np.asarray(_project_block(
+                            thg[i:i + b], nd, a[0], a[1], rest, a[2], lay_k, ob_k, a[5],
+                            plan_k, prep))
                     del prep
-                out.append(rr - np.einsum("mi,ij,mj->m", bb, self.Minv, bb))
-            return np.concatenate(out)[:m]
+                out.append(bb)
+            return np.concatenate(out)
         if self._plan is not None:
-            a = self._args
-            out = [np.asarray(_exact_chi2_chunked(
-                jnp.asarray(pad[i:i + b]), a[0], a[1], jnp.asarray(self._rest), a[2], a[3],
-                a[4], a[5], self._plan, self._Minv)) for i in range(0, len(pad), b)]
-            return np.concatenate(out)[:m]
-        out = [np.asarray(_exact_chi2(jnp.asarray(pad[i:i + b]), *self._args[:1],
-                                      self._args[1], *self._args[2:], self._Je, self._Minv))
-               for i in range(0, len(pad), b)]
-        return np.concatenate(out)[:m]
+            return np.concatenate([np.asarray(_project_chunked(
+                jnp.asarray(pad[i:i + b]), a[0], a[1], rest, a[2], a[3], a[4], a[5],
+                self._plan)) for i in range(0, len(pad), b)])
+        return np.concatenate([np.asarray(_project_dense(
+            jnp.asarray(pad[i:i + b]), a[0], a[1], a[2], a[3], a[4], a[5], self._Je))
+            for i in range(0, len(pad), b)])
+
+    def _chi2_of_flats(self, flats: np.ndarray) -> np.ndarray:
+        """chi^2 of whole parameter vectors (m, p), m a multiple of the batch."""
+        b = self.batch
+        a = self._args
+        if self._blocks is not None:
+            bl = self._blocks
+            G = int(a[3].grid.shape[0])
+            group = max(b, (NODE_ENTRIES // (4 * G)) // b * b)
+            out = []
+            for g0 in range(0, len(flats), group):
+                fg = jnp.asarray(flats[g0:g0 + group])
+                nodes = _flat_nodes(fg, a[2], a[3], a[5])
+                c2 = np.zeros(len(fg))
+                for lay_k, ob_k in zip(bl.lays, bl.obss):
+                    for i in range(0, len(fg), b):
+                        nd = tuple(x[i:i + b] for x in nodes)
+                        c2[i:i + b] += np.asarray(_chi2_block(fg[i:i + b], nd, a[2], lay_k,
+                                                              ob_k, a[5]))
+                out.append(c2)
+            return np.concatenate(out)
+        return np.concatenate([np.asarray(_chi2_flats(jnp.asarray(flats[i:i + b]), a[2], a[3],
+                                                      a[4], a[5]))
+                               for i in range(0, len(flats), b)])
 
     def check_points(self) -> np.ndarray:
         """theta_hat + CHECK_SIGMA sigma along the principal axes and the diagonals."""
