@@ -1053,30 +1053,50 @@ class RowChunks:
 
     def normal(self, V=None, with_A: bool = True):
         """(J^T J, J^T V) with V (S, m) (or None: J^T r; or a list of such: a list of
-        J^T V_i); J^T J is None without with_A. From the chunks' factors: R w^2 + nk^2
-        per chunk, not R p^2."""
+        J^T V_i); J^T J is None without with_A. From the chunks' factors (R w^2 + nk^2 per
+        chunk, not R p^2), summed in one compiled pass per time block (:func:`contract`)
+        with at most NORMAL_ENTRIES of V's block rows at a time."""
         A = np.zeros((self.n_par, self.n_par)) if with_A else None
         V = self.r[:, None] if V is None else V
         Vs = V if isinstance(V, list) else [V]  # several (S, m_i): J^T of each, no stacking
+        Vs = [np.asarray(v, float) for v in Vs]
         gs = [np.zeros((self.n_par,) + v.shape[1:]) for v in Vs]
-        kin = self._kin_pos
-        for c in range(self.n_chunks):
-            got = self.factors(c)
-            if got is None:
-                continue
-            rows, U, P, L, pos = got
-            if with_A:
-                UL = P @ (U.T @ L)
-                A[np.ix_(pos, pos)] += L.T @ L
-                A[np.ix_(kin, pos)] += UL
-                A[np.ix_(pos, kin)] += UL.T
-                A[np.ix_(kin, kin)] += P @ (U.T @ U) @ P.T
+        for k, (lay_k, _, plan_k, glob) in enumerate(self._parts):
+            prep = self._prep(k)
+            n_rows = int(prep["r"].shape[0])
+            real = None if glob is None else glob >= 0
+            want_A = with_A
             for g, v in zip(gs, Vs):
-                vc = v[rows]
-                g[pos] += L.T @ vc
-                g[kin] += P @ (U.T @ vc)
+                m = v.shape[1] if v.ndim == 2 else 1
+                v2 = v.reshape(len(v), m)
+                step = max(1, NORMAL_ENTRIES // max(n_rows, 1))
+                for j0 in range(0, m, step):
+                    cols = v2[:, j0:j0 + step]
+                    if glob is None:
+                        vb = np.ascontiguousarray(cols.T)
+                    else:  # block rows; its padding rows (zero weight) get zeros
+                        vb = np.zeros((cols.shape[1], n_rows))
+                        vb[:, real] = cols[glob[real]].T
+                    Ak, gk = _contract_jit(prep, lay_k, self.packing, plan_k, jnp.asarray(vb),
+                                           want_A)
+                    if want_A:
+                        A += np.asarray(Ak)
+                        want_A = False
+                    g.reshape(self.n_par, m)[:, j0:j0 + step] += np.asarray(gk).T
+            if want_A:  # no V at all
+                Ak, _ = _contract_jit(prep, lay_k, self.packing, plan_k,
+                                      jnp.zeros((1, n_rows)), True)
+                A += np.asarray(Ak)
         return A, (gs if isinstance(V, list) else gs[0])
 
+
+#: V entries (columns x a block's rows) RowChunks.normal hands to one compiled pass: 32 MB
+NORMAL_ENTRIES = 4_000_000
+
+
+@eqx.filter_jit
+def _contract_jit(prep, lay, packing: Packing, plan: ChunkPlan, v, with_A: bool):
+    return contract(prep, lay, packing, plan, v, with_A)
 
 
 def _hermite_weights(tau, h):
