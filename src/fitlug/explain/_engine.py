@@ -157,17 +157,25 @@ class NormalJacobian:
         carry = np.zeros(M.shape[1])
         ch = self.chunks
         done = nf
+        # the base block's rows from the chunks' factors, J_c = U P^T (kinematic columns)
+        # + L (columns pos): per-frame sums of d U and d L, then through M's rows (a
+        # coupled column's rows zero: F holds it); R (2 + w) per chunk, not R p
+        Mfull = np.zeros((ch.n_par, M.shape[1]))
+        Mfull[self.base_cols] = Mb
+        Mkin = Mfull[ch._kin_pos]
         for c in range(ch.n_chunks - 1, -1, -1):
-            got = ch.chunk(c)
+            got = ch.factors(c)
             if got is None:
                 continue
-            rows, Jc = got
+            rows, U, P, L, pos = got
             f = fi[rows]
             lo = int(f.min())
             if f.max() >= done:
                 raise RuntimeError("time chunks out of order")
             Zc = Zf[lo:done] @ Mf
-            Zc += _frame_sums(f - lo, Jc[:, self.base_cols] * d[rows, None], done - lo) @ Mb
+            dr = d[rows, None]
+            Zc += _frame_sums(f - lo, np.hstack([U * dr, L * dr]), done - lo) @ np.vstack(
+                [P.T @ Mkin, Mfull[pos]])
             S = np.cumsum(Zc[::-1], 0)[::-1] + carry
             out[lo:done] = np.sum(S * S, 1)
             carry = S[0]
