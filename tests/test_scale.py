@@ -348,6 +348,12 @@ def test_engine_residuals_by_time_blocks_equal_the_whole_batch(sag_fit, monkeypa
     assert R.shape == R0.shape == (12, n_res)
     assert np.max(np.abs(R - R0)) < 1e-10 * np.max(np.abs(R0))
     assert np.max(np.abs(R0[3] - R0[0])) > 1.0  # the effects act
+    # the difference columns, written block by block on the long path
+    specs = [({}, "sag_d"), ({}, "s0"), ({"sag_d": 0.3}, "R"), ({}, "ripple_a"), ({}, "e")]
+    F0, F = eng0.fd_columns(specs, th), eng.fd_columns(specs, th)
+    assert F.shape == F0.shape == (n_res, len(specs))
+    np.testing.assert_allclose(F, F0, rtol=1e-7, atol=1e-7 * np.max(np.abs(F0)))
+    assert np.min(np.max(np.abs(F0), axis=0)) > 0  # every column acts
 
 
 def test_glitch_search_by_time_blocks_equals_the_whole_prediction(sag_fit, monkeypatch):

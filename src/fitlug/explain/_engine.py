@@ -419,10 +419,30 @@ class Engine:
                     t2[i] += sgn * h
                     pts.append(t2)
                 hs.append(h)
+            if self.blocks is not None and len(pts) <= self.batch:
+                # long recordings: the differences written block by block, never the
+                # batch's (2 per, S) residual vectors (180 MB at 100 000 frames)
+                self._blocked_differences(np.array(pts), hs, out[:, j0:j0 + len(hs)])
+                continue
             R = self.residuals(np.array(pts))
             for k in range(len(hs)):
                 out[:, j0 + k] = (R[2 * k] - R[2 * k + 1]) / (2 * hs[k])
         return out
+
+    def _blocked_differences(self, pts, hs, out) -> None:
+        """Central differences (R(+h) - R(-h)) / 2h of the pairs of vectors `pts` (one
+        batch) into the columns of `out`, one time block at a time."""
+        B = self.batch
+        pad = jnp.asarray(np.vstack([pts, np.repeat(pts[-1:], B - len(pts), 0)]))
+        trim_heap()
+        nodes = _nodes_batch(pad, self.packing, self.lay_all)
+        h2 = 2.0 * np.asarray(hs, float)
+        for lay_k, obs_k, rows_k in zip(self.blocks.lays, self.blocks.obss, self.blocks.rows):
+            rk = np.asarray(_res_from_nodes(pad, nodes, self.packing, lay_k, obs_k))
+            real = rows_k >= 0
+            d = (rk[0:2 * len(hs):2] - rk[1:2 * len(hs):2])[:, real] / h2[:, None]
+            out[rows_k[real], :] = d.T
+        self.evaluations += len(pts)
 
     def jacobian(self, theta, extra: list[str], r=None):
         """[base block | columns of the `extra` scalar parameters] at theta.
