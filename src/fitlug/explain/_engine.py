@@ -133,7 +133,12 @@ class NormalJacobian:
         return out
 
     def Jt(self, V) -> np.ndarray:
-        """J^T V for V (S, m) (or (S,))."""
+        """J^T V for V (S, m) (or (S,), or a list of (S, m_i): J^T of their columns side
+        by side, without stacking them into one more (S, sum m_i) array)."""
+        if isinstance(V, list):
+            Vs = [np.asarray(v, float).reshape(len(v), -1) for v in V]
+            _, JbVs = self.chunks.normal(Vs, with_A=False)
+            return np.hstack([self._assemble(JbV, self.F.T @ v) for JbV, v in zip(JbVs, Vs)])
         V = np.asarray(V, float)
         one = V.ndim == 1
         V2 = V[:, None] if one else V
@@ -328,7 +333,9 @@ class Engine:
         """Weighted residuals of the all-effects model, (B, S) for (B, P) vectors."""
         thetas = np.atleast_2d(np.asarray(thetas, float))
         out = np.empty((len(thetas), self.n_res))  # written in place: no stacked copy
-        B = self.batch
+        # lanes per call: a long recording's blocks write into `out` (the caller's memory),
+        # so they keep CHUNK lanes; self.batch caps the vectors held at once elsewhere
+        B = CHUNK if self.blocks is not None else self.batch
         for i in range(0, len(thetas), B):
             blk = thetas[i:i + B]
             pad = np.vstack([blk, np.repeat(blk[-1:], B - len(blk), 0)])
@@ -407,7 +414,10 @@ class Engine:
         if not specs:
             return np.zeros((n_res, 0))
         out = np.empty((n_res, len(specs)))
-        per = max(1, self.batch // 2)  # columns per batched evaluation (memory: one batch)
+        # columns per batched evaluation (memory: one batch); a long recording's differences
+        # are written block by block, so its batch keeps CHUNK lanes whatever the results'
+        # cap (RESULT_ENTRIES) makes of the residuals' batch
+        per = max(1, (CHUNK if self.blocks is not None else self.batch) // 2)
         for j0 in range(0, len(specs), per):
             pts, hs = [], []
             for settings, name in specs[j0:j0 + per]:
@@ -419,7 +429,7 @@ class Engine:
                     t2[i] += sgn * h
                     pts.append(t2)
                 hs.append(h)
-            if self.blocks is not None and len(pts) <= self.batch:
+            if self.blocks is not None:
                 # long recordings: the differences written block by block, never the
                 # batch's (2 per, S) residual vectors (180 MB at 100 000 frames)
                 self._blocked_differences(np.array(pts), hs, out[:, j0:j0 + len(hs)])
@@ -432,8 +442,7 @@ class Engine:
     def _blocked_differences(self, pts, hs, out) -> None:
         """Central differences (R(+h) - R(-h)) / 2h of the pairs of vectors `pts` (one
         batch) into the columns of `out`, one time block at a time."""
-        B = self.batch
-        pad = jnp.asarray(np.vstack([pts, np.repeat(pts[-1:], B - len(pts), 0)]))
+        pad = jnp.asarray(np.vstack([pts, np.repeat(pts[-1:], CHUNK - len(pts), 0)]))
         trim_heap()
         nodes = _nodes_batch(pad, self.packing, self.lay_all)
         h2 = 2.0 * np.asarray(hs, float)
@@ -596,7 +605,7 @@ def _alternative_columns(engine, NJ, theta, alts, per_pass: int = 4):
     group = []
 
     def flush():
-        JtC = NJ.Jt(np.hstack([g[2] for g in group]))
+        JtC = NJ.Jt([g[2] for g in group])  # no stacked copy of the group's columns
         k = 0
         for alt, th, C in group:
             yield alt, th, C, JtC[:, k:k + C.shape[1]]

@@ -1090,8 +1090,8 @@ class RowChunks:
         return A, (gs if isinstance(V, list) else gs[0])
 
 
-#: V entries (columns x a block's rows) RowChunks.normal hands to one compiled pass: 32 MB
-NORMAL_ENTRIES = 4_000_000
+#: V entries (columns x a block's rows) RowChunks.normal hands to one compiled pass: 16 MB
+NORMAL_ENTRIES = 2_000_000
 
 
 @eqx.filter_jit
