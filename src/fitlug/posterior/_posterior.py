@@ -376,6 +376,12 @@ class _Marginal:
         flats[:, self._rest] -= bb @ self.Minv  # Minv symmetric
         return self._chi2_of_flats(flats)[:m]
 
+    def _node_group(self) -> int:
+        """Vectors whose node values one pass over the blocks holds at once (NODE_ENTRIES
+        doubles), a multiple of the batch."""
+        G, b = int(self._args[3].grid.shape[0]), self.batch
+        return max(b, (NODE_ENTRIES // (4 * G)) // b * b)
+
     def _projections(self, pad: np.ndarray) -> np.ndarray:
         """J_eta^T r(theta, eta_hat) for the (padded) thetas, (m, n_eta)."""
         b = self.batch
@@ -386,8 +392,7 @@ class _Marginal:
             # block's buffers at the optimum once, its residuals for every theta in
             # batches (time linear in the recording, memory one block's)
             bl = self._blocks
-            G = int(a[3].grid.shape[0])
-            group = max(b, (NODE_ENTRIES // (4 * G)) // b * b)
+            group = self._node_group()
             out = []
             for g0 in range(0, len(pad), group):
                 thg = jnp.asarray(pad[g0:g0 + group])
@@ -418,8 +423,7 @@ class _Marginal:
         a = self._args
         if self._blocks is not None:
             bl = self._blocks
-            G = int(a[3].grid.shape[0])
-            group = max(b, (NODE_ENTRIES // (4 * G)) // b * b)
+            group = self._node_group()
             out = []
             for g0 in range(0, len(flats), group):
                 fg = jnp.asarray(flats[g0:g0 + group])
