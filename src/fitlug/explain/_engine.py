@@ -36,7 +36,7 @@ import numpy as np
 from .. import _jaxconfig  # noqa: F401
 from ..fit import residuals
 from ..fit._lsq import (BLOCK_ENTRIES, LARGE_ENTRIES, Packing, RowChunks, chunkable,
-                        jacobian, time_blocks, trim_heap)
+                        jacobian, nodes_batch, time_blocks, trim_heap)
 from ..model import CATALOG, param_names
 
 COUPLED = ("s0", "beta", "R", "D", "e", "x_off", "y_off")
@@ -209,24 +209,12 @@ def _res_batch(flats, packing, lay, obs):
 
 
 @partial(jax.jit, static_argnames=("packing",))
-def _nodes_batch(flats, packing, lay):
-    """The node values of the integration, (X, psi, dX/dt, dpsi/dt) each (B, G)."""
-    from ..model._model import integrate
-
-    return jax.vmap(lambda f: integrate(packing.unpack(f, {}), lay))(flats)
-
-
-@partial(jax.jit, static_argnames=("packing",))
 def _res_from_nodes(flats, nodes, packing, lay, obs):
     """:func:`_res_batch` of the samples of `lay` (a time block) from the node values."""
-    from ..fit._lsq import _weighted
-    from ..model._model import positions, sampled_from_nodes
+    from ..fit._lsq import _residuals_from_nodes
 
-    def one(f, *nd):
-        p = packing.unpack(f, {})
-        return _weighted(positions(p, lay, *sampled_from_nodes(p, lay, nd)), obs)
-
-    return jax.vmap(one)(flats, *nodes)
+    return jax.vmap(lambda f, *nd: _residuals_from_nodes(f, {}, lay, obs, packing, nd))(
+        flats, *nodes)
 
 
 @partial(jax.jit, static_argnames=("packing",))
@@ -351,7 +339,7 @@ class Engine:
         """:func:`_res_batch` on a long recording, written into `out` (its first rows):
         one integration for the batch, the samples by time blocks."""
         trim_heap()
-        nodes = _nodes_batch(pad, self.packing, self.lay_all)
+        nodes = nodes_batch(pad, {}, self.lay_all, self.packing)
         n = out.shape[0]
         for lay_k, obs_k, rows_k in zip(self.blocks.lays, self.blocks.obss, self.blocks.rows):
             rk = np.asarray(_res_from_nodes(pad, nodes, self.packing, lay_k, obs_k))
@@ -444,7 +432,7 @@ class Engine:
         batch) into the columns of `out`, one time block at a time."""
         pad = jnp.asarray(np.vstack([pts, np.repeat(pts[-1:], CHUNK - len(pts), 0)]))
         trim_heap()
-        nodes = _nodes_batch(pad, self.packing, self.lay_all)
+        nodes = nodes_batch(pad, {}, self.lay_all, self.packing)
         h2 = 2.0 * np.asarray(hs, float)
         for lay_k, obs_k, rows_k in zip(self.blocks.lays, self.blocks.obss, self.blocks.rows):
             rk = np.asarray(_res_from_nodes(pad, nodes, self.packing, lay_k, obs_k))

@@ -13,13 +13,10 @@ Convergence is declared when the last Gauss-Newton step lowers chi^2 by less tha
 
 from __future__ import annotations
 
-from functools import partial
-
-import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..fit import FitResult, free_parameters, residuals, residual_noise, reweighted
+from ..fit import FitResult, free_parameters, residual_noise, reweighted
 from ..fit._lsq import Packing, blocked_residuals, time_blocks
 from ..fit._result import compute_quantities
 from ._engine import covariance_of, gauss_newton_step
@@ -27,11 +24,6 @@ from ._engine import covariance_of, gauss_newton_step
 MAX_STEPS = 8
 TOL = 1e-6
 NOISE_REFIT_TOL = 0.005
-
-
-@partial(jax.jit, static_argnames=("packing",))
-def _res(flat, fixed, packing, lay, obs):
-    return residuals(packing.unpack(flat, fixed), lay, obs)
 
 
 def _polish(prob, p: dict, free: list) -> FitResult:
@@ -42,9 +34,7 @@ def _polish(prob, p: dict, free: list) -> FitResult:
     blocks = time_blocks(lay, obs, plans=False)  # long recordings: the model by blocks
 
     def res_of(f):
-        if blocks is None:
-            return np.asarray(_res(jnp.asarray(f), fixed, packing, lay, obs))
-        return blocked_residuals(f, fixed, lay, obs, packing, blocks)
+        return blocked_residuals(f, fixed, lay, obs, packing, blocks)  # None: at once
 
     r = res_of(flat)
     chi2 = float(r @ r)

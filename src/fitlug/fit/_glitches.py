@@ -54,7 +54,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _jaxconfig  # noqa: F401
-from ..model import predict
+from ..model import predict, predict_from_nodes
 
 ALPHA = 0.01
 MAX_RUN = 3
@@ -91,12 +91,7 @@ def _integrate(p, lay):
     return integrate(p, lay)
 
 
-@jax.jit
-def _predict_from_nodes(p, lay, nodes):
-    from ..model import positions
-    from ..model._model import sampled_from_nodes
-
-    return positions(p, lay, *sampled_from_nodes(p, lay, nodes))
+_predict_from_nodes = jax.jit(predict_from_nodes)
 
 
 def _positions(p: dict, lay, obs) -> tuple:

@@ -32,7 +32,8 @@ import lineax as lx
 import numpy as np
 import optimistix as optx
 
-from ..model import CATALOG, KINEMATIC, positions, predict, sampled_kinematics
+from ..model import (CATALOG, KINEMATIC, positions, predict, predict_from_nodes,
+                     sampled_kinematics)
 from .. import _exported
 from ..model._physics import beta_max
 
@@ -861,8 +862,7 @@ def _prepare(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: ChunkPla
     rest_idx = _rest_index(packing)
 
     def res_of(f, nd):
-        q = packing.unpack(f, fixed)
-        return _weighted(positions(q, lay, *sampled_from_nodes(q, lay, nd)), obs)
+        return _residuals_from_nodes(f, fixed, lay, obs, packing, nd)
 
     if len(rest_idx):
         sl = packing.slices()
@@ -1127,11 +1127,18 @@ def _nodes_jit(flat, fixed, lay, packing: Packing):
     return integrate(packing.unpack(flat, fixed), lay)
 
 
-def _residuals_from_nodes(flat, fixed, lay, obs, packing: Packing, nodes):
-    from ..model._model import sampled_from_nodes
+@eqx.filter_jit
+def nodes_batch(flats, fixed, lay, packing: Packing):
+    """integrate()'s node values (X, psi, dX/dt, dpsi/dt) for a batch of parameter vectors
+    (m, p) over the whole grid: 4 x (m, G)."""
+    from ..model._model import integrate
 
-    p = packing.unpack(flat, fixed)
-    return _weighted(positions(p, lay, *sampled_from_nodes(p, lay, nodes)), obs)
+    return jax.vmap(lambda f: integrate(packing.unpack(f, fixed), lay))(flats)
+
+
+def _residuals_from_nodes(flat, fixed, lay, obs, packing: Packing, nodes):
+    """:func:`residuals` of `flat` from the node values `nodes` of its integration."""
+    return _weighted(predict_from_nodes(packing.unpack(flat, fixed), lay, nodes), obs)
 
 
 @eqx.filter_jit

@@ -11,6 +11,7 @@ from ._model import (
     param_names as param_names,
     positions as positions,
     predict as predict,
+    predict_from_nodes as predict_from_nodes,
     sampled_kinematics as sampled_kinematics,
     segments as segments,
     slip_law as slip_law,

@@ -258,7 +258,13 @@ def sampled_from_nodes(p: dict, lay: Layout, nodes):
 
 def predict(p: dict, lay: Layout):
     """Model positions at the layout's samples: (lug_x, lug_y, body_x, body_y), mm."""
-    return positions(p, lay, *sampled_kinematics(p, lay))
+    return predict_from_nodes(p, lay, integrate(p, lay))
+
+
+def predict_from_nodes(p: dict, lay: Layout, nodes):
+    """:func:`predict` from :func:`integrate`'s node values `nodes` (a long recording's
+    passes integrate once over the whole grid and evaluate the samples by time blocks)."""
+    return positions(p, lay, *sampled_from_nodes(p, lay, nodes))
 
 
 def positions(p: dict, lay: Layout, Xl, psil, Xb, psib):

@@ -17,9 +17,9 @@ which grows with the recording: a slip-law change shifts the belt phase of every
 sample; at 30 000 frames it put the beta axis up to 0.8 off the Gaussian, the GN step
 2e-4). Two passes of the model per theta, vmapped over walkers (the linear prediction
 alone: ~0.9 ms CPU per walker and step on the reference recording, ~10 s of CPU for a
-converged chain; so the exact chain is over the report's time target on its own). 'gaussian' is its Gaussian limit, r linear in theta too:
--2 log L = (theta - theta_hat)^T F (theta - theta_hat), F = J_theta^T P J_theta, which
-costs microseconds. On the reference
+converged chain; so the exact chain is over the report's time target on its own).
+'gaussian' is its Gaussian limit, r linear in theta too: -2 log L = (theta - theta_hat)^T
+F (theta - theta_hat), F = J_theta^T P J_theta, which costs microseconds. On the reference
 recording the two give the same median (to 1e-5 sigma) and std (to 0.4 %).
 method='auto' (default) evaluates the exact marginal at 2-sigma points around the
 optimum (principal axes and diagonals) and uses the Gaussian limit only when it agrees
@@ -54,8 +54,8 @@ from ..model._physics import C_RR_MIN, beta_max
 from ..model.effects import CATALOG
 from ..fit._lsq import (BLOCK_ENTRIES, LARGE_ENTRIES, _prepare_jit, _residuals_from_nodes,
                         block_shared, chunk_plan, chunkable, contract, inverse_norms,
-                        jacobian, normal_blocks, normal_equations, residuals, time_blocks)
-from ..model import integrate
+                        jacobian, nodes_batch, normal_blocks, normal_equations, residuals,
+                        time_blocks)
 from ._identify import not_identifiable
 from ._mcmc import Chain, autocorr_time, run_ensemble
 from ..fit._result import Estimate, FitResult, derived
@@ -198,11 +198,6 @@ def _project_dense(thetas, flat, idx, fixed, lay, obs, packing, Je):
 
 
 @eqx.filter_jit
-def _normal(flat, fixed, lay, obs, packing, plan):
-    return normal_equations(flat, fixed, lay, obs, packing, plan)[0]
-
-
-@eqx.filter_jit
 def _project_chunked(thetas, flat, idx, rest, fixed, lay, obs, packing, plan):
     """:func:`_project_dense` with J_eta^T r from time chunks (no dense Jacobian)."""
     def res_of(th):
@@ -228,26 +223,13 @@ NODE_ENTRIES = 16_000_000
 
 
 @eqx.filter_jit
-def _theta_nodes(thetas, flat, idx, fixed, lay, packing):
-    """integrate()'s node values for a batch of theta over the whole grid: 4 x (m, G)."""
-    return jax.vmap(lambda th: integrate(packing.unpack(flat.at[idx].set(th), fixed), lay))(
-        thetas)
+def _project_block(flats, nodes, rest, fixed, lay, obs, packing, plan, prep):
+    """J_eta^T r of a batch of parameter vectors on one time block (summed over the
+    blocks), from their node values and the block's buffers at the optimum."""
+    def res_of(f, nd):
+        return _residuals_from_nodes(f, fixed, lay, obs, packing, nd)
 
-
-@eqx.filter_jit
-def _flat_nodes(flats, fixed, lay, packing):
-    """integrate()'s node values for a batch of parameter vectors: 4 x (m, G)."""
-    return jax.vmap(lambda f: integrate(packing.unpack(f, fixed), lay))(flats)
-
-
-@eqx.filter_jit
-def _project_block(thetas, nodes, flat, idx, rest, fixed, lay, obs, packing, plan, prep):
-    """J_eta^T r(theta, eta_hat) of a batch of theta on one time block (summed over the
-    blocks), from the thetas' node values and the block's buffers at the optimum."""
-    def res_of(th, nd):
-        return _residuals_from_nodes(flat.at[idx].set(th), fixed, lay, obs, packing, nd)
-
-    R = jax.vmap(res_of)(thetas, nodes)  # (m, N_block)
+    R = jax.vmap(res_of)(flats, nodes)  # (m, N_block)
     _, b = contract(prep, lay, packing, plan, v=R, with_A=False)
     return b[:, rest]
 
@@ -330,7 +312,6 @@ class _Marginal:
         self.cov = 0.5 * (self.cov + self.cov.T)
         self.chol = np.linalg.cholesky(self.cov)
         self._Je = None if JtJ is not None else jnp.asarray(Je)
-        self._Minv = jnp.asarray(self.Minv)
         self.chi2_hat = None
         self.stretch = None  # A: the likelihood is evaluated at theta_hat + A (theta - theta_hat)
 
@@ -370,10 +351,9 @@ class _Marginal:
         thetas = np.atleast_2d(thetas)
         m, b = len(thetas), self.batch
         pad = np.concatenate([thetas, np.repeat(thetas[-1:], (-m) % b, 0)])
-        bb = self._projections(pad)
         flats = np.repeat(np.asarray(self._args[0])[None, :], len(pad), 0)
-        flats[:, self.idx] = pad
-        flats[:, self._rest] -= bb @ self.Minv  # Minv symmetric
+        flats[:, self.idx] = pad  # (theta, eta_hat)
+        flats[:, self._rest] -= self._projections(pad, flats) @ self.Minv  # Minv symmetric
         return self._chi2_of_flats(flats)[:m]
 
     def _node_group(self) -> int:
@@ -382,8 +362,9 @@ class _Marginal:
         G, b = int(self._args[3].grid.shape[0]), self.batch
         return max(b, (NODE_ENTRIES // (4 * G)) // b * b)
 
-    def _projections(self, pad: np.ndarray) -> np.ndarray:
-        """J_eta^T r(theta, eta_hat) for the (padded) thetas, (m, n_eta)."""
+    def _projections(self, pad: np.ndarray, flats: np.ndarray) -> np.ndarray:
+        """J_eta^T r(theta, eta_hat) for the (padded) thetas, (m, n_eta); `flats`: the
+        same as whole parameter vectors (theta, eta_hat)."""
         b = self.batch
         a = self._args
         rest = jnp.asarray(self._rest)
@@ -394,18 +375,17 @@ class _Marginal:
             bl = self._blocks
             group = self._node_group()
             out = []
-            for g0 in range(0, len(pad), group):
-                thg = jnp.asarray(pad[g0:g0 + group])
-                nodes = _theta_nodes(thg, a[0], a[1], a[2], a[3], a[5])
-                bb = np.zeros((len(thg), len(self._rest)))
+            for g0 in range(0, len(flats), group):
+                fg = jnp.asarray(flats[g0:g0 + group])
+                nodes = nodes_batch(fg, a[2], a[3], a[5])
+                bb = np.zeros((len(fg), len(self._rest)))
                 for k, (lay_k, ob_k, plan_k) in enumerate(zip(bl.lays, bl.obss, bl.plans)):
                     prep = _prepare_jit(a[0], a[2], lay_k, ob_k, a[5], plan_k,
                                         self._shared[k])
-                    for i in range(0, len(thg), b):
+                    for i in range(0, len(fg), b):
                         nd = tuple(x[i:i + b] for x in nodes)
                         bb[i:i + b] += np.asarray(_project_block(
-                            thg[i:i + b], nd, a[0], a[1], rest, a[2], lay_k, ob_k, a[5],
-                            plan_k, prep))
+                            fg[i:i + b], nd, rest, a[2], lay_k, ob_k, a[5], plan_k, prep))
                     del prep
                 out.append(bb)
             return np.concatenate(out)
@@ -427,7 +407,7 @@ class _Marginal:
             out = []
             for g0 in range(0, len(flats), group):
                 fg = jnp.asarray(flats[g0:g0 + group])
-                nodes = _flat_nodes(fg, a[2], a[3], a[5])
+                nodes = nodes_batch(fg, a[2], a[3], a[5])
                 c2 = np.zeros(len(fg))
                 for lay_k, ob_k in zip(bl.lays, bl.obss):
                     for i in range(0, len(fg), b):
