@@ -273,7 +273,9 @@ def _worker(stage: str, folder: str, frames: int, budget: float, seed: int = 0) 
         extra = _path(d.get("detection_before"), d.get("detection_after"), d.get("verdict"),
                       [e.get("id", e) if isinstance(e, dict) else e
                        for e in d.get("effects") or []])
-    if stage in ("explain", "explain-effect", "whole"):  # after the figures: not timed
+    if stage in ("explain", "explain-effect", "whole") and seed >= 0:
+        # after the figures (not timed), and only for the ladder's simulated recordings
+        # (seed < 0: the bundled one, whose wall time the extras report)
         from fitlug.sim import Scenario
 
         sc = Scenario(**scenario_for(frames), **(
@@ -337,11 +339,11 @@ def reference_runs(budget: float) -> dict:
         for name in ("trajectories.csv", "rig.toml"):
             shutil.copy(os.path.join(ROOT, "data", "reference", name), folder)
         for st in ("lsq", "whole"):
-            run_stage(st, folder, 650, budget)  # fill the compile cache
-            out[st + "_warm"] = run_stage(st, folder, 650, budget)
+            run_stage(st, folder, 650, budget, seed=-1)  # fill the compile cache
+            out[st + "_warm"] = run_stage(st, folder, 650, budget, seed=-1)
         env = dict(os.environ)
         env["FITLUG_CACHE_DIR"] = os.path.join(tmp, "empty_cache")
-        out["whole_cold"] = run_stage("whole", folder, 650, budget, env=env)
+        out["whole_cold"] = run_stage("whole", folder, 650, budget, env=env, seed=-1)
     return out
 
 
@@ -372,6 +374,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0,
                     help="noise seed of the simulated recordings (default 0)")
     a = ap.parse_args(argv)
+    if a.seed < 0:
+        ap.error("--seed must be >= 0")
     sizes = [] if a.bundled else a.frames or ([650, 2000] if a.quick else list(LADDER))
     budget = 10.0 if a.quick and a.budget == 60.0 else a.budget
     extras = a.bundled or not (a.quick or a.no_extras)
