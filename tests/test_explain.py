@@ -195,3 +195,33 @@ def test_the_report_section_shows_before_and_after(frame_drop_explained):
     assert "What the model left out" in html and "frame_drop" in html
     assert html.count("data:image/png;base64,") == 3  # maps, breakdown, spectra
     assert discrepancy_section({}, None) == ""
+
+
+def test_engine_keeps_analytic_columns_only_where_every_effect_is_at_identity():
+    """The search's first-round Jacobian keeps the starting model's analytic columns of the
+    coupled scalars (s0, beta, R, ...): valid because with every catalog effect at its
+    identity value the all-effects model is the starting model. Checked against central
+    differences of the all-effects model, which the engine uses once an effect moves."""
+    from fitlug.explain._engine import COUPLED, Engine
+    from fitlug.fit import fit
+    from fitlug.sim import Scenario, rig_of, simulate
+
+    sc = Scenario(duration_s=3.0, travel_mm=250.0, rest_s=0.3, ramp_s=0.8)
+    rec, _ = simulate(sc, 5)
+    eng = Engine(fit(rec, rig_of(sc)))
+    theta = eng.theta0
+    assert not eng.effects_active(theta)
+    coupled = [k for k in COUPLED if k in eng.cur_packing.names]
+    assert len(coupled) >= 5
+    Jb = np.asarray(eng.base_jacobian(theta))
+    F = eng.fd_columns([({}, k) for k in coupled], theta)
+    for i, k in enumerate(coupled):
+        a = Jb[:, eng.cur_positions[k]]
+        assert np.linalg.norm(a - F[:, i]) <= 1e-5 * np.linalg.norm(a), k
+    J = eng.jacobian(theta, [])
+    assert np.array_equal(J, Jb)  # nothing replaced
+    moved = eng.with_values(theta, {"sag_d": 0.2})
+    assert eng.effects_active(moved)
+    J2 = eng.jacobian(moved, [])
+    # the belt sag moves the top run's y: the differenced columns are the all-effects model's
+    assert not np.allclose(J2[:, eng.cur_positions["R"]], Jb[:, eng.cur_positions["R"]])
