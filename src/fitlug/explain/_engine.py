@@ -74,7 +74,7 @@ def normal_of(J, V=None):
     """(J^T J, J^T V) of a dense Jacobian or of its :class:`RowChunks` (V (S,) or (S, m))."""
     if isinstance(J, RowChunks):
         if V is None:
-            return J.normal(np.zeros((len(J.r), 0)))[0], None
+            return J.normal(np.zeros((J.n_rows, 0)))[0], None
         A, g = J.normal(V if np.ndim(V) == 2 else np.asarray(V)[:, None])
         return A, (g if np.ndim(V) == 2 else g[:, 0])
     return J.T @ J, (None if V is None else J.T @ V)

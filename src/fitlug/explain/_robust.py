@@ -55,7 +55,7 @@ NUISANCES = (ImageMotion, MarkerShift)
 def covariance(J) -> np.ndarray:
     """fitlug.fit.covariance of a dense Jacobian, or from J^T J of its time chunks."""
     if isinstance(J, RowChunks):
-        return covariance_normal(J.normal(np.zeros((len(J.r), 0)))[0])
+        return covariance_normal(J.normal(np.zeros((J.n_rows, 0)))[0])
     return _covariance_dense(J)
 
 

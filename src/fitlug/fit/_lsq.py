@@ -974,10 +974,12 @@ class RowChunks:
         # what the blocks share over the whole grid, once (None: one part, its own)
         self._shared = (None if blocks is None else
                         block_shared(self.flat, fixed, lay, packing, blocks.plans))
+        self.n_rows = 2 * (int(lay.lug_t.shape[0]) + int(lay.body_t.shape[0]))
         if blocks is None:
-            self.r = np.asarray(self._prep(0)["r"])
-        else:
-            self.r = blocked_residuals(self.flat, fixed, lay, obs, packing, blocks)
+            self._r = np.asarray(self._prep(0)["r"])
+        else:  # on first use (a whole model evaluation; callers often hold r already)
+            self._r = None
+            self._r_args = (lay, obs, blocks)
         self.n_par = int(sum(packing.sizes))
         self._C = int(self._parts[0][2].rows.shape[0])  # chunks per part (one shape)
         self._rows, self._keep = [], []
@@ -992,6 +994,14 @@ class RowChunks:
         sl = packing.slices()
         self._kin_pos = np.r_[np.arange(sl["v"].start, sl["v"].stop), sl["s0"].start,
                               sl["beta"].start]
+
+    @property
+    def r(self) -> np.ndarray:
+        """The weighted residuals at `flat` (S,)."""
+        if self._r is None:
+            lay, obs, blocks = self._r_args
+            self._r = blocked_residuals(self.flat, self.fixed, lay, obs, self.packing, blocks)
+        return self._r
 
     def _prep(self, k: int) -> dict:
         """The shared buffers of part k (the last part's are dropped)."""
@@ -1032,7 +1042,7 @@ class RowChunks:
 
     def matvec(self, x) -> np.ndarray:
         """J x, (S,)."""
-        out = np.zeros(len(self.r))
+        out = np.zeros(self.n_rows)
         for rows, Jc in self:
             out[rows] = Jc @ x
         return out
