@@ -42,7 +42,8 @@ p-values) and the detection's Ljung-Box and periodogram p-values of the recordin
 ALONE (simulated data minus the same recording simulated without noise, per marker and
 axis: what the residuals of a perfect fit would be). A flag that the noise alone raises is
 a false alarm of that seed, not a cost of the size; compare sizes on the same path, or
-choose the noise with --seed (default 0).
+choose the noise with --seed (default 2, whose noise is not flagged at any size; seeds 0 and
+1 are at 100 000 frames). A warning is printed when a stage's path differs between sizes.
 """
 
 from __future__ import annotations
@@ -371,8 +372,11 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=1, help="sizes run in parallel")
     ap.add_argument("--keep", metavar="DIR", help="keep the simulated recordings under DIR")
     ap.add_argument("--json", metavar="PATH", help="also write the raw figures as JSON")
-    ap.add_argument("--seed", type=int, default=0,
-                    help="noise seed of the simulated recordings (default 0)")
+    ap.add_argument("--seed", type=int, default=2,
+                    help="noise seed of the simulated recordings (default 2: the first seed "
+                         "whose noise alone the detection does not flag at any size of the "
+                         "ladder; seeds 0 and 1 are false alarms at 100 000 frames, "
+                         "benchmarks/results/2026-11-26)")
     a = ap.parse_args(argv)
     if a.seed < 0:
         ap.error("--seed must be >= 0")
@@ -442,6 +446,18 @@ def _paths_table(rows) -> None:
               f"{flags(r.get('detection_after'))}; the noise alone: LB "
               f"{r.get('noise_ljung_box_p', float('nan')):.4f}, CP "
               f"{r.get('noise_periodogram_p', float('nan')):.4f}")
+    for stage in sorted({r["stage"] for r in got}):
+        paths = {}
+        for r in got:
+            if r["stage"] == stage:
+                key = (r["verdict"], tuple(r["effects"]),
+                       (r.get("detection_after") or {}).get("consistent"))
+                paths.setdefault(key, []).append(str(r["frames"]))
+        if len(paths) > 1:
+            groups = " against ".join(", ".join(v) for v in paths.values())
+            print(f"  WARNING: {stage}'s explanation took different paths at different sizes "
+                  f"({groups} frames): its slope compares different work "
+                  f"(a flagged noise draw: see the noise-alone p-values; try another --seed)")
 
 
 def _ladder_table(rows, sizes, stages) -> None:
