@@ -166,29 +166,26 @@ class RssTrace:
 
 
 def noise_alone(sc, seed: int) -> dict:
-    """Ljung-Box and cumulative-periodogram p-values (as explain's detection computes them,
-    fitlug.explain._detect) of the noise of `simulate(sc, seed)` alone, per marker and axis."""
+    """Ljung-Box and cumulative-periodogram p-values (explain's detection,
+    fitlug.explain._detect.serial_tests) of the noise of `simulate(sc, seed)` alone, per
+    marker and axis."""
     import dataclasses
 
-    from scipy import special
-
-    from fitlug.explain._detect import LB_LAGS, bartlett, ljung_box
+    from fitlug.explain._detect import serial_tests
     from fitlug.sim import simulate
 
     rec, _ = simulate(sc, seed=seed)
     clean, _ = simulate(dataclasses.replace(sc, noise_lug_mm=0.0, noise_body_mm=0.0), seed=seed)
-    q, n_lb, best, n_series = 0.0, 0, 1.0, 0
-    for m in np.unique(rec.marker_index):
-        sel = np.flatnonzero(rec.marker_index == m)
-        sel = sel[np.argsort(rec.t[sel], kind="stable")]
-        for a, c in ((rec.x, clean.x), (rec.y, clean.y)):
-            e = (a - c)[sel]
-            q += ljung_box(e, LB_LAGS)
-            n_lb += LB_LAGS
-            best = min(best, bartlett(e)[1])
-            n_series += 1
-    return {"noise_ljung_box_p": float(special.chdtrc(n_lb, q)),
-            "noise_periodogram_p": float(min(1.0, best * n_series))}
+
+    def series():
+        for m in np.unique(rec.marker_index):
+            sel = np.flatnonzero(rec.marker_index == m)
+            sel = sel[np.argsort(rec.t[sel], kind="stable")]
+            for a, c in ((rec.x, clean.x), (rec.y, clean.y)):
+                yield (a - c)[sel]
+
+    _, _, p_lb, _, _, p_cp = serial_tests(series())
+    return {"noise_ljung_box_p": p_lb, "noise_periodogram_p": p_cp}
 
 
 def _path(det_before, det_after, verdict, effects) -> dict:

@@ -116,6 +116,24 @@ def bartlett(x: np.ndarray) -> tuple[float, float]:
     return D, float(special.kolmogorov(D * (sm + 0.12 + 0.11 / sm)))
 
 
+def serial_tests(series) -> tuple:
+    """Tests 2 and 3 over `series` (1-D residual arrays, each in time order):
+    (Ljung-Box Q summed over the series, its dof, its p-value, the largest KS distance of a
+    cumulative periodogram, the index of that series (-1: none), its Bonferroni p-value)."""
+    q_tot, n_lb, n_series = 0.0, 0, 0
+    best_d, best_p, best_i = 0.0, 1.0, -1
+    for i, x in enumerate(series):
+        n_series += 1
+        if len(x) > LB_LAGS + 1:
+            q_tot += ljung_box(x, LB_LAGS)
+            n_lb += LB_LAGS
+        d, p = bartlett(x)
+        if p < best_p or best_i < 0:
+            best_d, best_p, best_i = d, p, i
+    p_lb = float(special.chdtrc(n_lb, q_tot)) if n_lb else 1.0
+    return q_tot, n_lb, p_lb, best_d, best_i, min(1.0, best_p * max(n_series, 1))
+
+
 def spectral_line(geo: Geometry, r: np.ndarray) -> tuple[float, str, float]:
     """(frequency Hz, group, p-value) of the strongest line in the series-averaged periodogram."""
     best = (0.0, "", 1.0)
@@ -159,20 +177,9 @@ def detect(geo: Geometry, r: np.ndarray, dof: int, *, sigma_estimated: bool = Tr
     z = (cpd - 1.0) / spread
     p_chi2 = float(special.ndtr(-z))
 
-    q_tot, n_lb = 0.0, 0
-    best_d, best_p, best_s = 0.0, 1.0, ""
-    n_series = 0
-    for s, sel in _series(geo, r):
-        x = r[sel]
-        n_series += 1
-        if len(x) > LB_LAGS + 1:
-            q_tot += ljung_box(x, LB_LAGS)
-            n_lb += LB_LAGS
-        d, p = bartlett(x)
-        if p < best_p or not best_s:
-            best_d, best_p, best_s = d, p, geo.series_name(int(s))
-    p_lb = float(special.chdtrc(n_lb, q_tot)) if n_lb else 1.0
-    p_cp = min(1.0, best_p * max(n_series, 1))
+    parts = list(_series(geo, r))
+    q_tot, n_lb, p_lb, best_d, best_i, p_cp = serial_tests(r[sel] for _, sel in parts)
+    best_s = geo.series_name(int(parts[best_i][0])) if best_i >= 0 else ""
     f_line, g_line, p_line = spectral_line(geo, r)
     M, sdM = structured_misfit(geo, r)
     level = alpha / 4.0
