@@ -330,9 +330,7 @@ class Engine:
         """Weighted residuals of the all-effects model, (B, S) for (B, P) vectors."""
         thetas = np.atleast_2d(np.asarray(thetas, float))
         out = np.empty((len(thetas), self.n_res))  # written in place: no stacked copy
-        # lanes per call: a long recording's blocks write into `out` (the caller's memory),
-        # so they keep CHUNK lanes; self.batch caps the vectors held at once elsewhere
-        B = CHUNK if self.blocks is not None else self.batch
+        B = self.lanes
         for i in range(0, len(thetas), B):
             blk = thetas[i:i + B]
             pad = np.vstack([blk, np.repeat(blk[-1:], B - len(blk), 0)])
@@ -399,6 +397,14 @@ class Engine:
             lay = lay.with_times(lt, lay.lug_i, bt, lay.body_j)
         return flat, fixed, lay
 
+    @property
+    def lanes(self) -> int:
+        """Parameter vectors per batched model evaluation. A long recording's blocks write
+        residuals and differences into the caller's arrays block by block, so its batch
+        keeps CHUNK lanes whatever the results' cap (RESULT_ENTRIES) makes of self.batch,
+        which caps the residual vectors held at once elsewhere."""
+        return CHUNK if self.blocks is not None else self.batch
+
     def effects_active(self, theta) -> bool:
         """Whether theta moves any effect the starting model lacks off its identity."""
         i = self.other_idx
@@ -416,10 +422,7 @@ class Engine:
         if not specs:
             return np.zeros((n_res, 0))
         out = np.empty((n_res, len(specs)))
-        # columns per batched evaluation (memory: one batch); a long recording's differences
-        # are written block by block, so its batch keeps CHUNK lanes whatever the results'
-        # cap (RESULT_ENTRIES) makes of the residuals' batch
-        per = max(1, (CHUNK if self.blocks is not None else self.batch) // 2)
+        per = max(1, self.lanes // 2)  # columns per batched evaluation
         for j0 in range(0, len(specs), per):
             pts, hs = [], []
             for settings, name in specs[j0:j0 + per]:
