@@ -10,14 +10,22 @@ marginalised linearly: around the least-squares optimum r(theta, eta) ~ r(theta,
     -2 log L(theta) = |P r(theta, eta_hat)|^2 + const,   P = I - J_eta J_eta^+ .
 
 Two evaluations of this marginal. 'exact' evaluates the full model at theta with eta moved
-by one Gauss-Newton step from eta_hat, eta_hat - (J_eta^T J_eta)^+ J_eta^T r(theta, eta_hat),
-and takes chi^2 there: the profile over eta to second order, where |P r(theta, eta_hat)|^2
-is its linear prediction (that prediction leaves out the curvature of r along the step,
-which grows with the recording: a slip-law change shifts the belt phase of every later
-sample; at 30 000 frames it put the beta axis up to 0.8 off the Gaussian, the GN step
-2e-4). Two passes of the model per theta, vmapped over walkers (the linear prediction
-alone: ~0.9 ms CPU per walker and step on the reference recording, ~10 s of CPU for a
-converged chain; so the exact chain is over the report's time target on its own).
+by one Gauss-Newton step from eta_hat, eta_hat - M(theta)^+ J_eta(theta)^T r(theta,
+eta_hat) with M = J_eta(theta)^T J_eta(theta), and takes chi^2 there: the profile
+min_eta chi^2 to second order, where |P r(theta, eta_hat)|^2 is its linear prediction
+(that prediction leaves out the curvature of r along the step, which grows with the
+recording: a slip-law change shifts the belt phase of every later sample; at 30 000
+frames it put the beta axis up to 0.8 off the Gaussian, the step 2e-4). The nuisance
+Jacobian is taken at theta, not at the optimum: a cruise-only recording leaves beta
+nearly free, and J_eta changes by its own size along it, so a step with J_eta(theta_hat)
+lands far off the profile (2026-11-25 and -26: Delta chi^2 134 for a profile of 5.6, k
+declared identifiable with a false interval; cruise s0 covered 90 %). J_eta(theta) comes
+from a model built once (J_eta is linear in theta to 1e-3 in chi^2 along a whole cruise
+ridge): its products with r at d + 1 points, its Gram as a quadratic in theta
+(_Marginal._step_model). Two passes of the model per theta, vmapped over walkers (the
+linear prediction alone: ~0.9 ms CPU per walker and step on the reference recording,
+~10 s of CPU for a converged chain; so the exact chain is over the report's time target
+on its own).
 'gaussian' is its Gaussian limit, r linear in theta too: -2 log L = (theta - theta_hat)^T
 F (theta - theta_hat), F = J_theta^T P J_theta, which costs microseconds. On the reference
 recording the two give the same median (to 1e-5 sigma) and std (to 0.4 %).
@@ -133,8 +141,9 @@ class Posterior:
             "ess_per_parameter": ess,
             "ess_slip": _num(c.walkers * kept / float(slip_tau[0])),
             "method": self.method,
-            "marginalised": (f"{self.n_marginalised} nuisance parameters, linearly "
-                             "(flat prior, Jacobian at the least-squares optimum)"),
+            "marginalised": (f"{self.n_marginalised} nuisance parameters, flat prior: "
+                             "profiled by one Gauss-Newton step with their Jacobian at "
+                             "theta"),
             "priors": {**{k: v for k, v in {**_POSITIVE, **_NONNEG}.items()
                           if k in c.names},
                        **({"s0/beta": f"C_rr + F_d/(m g) = s0 / (1000 g beta) >= {C_RR_MIN:g}"}
@@ -189,23 +198,28 @@ def _jacobian_tuple(flat, fixed, lay, obs, packing):
 
 
 @eqx.filter_jit
-def _project_dense(thetas, flat, idx, fixed, lay, obs, packing, Je):
-    """J_eta^T r(theta, eta_hat) for a batch of theta, (m, n_eta)."""
-    def one(th):
-        return Je.T @ residuals(packing.unpack(flat.at[idx].set(th), fixed), lay, obs)
+def _project_dense(flats, fixed, lay, obs, packing, Jes):
+    """(chi^2, J_k^T r) of a batch of parameter vectors: r's |r|^2 (m,) and its products
+    with the nuisance Jacobians at the step model's points, Jes (K, N, n_eta) -> (m, K,
+    n_eta)."""
+    def one(f):
+        r = residuals(packing.unpack(f, fixed), lay, obs)
+        return jnp.sum(r * r), jnp.einsum("kni,n->ki", Jes, r)
 
-    return jax.vmap(one)(thetas)
+    return jax.vmap(one)(flats)
 
 
 @eqx.filter_jit
-def _project_chunked(thetas, flat, idx, rest, fixed, lay, obs, packing, plan):
-    """:func:`_project_dense` with J_eta^T r from time chunks (no dense Jacobian)."""
-    def res_of(th):
-        return residuals(packing.unpack(flat.at[idx].set(th), fixed), lay, obs)
+def _project_chunked(flats, pts, rest, fixed, lay, obs, packing, plan):
+    """:func:`_project_dense` with each J_k^T r from time chunks (no dense Jacobian); pts
+    (K, p): the parameter vectors whose Jacobians are contracted."""
+    def res_of(f):
+        return residuals(packing.unpack(f, fixed), lay, obs)
 
-    R = jax.vmap(res_of)(thetas)  # (m, N)
-    _, b, _ = normal_equations(flat, fixed, lay, obs, packing, plan, v=R, with_A=False)
-    return b[:, rest]
+    R = jax.vmap(res_of)(flats)  # (m, N)
+    B = [normal_equations(pts[k], fixed, lay, obs, packing, plan, v=R, with_A=False)[1]
+         for k in range(pts.shape[0])]
+    return jnp.sum(R * R, axis=1), jnp.stack(B, axis=1)[:, :, rest]
 
 
 @eqx.filter_jit
@@ -224,14 +238,15 @@ NODE_ENTRIES = 16_000_000
 
 @eqx.filter_jit
 def _project_block(flats, nodes, rest, fixed, lay, obs, packing, plan, prep):
-    """J_eta^T r of a batch of parameter vectors on one time block (summed over the
-    blocks), from their node values and the block's buffers at the optimum."""
+    """(chi^2, J_eta^T r) of a batch of parameter vectors on one time block (summed over
+    the blocks), from their node values and the block's buffers at one of the step model's
+    points (`prep`)."""
     def res_of(f, nd):
         return _residuals_from_nodes(f, fixed, lay, obs, packing, nd)
 
     R = jax.vmap(res_of)(flats, nodes)  # (m, N_block)
     _, b = contract(prep, lay, packing, plan, v=R, with_A=False)
-    return b[:, rest]
+    return jnp.sum(R * R, axis=1), b[:, rest]
 
 
 @eqx.filter_jit
@@ -299,6 +314,7 @@ class _Marginal:
         w, V = np.linalg.eigh(M)
         inv = np.where(w > 1e-12 * w.max(), 1.0 / np.where(w > 0, w, 1.0), 0.0)
         self.Minv = (V * inv) @ V.T * np.outer(s, s)  # (J_eta^T J_eta)^+
+        self._Aee, self._s = Aee, s  # the step model's Gram at the optimum, its scaling
         F = Att - Aet.T @ (self.Minv @ Aet)
         self.F = 0.5 * (F + F.T)
         # s0 ~ 1e-6 and beta ~ 1e-8 in std: invert the correlation form
@@ -312,6 +328,9 @@ class _Marginal:
         self.cov = 0.5 * (self.cov + self.cov.T)
         self.chol = np.linalg.cholesky(self.cov)
         self._Je = None if JtJ is not None else jnp.asarray(Je)
+        self._sd0 = np.sqrt(np.diag(self.cov))  # the Gaussian limit's, before any widening
+        self._step = None  # the nuisance step's model in theta (_step_model), when needed
+        self._kept = []  # dense: the step model's Jacobians while it is built
         self.chi2_hat = None
         self.stretch = None  # A: the likelihood is evaluated at theta_hat + A (theta - theta_hat)
 
@@ -342,19 +361,109 @@ class _Marginal:
 
     def exact_chi2(self, thetas: np.ndarray) -> np.ndarray:
         """The marginal chi^2 of (m, d) thetas: chi^2 at theta with the nuisance parameters
-        moved by one Gauss-Newton step from eta_hat, eta = eta_hat - M^+ J_eta^T r(theta,
-        eta_hat) (the profile over eta to second order; its linear prediction
-        |P r(theta, eta_hat)|^2 leaves out the curvature of r along that step, which grows
-        with the recording: a slip-law change moves the belt phase of every later sample,
-        and the phases' shift is not linear in the path's coordinates). Two passes over
-        the recording in fixed-size vmapped batches."""
+        moved by one Gauss-Newton step from eta_hat, eta = eta_hat - M(theta)^+ b(theta)
+        with b = J_eta(theta)^T r(theta, eta_hat) and M = J_eta(theta)^T J_eta(theta)
+        (the profile over eta to second order; the lower of that and chi^2 at eta_hat).
+
+        J_eta(theta), the nuisance Jacobian at theta, not at theta_hat: on a recording that
+        leaves a direction of theta nearly free (a cruise: beta), J_eta changes by its own
+        size along it (beta scales how the speed profile's acceleration moves the slip),
+        and a step with J_eta(theta_hat) lands far off the profile (cruise seed 37078 at
+        beta -> 0: 134 instead of 5.6 in chi^2; at 3 sigma along beta 1.2e4). J_eta is
+        linear in theta there to 1e-3 in chi^2, so b and M come from the step model
+        (:meth:`_step_model`): J_eta^T r at theta_hat and at theta_hat + h_i e_i,
+        interpolated, and J_eta^T J_eta as a quadratic in theta. Two passes over the
+        recording in fixed-size vmapped batches, whose first contracts r with d + 1
+        Jacobians."""
         thetas = np.atleast_2d(thetas)
         m, b = len(thetas), self.batch
         pad = np.concatenate([thetas, np.repeat(thetas[-1:], (-m) % b, 0)])
         flats = np.repeat(np.asarray(self._args[0])[None, :], len(pad), 0)
         flats[:, self.idx] = pad  # (theta, eta_hat)
-        flats[:, self._rest] -= self._projections(pad, flats) @ self.Minv  # Minv symmetric
-        return self._chi2_of_flats(flats)[:m]
+        st = self._step_model()
+        c0, B = self._projections(flats)  # |r|^2 (m,), J_k^T r (m, d + 1, n_eta)
+        u = (pad - self.theta_hat) / st["h"]  # (m, d)
+        bt = B[:, 0] + np.einsum("mi,mik->mk", u, B[:, 1:] - B[:, :1])
+        M = st["G0"] + np.einsum("mi,ijk->mjk", u, st["L"])
+        M = M + np.einsum("mi,mj,ijkl->mkl", u, u, st["Q"])
+        s = self._s
+        Ms = M * np.outer(s, s)
+        w, V = np.linalg.eigh(0.5 * (Ms + np.swapaxes(Ms, 1, 2)))
+        top = w.max(axis=1, keepdims=True)
+        inv = np.where(w > 1e-12 * top, 1.0 / np.where(w > 0, w, 1.0), 0.0)
+        step = s * np.einsum("mij,mj,mkj,mk->mi", V, inv, V, s * bt)
+        flats[:, self._rest] -= step
+        c1 = self._chi2_of_flats(flats)
+        return np.minimum(c0, c1)[:m]
+
+    def _step_model(self) -> dict:
+        """The nuisance Jacobian's dependence on theta, built on first use.
+
+        Jacobian points theta_hat and theta_hat + h_i e_i (h_i a quarter of theta_i's
+        Gaussian std, at most half its distance from a zero bound): their J_eta are what
+        _projections contracts r with. J_eta^T J_eta at theta_hat + delta, delta = h u, as
+        G0 + sum u_i L_i + sum_(i<=j) u_i u_j Q_ij, from the Gram at theta_hat, +-h_i e_i
+        and h_i e_i + h_j e_j ((d + 1)(d + 2)/2 points; exact for a J_eta linear in
+        theta). Returns {"h", "G0", "L" (d, n, n), "Q" (d, d, n, n)}."""
+        if self._step is not None:
+            return self._step
+        d = len(self.idx)
+        h = 0.25 * self._sd0
+        for i, k in enumerate(self.names):
+            if (k in _NONNEG or k in _POSITIVE) and self.theta_hat[i] > 0:
+                h[i] = min(h[i], 0.5 * self.theta_hat[i])
+        h = np.where(h > 0, h, 1e-12)
+        base = np.asarray(self._args[0])
+
+        def at(u):
+            f = base.copy()
+            f[self.idx] += np.asarray(u) * h
+            return f
+
+        E = np.eye(d)
+        jac_pts = [base] + [at(E[i]) for i in range(d)]
+        grams = {}
+
+        def gram(key, f):
+            if key not in grams:
+                grams[key] = self._gram(f, keep=key[0] in ("0", "+"))
+            return grams[key]
+
+        G0 = self._Aee
+        L = np.empty((d,) + G0.shape)
+        Q = np.zeros((d, d) + G0.shape)
+        for i in range(d):
+            Gp, Gm = gram(("+", i), jac_pts[1 + i]), gram(("-", i), at(-E[i]))
+            L[i] = 0.5 * (Gp - Gm)
+            Q[i, i] = 0.5 * (Gp + Gm) - G0
+        for i in range(d):
+            for j in range(i + 1, d):
+                Gij = gram(("x", i, j), at(E[i] + E[j]))
+                Q[i, j] = Gij - grams[("+", i)] - grams[("+", j)] + G0
+        self._pts = np.array(jac_pts)
+        if self._Je is not None:  # dense: the points' nuisance Jacobians, in order
+            self._Jes = jnp.stack([self._Je] + self._kept)
+            self._kept = []
+        elif self._blocks is not None:  # what each point's blocks share
+            self._shared_pts = [self._shared] + [
+                block_shared(f, self._args[2], self._args[3], self._args[5],
+                             self._blocks.plans) for f in jac_pts[1:]]
+        self._step = {"h": h, "G0": G0, "L": L, "Q": Q}
+        return self._step
+
+    def _gram(self, flat: np.ndarray, keep: bool = False) -> np.ndarray:
+        """J_eta^T J_eta at a parameter vector (dense: kept for the contraction when
+        `keep`, in the order asked)."""
+        a, rest = self._args, self._rest
+        if self._plan is None:
+            (J,) = _exported.call("posterior_jacobian", _jacobian_tuple, (a[5],),
+                                  jnp.asarray(flat), a[2], a[3], a[4])
+            Je = np.asarray(J)[:, rest]
+            if keep:
+                self._kept.append(jnp.asarray(Je))
+            return Je.T @ Je
+        A = normal_blocks(flat, a[2], a[3], a[4], a[5], self._plan, self._blocks)[0]
+        return A[np.ix_(rest, rest)]
 
     def _node_group(self) -> int:
         """Vectors whose node values one pass over the blocks holds at once (NODE_ENTRIES
@@ -362,40 +471,49 @@ class _Marginal:
         G, b = int(self._args[3].grid.shape[0]), self.batch
         return max(b, (NODE_ENTRIES // (4 * G)) // b * b)
 
-    def _projections(self, pad: np.ndarray, flats: np.ndarray) -> np.ndarray:
-        """J_eta^T r(theta, eta_hat) for the (padded) thetas, (m, n_eta); `flats`: the
-        same as whole parameter vectors (theta, eta_hat)."""
+    def _projections(self, flats: np.ndarray) -> tuple:
+        """(|r|^2 (m,), J_k^T r (m, d + 1, n_eta)) for whole parameter vectors (m a
+        multiple of the batch), J_k the nuisance Jacobian at the step model's points."""
         b = self.batch
         a = self._args
         rest = jnp.asarray(self._rest)
+        K = len(self._pts)
         if self._plan is not None and self._blocks is not None:
-            # the thetas' node values once over the whole grid, then block by block: the
-            # block's buffers at the optimum once, its residuals for every theta in
+            # the vectors' node values once over the whole grid, then block by block: the
+            # block's buffers at each point once, its residuals for every vector in
             # batches (time linear in the recording, memory one block's)
             bl = self._blocks
             group = self._node_group()
-            out = []
+            cs, bs = [], []
             for g0 in range(0, len(flats), group):
                 fg = jnp.asarray(flats[g0:g0 + group])
                 nodes = nodes_batch(fg, a[2], a[3], a[5])
-                bb = np.zeros((len(fg), len(self._rest)))
+                c2 = np.zeros(len(fg))
+                bb = np.zeros((len(fg), K, len(self._rest)))
                 for k, (lay_k, ob_k, plan_k) in enumerate(zip(bl.lays, bl.obss, bl.plans)):
-                    prep = _prepare_jit(a[0], a[2], lay_k, ob_k, a[5], plan_k,
-                                        self._shared[k])
-                    for i in range(0, len(fg), b):
-                        nd = tuple(x[i:i + b] for x in nodes)
-                        bb[i:i + b] += np.asarray(_project_block(
-                            fg[i:i + b], nd, rest, a[2], lay_k, ob_k, a[5], plan_k, prep))
-                    del prep
-                out.append(bb)
-            return np.concatenate(out)
+                    for j in range(K):
+                        prep = _prepare_jit(jnp.asarray(self._pts[j]), a[2], lay_k, ob_k,
+                                            a[5], plan_k, self._shared_pts[j][k])
+                        for i in range(0, len(fg), b):
+                            nd = tuple(x[i:i + b] for x in nodes)
+                            ck, bk = _project_block(fg[i:i + b], nd, rest, a[2], lay_k,
+                                                    ob_k, a[5], plan_k, prep)
+                            bb[i:i + b, j] += np.asarray(bk)
+                            if j == 0:
+                                c2[i:i + b] += np.asarray(ck)
+                        del prep
+                cs.append(c2)
+                bs.append(bb)
+            return np.concatenate(cs), np.concatenate(bs)
         if self._plan is not None:
-            return np.concatenate([np.asarray(_project_chunked(
-                jnp.asarray(pad[i:i + b]), a[0], a[1], rest, a[2], a[3], a[4], a[5],
-                self._plan)) for i in range(0, len(pad), b)])
-        return np.concatenate([np.asarray(_project_dense(
-            jnp.asarray(pad[i:i + b]), a[0], a[1], a[2], a[3], a[4], a[5], self._Je))
-            for i in range(0, len(pad), b)])
+            pts = jnp.asarray(self._pts)
+            out = [_project_chunked(jnp.asarray(flats[i:i + b]), pts, rest, a[2], a[3], a[4],
+                                    a[5], self._plan) for i in range(0, len(flats), b)]
+        else:
+            out = [_project_dense(jnp.asarray(flats[i:i + b]), a[2], a[3], a[4], a[5],
+                                  self._Jes) for i in range(0, len(flats), b)]
+        return (np.concatenate([np.asarray(o[0]) for o in out]),
+                np.concatenate([np.asarray(o[1]) for o in out]))
 
     def _chi2_of_flats(self, flats: np.ndarray) -> np.ndarray:
         """chi^2 of whole parameter vectors (m, p), m a multiple of the batch."""
