@@ -259,7 +259,12 @@ def _worker(stage: str, folder: str, frames: int, budget: float, seed: int = 0) 
         elif stage == "posterior":
             from fitlug.posterior import sample_posterior
 
-            sample_posterior(res, seed=0, time_budget_s=budget)
+            post = sample_posterior(res, seed=0, time_budget_s=budget)
+            extra = {"posterior": {"method": post.method.split(":")[0],
+                                   "check_max_delta_chi2": round(
+                                       post.check["max_delta_chi2"], 4),
+                                   "converged": bool(post.converged),
+                                   **{k: round(v, 2) for k, v in post.timings.items()}}}
         stage_s = time.perf_counter() - t1 if stage != "lsq" else None
     total = time.perf_counter() - t0
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024.0  # Linux: KiB
@@ -400,7 +405,8 @@ def main(argv=None) -> int:
                     r["error"] if "error" in r else
                     f"{r['time_s']:8.2f} s  {r['peak_bytes'] / GB:6.2f} GB"
                     + (f"  {r['verdict']} {r['effects']} {r['timing']}" if "timing" in r
-                       else "")), flush=True)
+                       else "") + (f"  {r['posterior']}" if "posterior" in r else "")),
+                      flush=True)
 
     if sizes:
         _ladder_table(rows, sizes, a.stages)
