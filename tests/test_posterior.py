@@ -258,9 +258,10 @@ def test_driver_refuses_a_bad_start():
         run_ensemble(lp, np.ones((3, 2)), names=("x", "y"))
 
 
-def _profile_chi2(res, names, theta, steps=40):
-    """min over the nuisance parameters of chi^2 at theta: Levenberg-Marquardt with the
-    Jacobian of jax.jacfwd at every step (independent of the marginal's step model)."""
+def _profile_chi2(res, names, theta, steps=20):
+    """min over the nuisance parameters of chi^2 at theta: Gauss-Newton with the Jacobian
+    of jax.jacfwd at every iterate, a column-scaled pseudo-inverse (a parameter that does
+    not act stays put) and step halving (independent of the marginal's step model)."""
     from fitlug.fit._lsq import residuals
 
     prob, pk = res.problem, res.packing
@@ -270,24 +271,30 @@ def _profile_chi2(res, names, theta, steps=40):
     fixed = {k: jnp.asarray(v) for k, v in res.params.items() if k not in pk.names}
     flat = jnp.asarray(res.flat).at[idx].set(theta)
 
-    @jax.jit
-    def rj(e):
-        fn = lambda x: residuals(pk.unpack(flat.at[rest].set(x), fixed), prob.lay, prob.obs)  # noqa: E731
-        return fn(e), jax.jacfwd(fn)(e)
+    def fn(x):
+        return residuals(pk.unpack(flat.at[rest].set(x), fixed), prob.lay, prob.obs)
 
-    e = flat[rest]
-    r, J = rj(e)
-    c, lam = float(r @ r), 1e-3
+    rj = jax.jit(lambda x: (fn(x), jax.jacfwd(fn)(x)))
+    chi2 = jax.jit(lambda x: jnp.sum(fn(x) ** 2))
+    x = flat[rest]
+    r, J = rj(x)
+    c = float(r @ r)
     for _ in range(steps):
-        A = J.T @ J
-        e_new = e - jnp.linalg.solve(A + lam * jnp.diag(jnp.diag(A)), J.T @ r)
-        r_new, J_new = rj(e_new)
-        if float(r_new @ r_new) < c:
-            e, r, J, c, lam = e_new, r_new, J_new, float(r_new @ r_new), max(lam / 10, 1e-9)
-        else:
-            lam *= 10
-            if lam > 1e8:
+        A, g = np.asarray(J.T @ J), np.asarray(J.T @ r)
+        d = np.sqrt(np.diag(A))
+        s = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)
+        w, V = np.linalg.eigh(A * np.outer(s, s))
+        inv = np.where(w > 1e-12 * w.max(), 1.0 / np.where(w > 0, w, 1.0), 0.0)
+        step = s * (V @ (inv * (V.T @ (s * g))))
+        for alpha in 0.5 ** np.arange(12):
+            c_new = float(chi2(x - alpha * step))
+            if c_new < c:
                 break
+        if not c_new < c - 1e-9:
+            break
+        x = x - alpha * step
+        c = c_new
+        r, J = rj(x)
     return c
 
 

@@ -229,6 +229,13 @@ def test_posterior_and_least_squares_errors_agree_in_every_verdict(case, request
             # t factor (<= 1.31 for >= 6 clusters) and the largest variance ratio on top
             assert ratio >= 0.97, (q, ratio)
             assert ratio <= 3.0, (q, ratio)
+        elif case == "cruise":
+            # beta is free over its prior range (0, beta_max]; least squares linearises at
+            # beta_hat, while the slip at large beta follows the speed profile's small
+            # accelerations: the exact marginal (its profile checked in test_posterior) is
+            # wider. Calibrated on 60 cruise recordings (bench_coverage, 2026-11-26: s0
+            # covered 95 %, rms z 0.95, std / LS 1.48)
+            assert 0.8 <= ratio <= 2.0, (q, ratio)
         else:
             assert 0.8 <= ratio <= 1.25, (q, ratio)
 
@@ -409,3 +416,31 @@ def test_robust_in_time_covers_a_disturbance_shared_by_all_markers():
     assert got >= 0.5, got
     assert np.mean(est_b) / true < 0.85 * got
     assert np.mean(ls) / true < 0.5 * got and np.mean(est_m) / true < 0.5 * got
+
+
+def test_exact_marginal_follows_the_profile_on_a_free_speed_headline(speed_mod):
+    """The free speed profile's fit has spline coefficients whose support holds no sample
+    (columns 1e-31 of the others, or zero): the marginal's Gauss-Newton step must leave
+    them alone. Scaled up to unit columns they were moved by ~1e30 and raised chi^2 by
+    0.2 at every point, so the linearity check failed (0.36 on bench_coverage's speed_mod
+    seed 33001) and an exact chain ran out of its time budget. At the check's points the
+    exact marginal equals the profile over the nuisance parameters (an independent
+    Gauss-Newton per point)."""
+    from test_posterior import _profile_chi2
+
+    from fitlug.posterior._posterior import _Marginal, slip_law_parameters, tempering
+
+    ex, post, doc, truth = speed_mod
+    res = ex.final
+    names = slip_law_parameters(res)
+    marg = _Marginal(res, names, batch=16)
+    temper = tempering(res, marg)
+    if temper.get("cov") is not None:
+        marg.widened(temper["cov"])
+    pts = marg.map_theta(np.vstack([marg.theta_hat, marg.check_points()]))
+    exact = marg.exact_chi2(pts)
+    prof = np.array([_profile_chi2(res, names, t) for t in pts])
+    assert exact[0] == pytest.approx(res.chi2, abs=1e-6)  # the optimum is stationary
+    np.testing.assert_allclose(exact[1:] - exact[0], prof[1:] - prof[0], atol=0.02)
+    assert post.check["max_delta_chi2"] < 0.05, post.check
+    jax.clear_caches()

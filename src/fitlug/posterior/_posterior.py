@@ -309,7 +309,11 @@ class _Marginal:
         # projection onto span(J_eta)^perp through the normal equations, with the same
         # column scaling and eigenvalue cut as the least-squares covariance (an SVD of the
         # tall J costs ~100x more); F = J_t^T P J_t, the Schur complement of J^T J
-        s = inverse_norms(np.sqrt(np.maximum(np.diag(Aee), 0.0)))  # zero column: no share
+        # a column 1e-12 of the largest or less does not act (a speed coefficient whose
+        # support holds no sample: 1e-31 of the others): zero, not scaled up to a direction
+        # of variance 1e62 that the exact marginal's step would move by 1e30
+        n = np.sqrt(np.maximum(np.diag(Aee), 0.0))
+        s = inverse_norms(np.where(n > 1e-12 * n.max(initial=0.0), n, 0.0))
         M = Aee * np.outer(s, s)
         w, V = np.linalg.eigh(M)
         inv = np.where(w > 1e-12 * w.max(), 1.0 / np.where(w > 0, w, 1.0), 0.0)
@@ -385,13 +389,14 @@ class _Marginal:
         u = (pad - self.theta_hat) / st["h"]  # (m, d)
         bt = B[:, 0] + np.einsum("mi,mik->mk", u, B[:, 1:] - B[:, :1])
         M = st["G0"] + np.einsum("mi,ijk->mjk", u, st["L"])
-        M = M + np.einsum("mi,mj,ijkl->mkl", u, u, st["Q"])
+        M = M + np.einsum("mij,ijkl->mkl", u[:, :, None] * u[:, None, :], st["Q"])
         s = self._s
         Ms = M * np.outer(s, s)
         w, V = np.linalg.eigh(0.5 * (Ms + np.swapaxes(Ms, 1, 2)))
         top = w.max(axis=1, keepdims=True)
         inv = np.where(w > 1e-12 * top, 1.0 / np.where(w > 0, w, 1.0), 0.0)
-        step = s * np.einsum("mij,mj,mkj,mk->mi", V, inv, V, s * bt)
+        y = inv * np.einsum("mkj,mk->mj", V, s * bt)  # V^T s b, scaled by the inverse
+        step = s * np.einsum("mij,mj->mi", V, y)
         flats[:, self._rest] -= step
         c1 = self._chi2_of_flats(flats)
         return np.minimum(c0, c1)[:m]
