@@ -688,6 +688,38 @@ def contract(prep: dict, lay, packing: Packing, plan: ChunkPlan, v=None, with_A:
     return (A if with_A else None), g
 
 
+def contract_cross(prep_a: dict, prep_b: dict, lay, packing: Packing, plan: ChunkPlan):
+    """J_a^T J_b, J_a and J_b the Jacobians whose :func:`_prepare` buffers (of one plan,
+    at two parameter vectors) are given: :func:`contract`'s J^T J with the two factors
+    taken from different vectors, chunk by chunk (same values as the dense product)."""
+    n_par = int(sum(packing.sizes))
+    sl = packing.slices()
+    kin_pos = jnp.asarray(np.r_[np.arange(sl["v"].start, sl["v"].stop), sl["s0"].start,
+                                sl["beta"].start])
+
+    def chunk(A, xs):
+        rows, mask, ws, cb, pXa, pPa, pXb, pPb = xs
+        Ua, Pa, La, pos = _chunk_factors(prep_a, lay, packing, plan, rows, mask, ws, cb,
+                                         pXa, pPa)
+        Ub, Pb, Lb, _ = _chunk_factors(prep_b, lay, packing, plan, rows, mask, ws, cb,
+                                       pXb, pPb)
+        A = A.at[pos[:, None], pos[None, :]].add(La.T @ Lb)
+        A = A.at[kin_pos[:, None], pos[None, :]].add(Pa @ (Ua.T @ Lb))
+        A = A.at[pos[:, None], kin_pos[None, :]].add((La.T @ Ub) @ Pb.T)
+        A = A.at[kin_pos[:, None], kin_pos[None, :]].add(Pa @ (Ua.T @ Ub) @ Pb.T)
+        return A, None
+
+    A, _ = jax.lax.scan(chunk, jnp.zeros((n_par, n_par)),
+                        (plan.rows, plan.mask, plan.ws, plan.cb, prep_a["preX"],
+                         prep_a["preP"], prep_b["preX"], prep_b["preP"]))
+    return A
+
+
+@eqx.filter_jit
+def contract_cross_jit(prep_a, prep_b, lay, packing: Packing, plan: ChunkPlan):
+    return contract_cross(prep_a, prep_b, lay, packing, plan)
+
+
 def _window_nodes(prep: dict, lay, rows, ws, W: int, nk: int, cb=None, BW: int | None = None):
     """d(X, psi)/d theta (kinematic columns) at the W nodes of a chunk's window, summed from
     the window's first node (the prefix before it is the caller's), their time derivatives

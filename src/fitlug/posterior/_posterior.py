@@ -21,8 +21,8 @@ nearly free, and J_eta changes by its own size along it, so a step with J_eta(th
 lands far off the profile (2026-11-25 and -26: Delta chi^2 134 for a profile of 5.6, k
 declared identifiable with a false interval; cruise s0 covered 90 %). J_eta(theta) comes
 from a model built once (J_eta is linear in theta to 1e-3 in chi^2 along a whole cruise
-ridge): its products with r at d + 1 points, its Gram as a quadratic in theta
-(_Marginal._step_model). Two passes of the model per theta, vmapped over walkers (the
+ridge): interpolated linearly from its values at d + 1 points, whose products with r
+and with each other give b and M (_Marginal._step_model). Two passes of the model per theta, vmapped over walkers (the
 linear prediction alone: ~0.9 ms CPU per walker and step on the reference recording,
 ~10 s of CPU for a converged chain; so the exact chain is over the report's time target
 on its own).
@@ -61,7 +61,8 @@ from .._errors import FitError
 from ..model._physics import C_RR_MIN, beta_max
 from ..model.effects import CATALOG
 from ..fit._lsq import (BLOCK_ENTRIES, LARGE_ENTRIES, _prepare_jit, _residuals_from_nodes,
-                        block_shared, chunk_plan, chunkable, contract, inverse_norms,
+                        block_shared, chunk_plan, chunkable, contract, contract_cross_jit,
+                        inverse_norms,
                         jacobian, nodes_batch, normal_blocks, normal_equations, residuals,
                         time_blocks)
 from ._identify import not_identifiable
@@ -334,7 +335,6 @@ class _Marginal:
         self._Je = None if JtJ is not None else jnp.asarray(Je)
         self._sd0 = np.sqrt(np.diag(self.cov))  # the Gaussian limit's, before any widening
         self._step = None  # the nuisance step's model in theta (_step_model), when needed
-        self._kept = []  # dense: the step model's Jacobians while it is built
         self.chi2_hat = None
         self.stretch = None  # A: the likelihood is evaluated at theta_hat + A (theta - theta_hat)
 
@@ -374,11 +374,10 @@ class _Marginal:
         size along it (beta scales how the speed profile's acceleration moves the slip),
         and a step with J_eta(theta_hat) lands far off the profile (cruise seed 37078 at
         beta -> 0: 134 instead of 5.6 in chi^2; at 3 sigma along beta 1.2e4). J_eta is
-        linear in theta there to 1e-3 in chi^2, so b and M come from the step model
-        (:meth:`_step_model`): J_eta^T r at theta_hat and at theta_hat + h_i e_i,
-        interpolated, and J_eta^T J_eta as a quadratic in theta. Two passes over the
-        recording in fixed-size vmapped batches, whose first contracts r with d + 1
-        Jacobians."""
+        linear in theta there to 1e-3 in chi^2, so it is interpolated linearly from its
+        values J_k at theta_hat and theta_hat + h_i e_i (:meth:`_step_model`): b from the
+        J_k^T r, M from the cross products J_a^T J_b. Two passes over the recording in
+        fixed-size vmapped batches, whose first contracts r with the d + 1 J_k."""
         thetas = np.atleast_2d(thetas)
         m, b = len(thetas), self.batch
         pad = np.concatenate([thetas, np.repeat(thetas[-1:], (-m) % b, 0)])
@@ -387,9 +386,9 @@ class _Marginal:
         st = self._step_model()
         c0, B = self._projections(flats)  # |r|^2 (m,), J_k^T r (m, d + 1, n_eta)
         u = (pad - self.theta_hat) / st["h"]  # (m, d)
-        bt = B[:, 0] + np.einsum("mi,mik->mk", u, B[:, 1:] - B[:, :1])
-        M = st["G0"] + np.einsum("mi,ijk->mjk", u, st["L"])
-        M = M + np.einsum("mij,ijkl->mkl", u[:, :, None] * u[:, None, :], st["Q"])
+        w = np.concatenate([1.0 - u.sum(axis=1, keepdims=True), u], axis=1)  # (m, d + 1)
+        bt = np.einsum("mk,mkn->mn", w, B)  # J_eta(theta)^T r
+        M = np.einsum("mab,abij->mij", w[:, :, None] * w[:, None, :], st["C"])
         s = self._s
         Ms = M * np.outer(s, s)
         w, V = np.linalg.eigh(0.5 * (Ms + np.swapaxes(Ms, 1, 2)))
@@ -404,12 +403,11 @@ class _Marginal:
     def _step_model(self) -> dict:
         """The nuisance Jacobian's dependence on theta, built on first use.
 
-        Jacobian points theta_hat and theta_hat + h_i e_i (h_i a quarter of theta_i's
-        Gaussian std, at most half its distance from a zero bound): their J_eta are what
-        _projections contracts r with. J_eta^T J_eta at theta_hat + delta, delta = h u, as
-        G0 + sum u_i L_i + sum_(i<=j) u_i u_j Q_ij, from the Gram at theta_hat, +-h_i e_i
-        and h_i e_i + h_j e_j ((d + 1)(d + 2)/2 points; exact for a J_eta linear in
-        theta). Returns {"h", "G0", "L" (d, n, n), "Q" (d, d, n, n)}."""
+        Points theta_hat and theta_hat + h_i e_i (h_i a quarter of theta_i's Gaussian std,
+        at most half its distance from a zero bound) and their nuisance Jacobians J_k:
+        J_eta(theta_hat + h u) = sum_k w_k J_k with w = (1 - sum u, u), so that
+        J_eta^T J_eta = sum_ab w_a w_b C_ab with C_ab = J_a^T J_b (exact for a J_eta
+        linear in theta). Returns {"h", "C" (d + 1, d + 1, n_eta, n_eta)}."""
         if self._step is not None:
             return self._step
         d = len(self.idx)
@@ -419,56 +417,51 @@ class _Marginal:
                 h[i] = min(h[i], 0.5 * self.theta_hat[i])
         h = np.where(h > 0, h, 1e-12)
         base = np.asarray(self._args[0])
-
-        def at(u):
+        pts = [base]
+        for i in range(d):
             f = base.copy()
-            f[self.idx] += np.asarray(u) * h
-            return f
-
-        E = np.eye(d)
-        jac_pts = [base] + [at(E[i]) for i in range(d)]
-        grams = {}
-
-        def gram(key, f):
-            if key not in grams:
-                grams[key] = self._gram(f, keep=key[0] in ("0", "+"))
-            return grams[key]
-
-        G0 = self._Aee
-        L = np.empty((d,) + G0.shape)
-        Q = np.zeros((d, d) + G0.shape)
-        for i in range(d):
-            Gp, Gm = gram(("+", i), jac_pts[1 + i]), gram(("-", i), at(-E[i]))
-            L[i] = 0.5 * (Gp - Gm)
-            Q[i, i] = 0.5 * (Gp + Gm) - G0
-        for i in range(d):
-            for j in range(i + 1, d):
-                Gij = gram(("x", i, j), at(E[i] + E[j]))
-                Q[i, j] = Gij - grams[("+", i)] - grams[("+", j)] + G0
-        self._pts = np.array(jac_pts)
-        if self._Je is not None:  # dense: the points' nuisance Jacobians, in order
-            self._Jes = jnp.stack([self._Je] + self._kept)
-            self._kept = []
-        elif self._blocks is not None:  # what each point's blocks share
-            self._shared_pts = [self._shared] + [
-                block_shared(f, self._args[2], self._args[3], self._args[5],
-                             self._blocks.plans) for f in jac_pts[1:]]
-        self._step = {"h": h, "G0": G0, "L": L, "Q": Q}
-        return self._step
-
-    def _gram(self, flat: np.ndarray, keep: bool = False) -> np.ndarray:
-        """J_eta^T J_eta at a parameter vector (dense: kept for the contraction when
-        `keep`, in the order asked)."""
+            f[self.idx[i]] += h[i]
+            pts.append(f)
+        self._pts = np.array(pts)
         a, rest = self._args, self._rest
-        if self._plan is None:
-            (J,) = _exported.call("posterior_jacobian", _jacobian_tuple, (a[5],),
-                                  jnp.asarray(flat), a[2], a[3], a[4])
-            Je = np.asarray(J)[:, rest]
-            if keep:
-                self._kept.append(jnp.asarray(Je))
-            return Je.T @ Je
-        A = normal_blocks(flat, a[2], a[3], a[4], a[5], self._plan, self._blocks)[0]
-        return A[np.ix_(rest, rest)]
+        K = d + 1
+        C = np.empty((K, K, len(rest), len(rest)))
+        if self._plan is None:  # dense: the points' nuisance Jacobians, kept
+            Jes = [self._Je]
+            for f in pts[1:]:
+                (J,) = _exported.call("posterior_jacobian", _jacobian_tuple, (a[5],),
+                                      jnp.asarray(f), a[2], a[3], a[4])
+                Jes.append(jnp.asarray(np.asarray(J)[:, rest]))
+            self._Jes = jnp.stack(Jes)
+            Jn = [np.asarray(J) for J in Jes]
+            for i in range(K):
+                for j in range(i, K):
+                    C[i, j] = Jn[i].T @ Jn[j]
+        else:
+            ix = np.ix_(rest, rest)
+            acc = np.zeros((K, K, len(rest), len(rest)))
+            if self._blocks is None:
+                parts = [(a[3], a[4], self._plan, [None] * K)]
+            else:  # what each point's blocks share, kept for _projections
+                self._shared_pts = [self._shared] + [
+                    block_shared(f, a[2], a[3], a[5], self._blocks.plans) for f in pts[1:]]
+                bl = self._blocks
+                parts = [(bl.lays[k], bl.obss[k], bl.plans[k],
+                          [sh[k] for sh in self._shared_pts]) for k in range(len(bl.lays))]
+            for lay_k, ob_k, plan_k, sh_k in parts:
+                preps = [_prepare_jit(jnp.asarray(f), a[2], lay_k, ob_k, a[5], plan_k, sh)
+                         for f, sh in zip(pts, sh_k)]
+                for i in range(K):
+                    for j in range(i, K):
+                        acc[i, j] += np.asarray(contract_cross_jit(
+                            preps[i], preps[j], lay_k, a[5], plan_k))[ix]
+                del preps
+            C[:] = acc
+        for i in range(K):
+            for j in range(i):
+                C[i, j] = C[j, i].T
+        self._step = {"h": h, "C": C}
+        return self._step
 
     def _node_group(self) -> int:
         """Vectors whose node values one pass over the blocks holds at once (NODE_ENTRIES
