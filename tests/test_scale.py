@@ -122,6 +122,18 @@ def test_chunked_normal_equations_equal_the_dense_jacobians():
         assert np.max(np.abs(np.asarray(A) - A0) / scale) < 1e-8, chunk
         assert np.max(np.abs(np.asarray(g) - g0)) < 1e-10 * np.max(np.abs(g0)), chunk
         assert abs(float(chi2) - r @ r) < 1e-10 * (r @ r)
+    # J_a^T J_b of the Jacobians at two parameter vectors (the posterior's step model)
+    from fitlug.fit._lsq import _prepare_jit, contract_cross_jit
+
+    flat_b = flat + 1e-3 * jnp.asarray(rng.normal(size=flat.shape[0])) * jnp.abs(flat)
+    Jb = np.asarray(jax.jacfwd(lambda f: residuals(packing.unpack(f, fixed), lay, obs))(flat_b))
+    X0 = J.T @ Jb
+    assert np.max(np.abs(X0 - A0) / scale) > 1e-6  # the two Jacobians differ
+    plan = chunk_plan(lay, 7, 8)
+    X = contract_cross_jit(_prepare_jit(flat, fixed, lay, obs, packing, plan),
+                           _prepare_jit(flat_b, fixed, lay, obs, packing, plan), lay,
+                           packing, plan)
+    assert np.max(np.abs(np.asarray(X) - X0) / scale) < 1e-8
     # the same sums one time block at a time (padded to one shape; the long recordings'
     # bounded-memory pass), blocks smaller than a chunk and spanning several
     for max_rows, chunk in ((len(r) // 4, 7),):
