@@ -22,10 +22,10 @@ lands far off the profile (2026-11-25 and -26: Delta chi^2 134 for a profile of 
 declared identifiable with a false interval; cruise s0 covered 90 %). J_eta(theta) comes
 from a model built once (J_eta is linear in theta to 1e-3 in chi^2 along a whole cruise
 ridge): interpolated linearly from its values at d + 1 points, whose products with r
-and with each other give b and M (_Marginal._step_model). Two passes of the model per theta, vmapped over walkers (the
-linear prediction alone: ~0.9 ms CPU per walker and step on the reference recording,
-~10 s of CPU for a converged chain; so the exact chain is over the report's time target
-on its own).
+and with each other give b and M (_Marginal._step_model). Two passes of the model per
+theta, vmapped over walkers (the linear prediction alone: ~0.9 ms CPU per walker and step
+on the reference recording, ~10 s of CPU for a converged chain; so the exact chain is
+over the report's time target on its own).
 'gaussian' is its Gaussian limit, r linear in theta too: -2 log L = (theta - theta_hat)^T
 F (theta - theta_hat), F = J_theta^T P J_theta, which costs microseconds. On the reference
 recording the two give the same median (to 1e-5 sigma) and std (to 0.4 %).
@@ -391,9 +391,9 @@ class _Marginal:
         M = np.einsum("mab,abij->mij", w[:, :, None] * w[:, None, :], st["C"])
         s = self._s
         Ms = M * np.outer(s, s)
-        w, V = np.linalg.eigh(0.5 * (Ms + np.swapaxes(Ms, 1, 2)))
-        top = w.max(axis=1, keepdims=True)
-        inv = np.where(w > 1e-12 * top, 1.0 / np.where(w > 0, w, 1.0), 0.0)
+        lam, V = np.linalg.eigh(0.5 * (Ms + np.swapaxes(Ms, 1, 2)))
+        top = lam.max(axis=1, keepdims=True)
+        inv = np.where(lam > 1e-12 * top, 1.0 / np.where(lam > 0, lam, 1.0), 0.0)
         y = inv * np.einsum("mkj,mk->mj", V, s * bt)  # V^T s b, scaled by the inverse
         step = s * np.einsum("mij,mj->mi", V, y)
         flats[:, self._rest] -= step
