@@ -216,13 +216,10 @@ def test_cruise_only_fit_stays_in_the_physical_slip_law(chunked, monkeypatch):
     if chunked:
         monkeypatch.setattr(lsq, "LARGE_ENTRIES", 0)
 
-    sc = Scenario(duration_s=4.0, travel_mm=400, rest_s=0.3, ramp_s=0.8,
-                  slip=0.07226532401597088, rolling_resistance=0.07263329625091834)
-    rec, truth = simulate(sc, seed=37014)
-    sel = (rec.t >= 1.15) & (rec.t <= 2.85)
-    keys = ("t", "marker_index", "x", "y", "sigma", "frame", "x_px", "y_px", "quality")
-    rec = rec.with_(**{k: getattr(rec, k)[sel] for k in keys if getattr(rec, k) is not None})
-    res = fit(rec, rig_of(sc))  # raised "did not converge after 300 steps"
+    from cruise import cruise_recording
+
+    rec, rig, truth = cruise_recording(0.07226532401597088, 0.07263329625091834, 37014)
+    res = fit(rec, rig)  # raised "did not converge after 300 steps"
     assert res.converged
     s0, beta = float(np.ravel(res.params["s0"])[0]), float(np.ravel(res.params["beta"])[0])
     assert 0.0 <= beta <= beta_max(s0) * (1 + 1e-6), (beta, beta_max(s0))

@@ -302,20 +302,17 @@ def test_exact_marginal_is_the_profile_over_the_nuisance_on_a_cruise():
     """A cruise-only recording leaves beta nearly free, and the nuisance Jacobian changes by
     its own size along it (beta scales how the speed profile's acceleration moves the slip).
     The exact marginal must follow the profile min_eta chi^2 there, found here by an
-    independent Levenberg-Marquardt per point: with the Jacobian at the optimum, one
+    independent Gauss-Newton per point: with the Jacobian at the optimum, one
     Gauss-Newton step gave 134 for a profile of 5.6 at beta -> 0 and declared k identifiable
     with a false interval (bench_coverage's cruise row, seed 37078); the linear prediction
     gave the Gaussian, 65 at beta_max for a profile of 2.3."""
     from fitlug.model._physics import beta_max
     from fitlug.posterior._posterior import _Marginal
 
-    sc = Scenario(duration_s=4.0, travel_mm=400, rest_s=0.3, ramp_s=0.8,
-                  slip=0.11699287025363395, rolling_resistance=0.07402002714064823)
-    rec, truth = simulate(sc, seed=37078)
-    sel = (rec.t >= 1.15) & (rec.t <= 2.85)
-    keys = ("t", "marker_index", "x", "y", "sigma", "frame", "x_px", "y_px", "quality")
-    rec = rec.with_(**{k: getattr(rec, k)[sel] for k in keys if getattr(rec, k) is not None})
-    res = fit(rec, rig_of(sc))
+    from cruise import cruise_recording
+
+    rec, rig, truth = cruise_recording(0.11699287025363395, 0.07402002714064823, 37078)
+    res = fit(rec, rig)
     names = slip_law_parameters(res)
     marg = _Marginal(res, names, batch=16)
     i0, ib = names.index("s0"), names.index("beta")
