@@ -651,16 +651,29 @@ def normal_equations(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: 
     return A, g, jnp.sum(prep["r"] ** 2)
 
 
+def _kinematic_positions(packing: Packing) -> np.ndarray:
+    """Packed indices of the kinematic columns: the speed spline's coefficients, s0, beta."""
+    sl = packing.slices()
+    return np.r_[np.arange(sl["v"].start, sl["v"].stop), sl["s0"].start, sl["beta"].start]
+
+
+def _gram_add(A, fa, fb, pos, kin_pos):
+    """A + J_a^T J_b of one chunk, J = U P^T (kinematic columns) + L (columns `pos`),
+    from the factors fa = (U_a, P_a, L_a) and fb; with fa = fb, the chunk's J^T J."""
+    (Ua, Pa, La), (Ub, Pb, Lb) = fa, fb
+    A = A.at[pos[:, None], pos[None, :]].add(La.T @ Lb)
+    A = A.at[kin_pos[:, None], pos[None, :]].add(Pa @ (Ua.T @ Lb))
+    A = A.at[pos[:, None], kin_pos[None, :]].add((Pb @ (Ub.T @ La)).T)
+    return A.at[kin_pos[:, None], kin_pos[None, :]].add(Pa @ (Ua.T @ Ub) @ Pb.T)
+
+
 def contract(prep: dict, lay, packing: Packing, plan: ChunkPlan, v=None, with_A: bool = True):
     """(J^T J, J^T v) from one plan's :func:`_prepare` buffers (`v`: residual-shaped, (N,)
     or (m, N); None: the residuals), chunk by chunk; J^T J is None without with_A. The
     buffers at one parameter vector serve any number of vectors `v`."""
     r = prep["r"]
     n_par = int(sum(packing.sizes))
-
-    sl = packing.slices()
-    kin_pos = jnp.asarray(np.r_[np.arange(sl["v"].start, sl["v"].stop), sl["s0"].start,
-                                sl["beta"].start])
+    kin_pos = jnp.asarray(_kinematic_positions(packing))
 
     # a chunk's rows are J_c = U P^T (on the kinematic columns) + L (on w local columns):
     # U (R, 2) = (dr/dX, dr/dpsi), P (nk, 2) the window's prefix derivatives, L the band
@@ -671,11 +684,7 @@ def contract(prep: dict, lay, packing: Packing, plan: ChunkPlan, v=None, with_A:
         U, P, L, pos = _chunk_factors(prep, lay, packing, plan, *xs)
         rows, mask = xs[0], xs[1]
         if with_A:
-            UL = P @ (U.T @ L)  # (nk, w)
-            A = A.at[pos[:, None], pos[None, :]].add(L.T @ L)
-            A = A.at[kin_pos[:, None], pos[None, :]].add(UL)
-            A = A.at[pos[:, None], kin_pos[None, :]].add(UL.T)
-            A = A.at[kin_pos[:, None], kin_pos[None, :]].add(P @ (U.T @ U) @ P.T)
+            A = _gram_add(A, (U, P, L), (U, P, L), pos, kin_pos)
         vc = (r[rows] if v is None else v[..., rows]) * mask
         g = g.at[..., pos].add(vc @ L)
         g = g.at[..., kin_pos].add((vc @ U) @ P.T)
@@ -693,21 +702,13 @@ def contract_cross(prep_a: dict, prep_b: dict, lay, packing: Packing, plan: Chun
     at two parameter vectors) are given: :func:`contract`'s J^T J with the two factors
     taken from different vectors, chunk by chunk (same values as the dense product)."""
     n_par = int(sum(packing.sizes))
-    sl = packing.slices()
-    kin_pos = jnp.asarray(np.r_[np.arange(sl["v"].start, sl["v"].stop), sl["s0"].start,
-                                sl["beta"].start])
+    kin_pos = jnp.asarray(_kinematic_positions(packing))
 
     def chunk(A, xs):
         rows, mask, ws, cb, pXa, pPa, pXb, pPb = xs
-        Ua, Pa, La, pos = _chunk_factors(prep_a, lay, packing, plan, rows, mask, ws, cb,
-                                         pXa, pPa)
-        Ub, Pb, Lb, _ = _chunk_factors(prep_b, lay, packing, plan, rows, mask, ws, cb,
-                                       pXb, pPb)
-        A = A.at[pos[:, None], pos[None, :]].add(La.T @ Lb)
-        A = A.at[kin_pos[:, None], pos[None, :]].add(Pa @ (Ua.T @ Lb))
-        A = A.at[pos[:, None], kin_pos[None, :]].add((La.T @ Ub) @ Pb.T)
-        A = A.at[kin_pos[:, None], kin_pos[None, :]].add(Pa @ (Ua.T @ Ub) @ Pb.T)
-        return A, None
+        *fa, pos = _chunk_factors(prep_a, lay, packing, plan, rows, mask, ws, cb, pXa, pPa)
+        *fb, _ = _chunk_factors(prep_b, lay, packing, plan, rows, mask, ws, cb, pXb, pPb)
+        return _gram_add(A, fa, fb, pos, kin_pos), None
 
     A, _ = jax.lax.scan(chunk, jnp.zeros((n_par, n_par)),
                         (plan.rows, plan.mask, plan.ws, plan.cb, prep_a["preX"],
@@ -761,8 +762,7 @@ def _chunk_factors(prep: dict, lay, packing: Packing, plan: ChunkPlan, rows, mas
     nk = K + 2
     W, BW = plan.W, plan.BW
     rest_idx = _rest_index(packing)
-    kin_pos = jnp.asarray(np.r_[np.arange(sl["v"].start, sl["v"].stop), sl["s0"].start,
-                                sl["beta"].start])
+    kin_pos = jnp.asarray(_kinematic_positions(packing))
     sig_pos = jnp.asarray(np.arange(sl["sigma0"].start, sl["sigma0"].stop))
     n_sig = sig_pos.shape[0]
     cols = jnp.concatenate([cb + jnp.arange(BW), jnp.array([K, K + 1])])  # band, s0, beta
@@ -953,7 +953,7 @@ def _chunk_jacobian(prep: dict, lay, packing: Packing, W: int, rows, mask, ws, p
     n_par = sum(packing.sizes)
     nk = lay.n_coef + 2
     rest_idx = _rest_index(packing)
-    kin_pos = np.r_[np.arange(sl["v"].start, sl["v"].stop), sl["s0"].start, sl["beta"].start]
+    kin_pos = _kinematic_positions(packing)
     sig_pos = jnp.asarray(np.arange(sl["sigma0"].start, sl["sigma0"].stop))
     (DX, DP, VX, VP), il, (w00, w10, w01, w11) = _window_nodes(prep, lay, rows, ws, W, nk)
     DX, DP = pX + DX, pP + DP
@@ -1023,9 +1023,7 @@ class RowChunks:
                 keep &= rows >= 0
             self._rows.append(rows)
             self._keep.append(keep)
-        sl = packing.slices()
-        self._kin_pos = np.r_[np.arange(sl["v"].start, sl["v"].stop), sl["s0"].start,
-                              sl["beta"].start]
+        self._kin_pos = _kinematic_positions(packing)
 
     @property
     def r(self) -> np.ndarray:
