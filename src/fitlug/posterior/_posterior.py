@@ -238,16 +238,16 @@ NODE_ENTRIES = 16_000_000
 
 
 @eqx.filter_jit
-def _project_block(flats, nodes, rest, fixed, lay, obs, packing, plan, prep):
-    """(chi^2, J_eta^T r) of a batch of parameter vectors on one time block (summed over
-    the blocks), from their node values and the block's buffers at one of the step model's
-    points (`prep`)."""
+def _project_block(flats, nodes, rest, fixed, lay, obs, packing, plan, preps):
+    """(chi^2 (m,), J_k^T r (m, K, n_eta)) of a batch of parameter vectors on one time
+    block (summed over the blocks), from their node values and the block's buffers at the
+    step model's K points (`preps`): the residuals once, contracted with each."""
     def res_of(f, nd):
         return _residuals_from_nodes(f, fixed, lay, obs, packing, nd)
 
     R = jax.vmap(res_of)(flats, nodes)  # (m, N_block)
-    _, b = contract(prep, lay, packing, plan, v=R, with_A=False)
-    return jnp.sum(R * R, axis=1), b[:, rest]
+    B = [contract(prep, lay, packing, plan, v=R, with_A=False)[1] for prep in preps]
+    return jnp.sum(R * R, axis=1), jnp.stack(B, axis=1)[:, :, rest]
 
 
 @eqx.filter_jit
@@ -319,7 +319,7 @@ class _Marginal:
         w, V = np.linalg.eigh(M)
         inv = np.where(w > 1e-12 * w.max(), 1.0 / np.where(w > 0, w, 1.0), 0.0)
         self.Minv = (V * inv) @ V.T * np.outer(s, s)  # (J_eta^T J_eta)^+
-        self._Aee, self._s = Aee, s  # the step model's Gram at the optimum, its scaling
+        self._Aee, self._s = Aee, s  # the step model's C_00 and its scaling
         F = Att - Aet.T @ (self.Minv @ Aet)
         self.F = 0.5 * (F + F.T)
         # s0 ~ 1e-6 and beta ~ 1e-8 in std: invert the correlation form
@@ -425,21 +425,20 @@ class _Marginal:
         self._pts = np.array(pts)
         a, rest = self._args, self._rest
         K = d + 1
-        C = np.empty((K, K, len(rest), len(rest)))
+        pairs = [(i, j) for i in range(K) for j in range(i, K) if j > 0]
+        C = np.zeros((K, K, len(rest), len(rest)))
+        C[0, 0] = self._Aee  # the optimum's, from __init__
         if self._plan is None:  # dense: the points' nuisance Jacobians, kept
-            Jes = [self._Je]
+            Jn = [np.asarray(self._Je)]
             for f in pts[1:]:
                 (J,) = _exported.call("posterior_jacobian", _jacobian_tuple, (a[5],),
                                       jnp.asarray(f), a[2], a[3], a[4])
-                Jes.append(jnp.asarray(np.asarray(J)[:, rest]))
-            self._Jes = jnp.stack(Jes)
-            Jn = [np.asarray(J) for J in Jes]
-            for i in range(K):
-                for j in range(i, K):
-                    C[i, j] = Jn[i].T @ Jn[j]
+                Jn.append(np.asarray(J)[:, rest])
+            self._Jes = jnp.stack(Jn)
+            for i, j in pairs:
+                C[i, j] = Jn[i].T @ Jn[j]
         else:
             ix = np.ix_(rest, rest)
-            acc = np.zeros((K, K, len(rest), len(rest)))
             if self._blocks is None:
                 parts = [(a[3], a[4], self._plan, [None] * K)]
             else:  # what each point's blocks share, kept for _projections
@@ -451,12 +450,10 @@ class _Marginal:
             for lay_k, ob_k, plan_k, sh_k in parts:
                 preps = [_prepare_jit(jnp.asarray(f), a[2], lay_k, ob_k, a[5], plan_k, sh)
                          for f, sh in zip(pts, sh_k)]
-                for i in range(K):
-                    for j in range(i, K):
-                        acc[i, j] += np.asarray(contract_cross_jit(
-                            preps[i], preps[j], lay_k, a[5], plan_k))[ix]
+                for i, j in pairs:
+                    C[i, j] += np.asarray(contract_cross_jit(
+                        preps[i], preps[j], lay_k, a[5], plan_k))[ix]
                 del preps
-            C[:] = acc
         for i in range(K):
             for j in range(i):
                 C[i, j] = C[j, i].T
@@ -478,7 +475,7 @@ class _Marginal:
         K = len(self._pts)
         if self._plan is not None and self._blocks is not None:
             # the vectors' node values once over the whole grid, then block by block: the
-            # block's buffers at each point once, its residuals for every vector in
+            # block's buffers at the K points once, its residuals for every vector in
             # batches (time linear in the recording, memory one block's)
             bl = self._blocks
             group = self._node_group()
@@ -489,17 +486,16 @@ class _Marginal:
                 c2 = np.zeros(len(fg))
                 bb = np.zeros((len(fg), K, len(self._rest)))
                 for k, (lay_k, ob_k, plan_k) in enumerate(zip(bl.lays, bl.obss, bl.plans)):
-                    for j in range(K):
-                        prep = _prepare_jit(jnp.asarray(self._pts[j]), a[2], lay_k, ob_k,
-                                            a[5], plan_k, self._shared_pts[j][k])
-                        for i in range(0, len(fg), b):
-                            nd = tuple(x[i:i + b] for x in nodes)
-                            ck, bk = _project_block(fg[i:i + b], nd, rest, a[2], lay_k,
-                                                    ob_k, a[5], plan_k, prep)
-                            bb[i:i + b, j] += np.asarray(bk)
-                            if j == 0:
-                                c2[i:i + b] += np.asarray(ck)
-                        del prep
+                    preps = tuple(_prepare_jit(jnp.asarray(f), a[2], lay_k, ob_k, a[5], plan_k,
+                                               sh[k])
+                                  for f, sh in zip(self._pts, self._shared_pts))
+                    for i in range(0, len(fg), b):
+                        nd = tuple(x[i:i + b] for x in nodes)
+                        ck, bk = _project_block(fg[i:i + b], nd, rest, a[2], lay_k, ob_k,
+                                                a[5], plan_k, preps)
+                        c2[i:i + b] += np.asarray(ck)
+                        bb[i:i + b] += np.asarray(bk)
+                    del preps
                 cs.append(c2)
                 bs.append(bb)
             return np.concatenate(cs), np.concatenate(bs)
