@@ -258,46 +258,6 @@ def test_driver_refuses_a_bad_start():
         run_ensemble(lp, np.ones((3, 2)), names=("x", "y"))
 
 
-def _profile_chi2(res, names, theta, steps=20):
-    """min over the nuisance parameters of chi^2 at theta: Gauss-Newton with the Jacobian
-    of jax.jacfwd at every iterate, a column-scaled pseudo-inverse (a parameter that does
-    not act stays put) and step halving (independent of the marginal's step model)."""
-    from fitlug.fit._lsq import residuals
-
-    prob, pk = res.problem, res.packing
-    sl = pk.slices()
-    idx = np.array([sl[k].start for k in names])
-    rest = jnp.asarray(np.setdiff1d(np.arange(len(res.flat)), idx))
-    fixed = {k: jnp.asarray(v) for k, v in res.params.items() if k not in pk.names}
-    flat = jnp.asarray(res.flat).at[idx].set(theta)
-
-    def fn(x):
-        return residuals(pk.unpack(flat.at[rest].set(x), fixed), prob.lay, prob.obs)
-
-    rj = jax.jit(lambda x: (fn(x), jax.jacfwd(fn)(x)))
-    chi2 = jax.jit(lambda x: jnp.sum(fn(x) ** 2))
-    x = flat[rest]
-    r, J = rj(x)
-    c = float(r @ r)
-    for _ in range(steps):
-        A, g = np.asarray(J.T @ J), np.asarray(J.T @ r)
-        d = np.sqrt(np.diag(A))
-        s = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)
-        w, V = np.linalg.eigh(A * np.outer(s, s))
-        inv = np.where(w > 1e-12 * w.max(), 1.0 / np.where(w > 0, w, 1.0), 0.0)
-        step = s * (V @ (inv * (V.T @ (s * g))))
-        for alpha in 0.5 ** np.arange(12):
-            c_new = float(chi2(x - alpha * step))
-            if c_new < c:
-                break
-        if not c_new < c - 1e-9:
-            break
-        x = x - alpha * step
-        c = c_new
-        r, J = rj(x)
-    return c
-
-
 def test_exact_marginal_is_the_profile_over_the_nuisance_on_a_cruise():
     """A cruise-only recording leaves beta nearly free, and the nuisance Jacobian changes by
     its own size along it (beta scales how the speed profile's acceleration moves the slip).
@@ -310,6 +270,7 @@ def test_exact_marginal_is_the_profile_over_the_nuisance_on_a_cruise():
     from fitlug.posterior._posterior import _Marginal
 
     from cruise import cruise_recording
+    from nuisance_profile import profile_chi2
 
     rec, rig, truth = cruise_recording(0.11699287025363395, 0.07402002714064823, 37078)
     res = fit(rec, rig)
@@ -325,7 +286,7 @@ def test_exact_marginal_is_the_profile_over_the_nuisance_on_a_cruise():
     th = np.vstack([th, marg.check_points()[:2]])  # and 2 sigma along the first axis
     exact = marg.exact_chi2(np.vstack([th0, th]))
     exact = exact[1:] - exact[0]
-    prof = np.array([_profile_chi2(res, names, t) for t in th]) - _profile_chi2(res, names, th0)
+    prof = np.array([profile_chi2(res, names, t) for t in th]) - profile_chi2(res, names, th0)
     gauss = np.einsum("ij,jk,ik->i", th - th0, marg.F, th - th0)
     assert gauss[3] > 10 * prof[3]  # far from Gaussian: the test means something
     assert prof[0] > 2.0  # and the profile rises towards beta -> 0

@@ -426,7 +426,7 @@ def test_exact_marginal_follows_the_profile_on_a_free_speed_headline(speed_mod):
     seed 33001) and an exact chain ran out of its time budget. At the check's points the
     exact marginal equals the profile over the nuisance parameters (an independent
     Gauss-Newton per point)."""
-    from test_posterior import _profile_chi2
+    from nuisance_profile import profile_chi2
 
     from fitlug.posterior._posterior import _Marginal, slip_law_parameters, tempering
 
@@ -439,7 +439,7 @@ def test_exact_marginal_follows_the_profile_on_a_free_speed_headline(speed_mod):
         marg.widened(temper["cov"])
     pts = marg.map_theta(np.vstack([marg.theta_hat, marg.check_points()]))
     exact = marg.exact_chi2(pts)
-    prof = np.array([_profile_chi2(res, names, t) for t in pts])
+    prof = np.array([profile_chi2(res, names, t) for t in pts])
     assert exact[0] == pytest.approx(res.chi2, abs=1e-6)  # the optimum is stationary
     np.testing.assert_allclose(exact[1:] - exact[0], prof[1:] - prof[0], atol=0.02)
     assert post.check["max_delta_chi2"] < 0.05, post.check
