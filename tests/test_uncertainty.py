@@ -428,15 +428,12 @@ def test_exact_marginal_follows_the_profile_on_a_free_speed_headline(speed_mod):
     Gauss-Newton per point)."""
     from nuisance_profile import profile_chi2
 
-    from fitlug.posterior._posterior import _Marginal, slip_law_parameters, tempering
+    from fitlug.posterior._posterior import slip_law_parameters, tempered_marginal
 
     ex, post, doc, truth = speed_mod
     res = ex.final
     names = slip_law_parameters(res)
-    marg = _Marginal(res, names, batch=16)
-    temper = tempering(res, marg)
-    if temper.get("cov") is not None:
-        marg.widened(temper["cov"])
+    marg, _ = tempered_marginal(res, names, batch=16)
     pts = marg.map_theta(np.vstack([marg.theta_hat, marg.check_points()]))
     exact = marg.exact_chi2(pts)
     prof = np.array([profile_chi2(res, names, t) for t in pts])

@@ -679,6 +679,17 @@ def tempering(res: FitResult, marg: "_Marginal | None" = None) -> dict:
             "extra_scale": float(extra), "note": note}
 
 
+def tempered_marginal(res: FitResult, names, batch: int) -> tuple:
+    """(the marginal of `names`, its tempering): the likelihood the posterior samples,
+    stretched to the robust covariance when the misfit is unexplained (see `tempering`;
+    the returned dict without its "cov")."""
+    marg = _Marginal(res, names, batch=batch)
+    temper = tempering(res, marg)
+    if temper.get("cov") is not None:
+        marg.widened(temper.pop("cov"))
+    return marg, temper
+
+
 def _derived_gradients(res: FitResult, names, theta_hat) -> dict:
     """d quantity / d theta at theta_hat for the reported quantities."""
     prob = res.problem
@@ -719,10 +730,7 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
         raise ValueError("time_budget_s, min_tau_multiple and target_ess must be positive")
     t0 = time.perf_counter()
     names = slip_law_parameters(res)
-    marg = _Marginal(res, names, batch=walkers // 2)
-    temper = tempering(res, marg)
-    if temper.get("cov") is not None:
-        marg.widened(temper.pop("cov"))
+    marg, temper = tempered_marginal(res, names, batch=walkers // 2)
     check = marg.linearity_check()
     use = method
     if method == "auto":
@@ -840,10 +848,7 @@ def least_squares_identifiability(res: FitResult, *, seed: int = 0, draws: int =
     posterior's (fitlug.posterior._identify), on draws from the Gaussian limit of the
     marginal of the slip law (tempered like the posterior when the misfit is unexplained)."""
     names = slip_law_parameters(res)
-    marg = _Marginal(res, names, batch=16)
-    temper = tempering(res, marg)
-    if temper.get("cov") is not None:
-        marg.widened(temper["cov"])
+    marg, _ = tempered_marginal(res, names, batch=16)
     rng = np.random.default_rng(seed)
     th = marg.theta_hat + rng.standard_normal((draws, len(names))) @ marg.chol.T
     return not_identifiable(_derived_samples(res, names, th), names)
