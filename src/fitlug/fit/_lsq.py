@@ -859,12 +859,13 @@ def block_shared(flat, fixed: dict, lay, packing: Packing, plans) -> list:
 
 
 def _prepare(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: ChunkPlan,
-             shared: dict | None = None) -> dict:
+             shared: dict | None = None, pass_shared: bool = False) -> dict:
     """What every time chunk's Jacobian rows need (all of it linear in the samples): the
     residuals, their derivatives along X and psi, the columns of the few non-kinematic
     parameters, the banded kinematic derivatives and their prefix sums per chunk.
     `shared`: :func:`block_shared`'s dict of this plan (computed here when None: `lay` is
-    then the whole recording's)."""
+    then the whole recording's). pass_shared: leave shared's arrays (_SHARED_KEYS) out of
+    the result (the caller adds them: :func:`_prepare_jit`)."""
     from ..model._model import _true_times, sampled_from_nodes
 
     if shared is None:
@@ -933,11 +934,15 @@ def _prepare(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: ChunkPla
         jax.lax.dynamic_slice_in_dim(shared["ipsi"], plan.l0, span, 0)).reshape(C + 2, nk)
     preX = shared["preX0"] + jnp.cumsum(segX[:C + 1], 0)[:-1]  # (C, nk)
     preP = shared["preP0"] + jnp.cumsum(segP[:C + 1], 0)[:-1]
-    return {"r": r, "dr_dX": dr_dX, "dr_dpsi": dr_dpsi, "t_row": t_row, "sig_col": sig_col,
-            "sig_val": sig_val, "J_rest": J_rest, "nx": shared["nx"], "npsi": shared["npsi"],
-            "ncol": shared["ncol"], "ix": shared["ix"], "ipsi": shared["ipsi"],
-            "icol": shared["icol"], "preX": preX, "preP": preP, "refX": shared["refX"],
-            "refP": shared["refP"]}
+    own = {"r": r, "dr_dX": dr_dX, "dr_dpsi": dr_dpsi, "t_row": t_row, "sig_col": sig_col,
+           "sig_val": sig_val, "J_rest": J_rest, "preX": preX, "preP": preP}
+    return own if pass_shared else {**own, **{k: shared[k] for k in _SHARED_KEYS}}
+
+
+#: what a time block's prepared buffers take from :func:`block_shared` unchanged (the
+#: whole grid's banded derivatives): a compiled :func:`_prepare` returning them would hand
+#: back COPIES of them (XLA outputs are new buffers), ~115 MB at 100 000 frames
+_SHARED_KEYS = ("nx", "npsi", "ncol", "ix", "ipsi", "icol", "refX", "refP")
 
 
 def _rest_index(packing: Packing) -> np.ndarray:
@@ -969,8 +974,16 @@ def _chunk_jacobian(prep: dict, lay, packing: Packing, W: int, rows, mask, ws, p
 
 
 @eqx.filter_jit
+def _prepare_compiled(flat, fixed, lay, obs, packing: Packing, plan: ChunkPlan, shared=None):
+    return _prepare(flat, fixed, lay, obs, packing, plan, shared,
+                    pass_shared=shared is not None)
+
+
 def _prepare_jit(flat, fixed, lay, obs, packing: Packing, plan: ChunkPlan, shared=None):
-    return _prepare(flat, fixed, lay, obs, packing, plan, shared)
+    """:func:`_prepare`, compiled; a given `shared`'s arrays are passed through as they
+    are (the same buffers), not returned by the compiled function."""
+    prep = _prepare_compiled(flat, fixed, lay, obs, packing, plan, shared)
+    return prep if shared is None else {**prep, **{k: shared[k] for k in _SHARED_KEYS}}
 
 
 @eqx.filter_jit
