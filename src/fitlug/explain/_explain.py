@@ -220,7 +220,7 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
         if not cands:
             break
         t0 = time.perf_counter()
-        J = eng.jacobian(theta, extra)
+        J = eng.jacobian(theta, extra, r)  # r: the residuals at theta
         scr = screen(eng, theta, r, J, cands, extra, geo)
         lin = {e: -s.dchi2 + eng.n_free(e) * lnN for e, s in scr.items()}
         order = sorted(cands, key=lambda e: lin[e])
