@@ -24,8 +24,10 @@ identity swaps, RMS per axis and 2-D against the Cramer-Rao bound, and speed (st
 of frames in memory, blocks of 25 frames after the first, and with the periodic whole-frame
 search for new markers amortized over its period); with
 --compare-src DIR the same frames are also tracked by the fitlug found in DIR (e.g. a
-checkout of main's src/) side by side. `--memory`: peak RSS of tracking a streamed
-1632x1200 video of 2 000 and 20 000 frames, each in its own process.
+checkout of main's src/) side by side. `--memory`: peak RSS of tracking a 1632x1200 video
+of 2 000 and 20 000 frames, each in its own process, streamed from a generator, from a
+.cine file and from a folder of PNG frames (the file sources store 4 distinct frames and
+point every frame at one of them: see write_cycling_cine, write_linked_folder).
 
     python benchmarks/bench_vision.py --hard --n 4 --workers 4 --frames 200 \
         --compare-src /work/main/src
@@ -487,38 +489,112 @@ def main_hard(args):
 _MEM_CODE = """
 import resource, sys, time, numpy as np
 from fitlug.vision import track
-from fitlug.vision._render import RenderOptions, default_camera, render_frame, gain_field
-n = int(sys.argv[1])
-w, h = 1632, 1200
-cam = default_camera(0.39, (w, h), dist_coeffs=None)
-opt = RenderOptions(noise_sigma=2.0, exposure_s=0.0)
-rng = np.random.default_rng(0)
-xy = np.array([[200.0 + 130 * k, 400.0 + 200 * (k % 3)] for k in range(10)])
-# a few distinct noisy frames of still markers, copied: the source makes each frame on demand
-base = [render_frame(np.repeat(xy[None], 1, axis=0), ["cog"] * 8 + ["qs"] * 2, cam, opt, rng)
-        for _ in range(4)]
-def frames():
-    for i in range(n):
-        yield i, i / 1000.0, base[i % 4].copy()  # a new array each frame
+n, kind, where = int(sys.argv[1]), sys.argv[2], sys.argv[3]
 t0 = time.perf_counter()
-res = track(frames(), fps=1000.0)
+if kind == "stream":
+    base = list(np.load(where))
+    def frames():
+        for i in range(n):
+            yield i, i / 1000.0, base[i % len(base)].copy()  # a new array each frame
+    res = track(frames(), fps=1000.0)
+else:  # a .cine file or a folder of images: fit-lug track's own path (open_source)
+    res = track(where, fps=1000.0)
 print(n, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
-      time.perf_counter() - t0, res.xy_px.shape)
+      time.perf_counter() - t0, res.xy_px.shape[0], len(res.markers))
 """
+
+
+def _memory_frames():
+    """Four noisy 1632x1200 frames of 10 still markers (8 COG, 2 QS), uint8."""
+    from fitlug.vision._render import RenderOptions, default_camera, render_frame
+
+    w, h = 1632, 1200
+    cam = default_camera(0.39, (w, h), dist_coeffs=None)
+    opt = RenderOptions(noise_sigma=2.0, exposure_s=0.0)
+    rng = np.random.default_rng(0)
+    xy = np.array([[200.0 + 130 * k, 400.0 + 200 * (k % 3)] for k in range(10)])
+    return [render_frame(xy[None], ["cog"] * 8 + ["qs"] * 2, cam, opt, rng) for _ in range(4)]
+
+
+def write_cycling_cine(path: str, images: list, n: int, fps: int = 1000) -> None:
+    """An uncompressed 8-bit Phantom .cine of `n` frames whose table of image offsets cycles
+    over `images` (stored once each): the reader seeks to and reads every one of the n
+    frames as in any .cine (the format allows any offsets), while the file stays a few MB
+    instead of n x 2 MB. Layout as `fitlug.vision._cine` documents it: CINEFILEHEADER,
+    BITMAPINFOHEADER (positive height: rows stored bottom first), a 900-byte SETUP
+    (FrameRate16, Length, FrameRate, CFA = 0, RealBPP = 8), no tagged blocks, the offsets
+    table, then each image's 8-byte annotation (its size, then the image size) and pixels."""
+    import struct
+
+    h, w = images[0].shape
+    setup_len = 900
+    off_bitmap, off_setup = 44, 84
+    off_offsets = off_setup + setup_len
+    first_image = off_offsets + 8 * n
+    starts = [first_image + k * (8 + w * h) for k in range(len(images))]
+    setup = bytearray(setup_len)
+    struct.pack_into("<H", setup, 0, min(fps, 65535))
+    struct.pack_into("<H", setup, 142, setup_len)
+    struct.pack_into("<I", setup, 768, fps)
+    struct.pack_into("<I", setup, 808, 0)
+    struct.pack_into("<I", setup, 896, 8)
+    with open(path, "wb") as fh:
+        fh.write(struct.pack("<2sHHHiIiIIIIQ", b"CI", 44, 0, 1, 0, n, 0, n, off_bitmap,
+                             off_setup, off_offsets, 0))
+        fh.write(struct.pack("<IiiHHIIiiII", 40, w, h, 1, 8, 0, w * h, 0, 0, 0, 0))
+        fh.write(bytes(setup))
+        fh.write(np.array([starts[i % len(starts)] for i in range(n)], "<u8").tobytes())
+        for img in images:
+            fh.write(struct.pack("<II", 8, w * h))
+            fh.write(np.ascontiguousarray(img[::-1], np.uint8).tobytes())
+
+
+def write_linked_folder(folder: str, images: list, n: int) -> None:
+    """A folder of n PNG frames: the distinct `images` written once, the n names (numbered)
+    symbolic links to them (each frame is still opened and decoded by its own name)."""
+    import cv2
+
+    os.makedirs(folder, exist_ok=True)
+    store = os.path.join(folder, "..", os.path.basename(folder) + "_images")
+    os.makedirs(store, exist_ok=True)
+    files = []
+    for k, img in enumerate(images):
+        f = os.path.abspath(os.path.join(store, f"image{k}.png"))
+        cv2.imwrite(f, img)
+        files.append(f)
+    for i in range(n):
+        os.symlink(files[i % len(files)], os.path.join(folder, f"frame{i:06d}.png"))
 
 
 def main_memory(args):
     import subprocess
 
-    print("peak RSS of tracking a streamed 1632x1200 video (10 markers; a generator making "
-          "each frame on demand), each length in a fresh process:")
     lengths = (2000, 20000) if args.memory_frames is None else (args.memory_frames,
                                                                  10 * args.memory_frames)
-    for n in lengths:
-        out = subprocess.run([sys.executable, "-c", _MEM_CODE, str(n)], check=True,
-                             capture_output=True, text=True).stdout.split()
-        print(f"  {int(out[0]):>6} frames: peak RSS {float(out[1]):.0f} MiB, "
-              f"{float(out[2]):.0f} s ({int(out[0]) / float(out[2]):.0f} frames/s wall)")
+    images = _memory_frames()
+    kinds = {"stream": "a generator making each frame on demand",
+             "cine": "a .cine file (the offsets table cycling over 4 stored images)",
+             "folder": "a folder of PNG files (links to 4 stored images)"}
+    print("peak RSS of tracking a 1632x1200 video of 10 still markers (4 distinct noisy "
+          "frames), each length and source in a fresh process:")
+    with tempfile.TemporaryDirectory() as tmp:
+        np.save(os.path.join(tmp, "frames.npy"), np.stack(images))
+        for kind, what in kinds.items():
+            print(f"  {kind}: {what}")
+            for n in lengths:
+                if kind == "stream":
+                    where = os.path.join(tmp, "frames.npy")
+                elif kind == "cine":
+                    where = os.path.join(tmp, f"video{n}.cine")
+                    write_cycling_cine(where, images, n)
+                else:
+                    where = os.path.join(tmp, f"frames{n}")
+                    write_linked_folder(where, images, n)
+                out = subprocess.run([sys.executable, "-c", _MEM_CODE, str(n), kind, where],
+                                     check=True, capture_output=True, text=True).stdout.split()
+                print(f"    {int(out[0]):>6} frames: peak RSS {float(out[1]):.0f} MiB, "
+                      f"{float(out[2]):.0f} s ({int(out[0]) / float(out[2]):.0f} frames/s "
+                      f"wall), {out[3]} frames tracked, {out[4]} markers")
     return 0
 
 
