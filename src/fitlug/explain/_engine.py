@@ -115,9 +115,9 @@ class NormalJacobian:
         A[np.ix_(b, b)] = Ab[np.ix_(b, b)]
         A[np.ix_(b, f)] = JbW[b, :F.shape[1]]
         A[np.ix_(f, b)] = JbW[b, :F.shape[1]].T
-        A[np.ix_(f, f)] = F.T @ F
+        A[np.ix_(f, f)] = tdot(F, F)
         self.A = A
-        self.g = self._assemble(JbW[:, F.shape[1]:], F.T @ r[:, None])[:, 0]  # J^T r
+        self.g = self._assemble(JbW[:, F.shape[1]:], tdot(F, r[:, None]))[:, 0]  # J^T r
         self.shape = (len(r), self.n)
 
     def normal(self) -> tuple:
@@ -139,14 +139,15 @@ class NormalJacobian:
         """J^T V for V (S, m) (or (S,), or a list of (S, m_i): J^T of their columns side
         by side, without stacking them into one more (S, sum m_i) array)."""
         if isinstance(V, list):
-            Vs = [np.asarray(v, float).reshape(len(v), -1) for v in V]
+            Vs = [np.asarray(v).reshape(len(v), -1) for v in V]
             _, JbVs = self.chunks.normal(Vs, with_A=False)
-            return np.hstack([self._assemble(JbV, self.F.T @ v) for JbV, v in zip(JbVs, Vs)])
-        V = np.asarray(V, float)
+            return np.hstack([self._assemble(JbV, tdot(self.F, v)) for JbV, v in zip(JbVs, Vs)])
+        V = np.asarray(V) if np.asarray(V).dtype in (np.float32, np.float64) \
+            else np.asarray(V, float)
         one = V.ndim == 1
         V2 = V[:, None] if one else V
         _, JbV = self.chunks.normal(V2, with_A=False)
-        out = self._assemble(JbV, self.F.T @ V2)
+        out = self._assemble(JbV, tdot(self.F, V2))
         return out[:, 0] if one else out
 
     def suffix_projections(self, d, t, tu, M) -> np.ndarray:
@@ -192,6 +193,31 @@ class NormalJacobian:
             S = np.cumsum((Zf[:done] @ Mf)[::-1], 0)[::-1] + carry
             out[:done] = np.sum(S * S, 1)
         return out
+
+
+#: storage of the long recordings' difference columns (the engine's coupled and extra
+#: columns F, the screened alternatives' columns C): float32. Each difference is computed
+#: in float64 and rounded once when stored (relative 6e-8, against the central
+#: differences' own truncation and rounding error of ~1e-5 and more), and every product
+#: with them sums in float64 (:func:`tdot`); it halves their memory, the largest share of
+#: an explanation's peak on 100 000 frames (9 columns of 2.8 M rows: 200 -> 100 MB).
+STORE = np.float32
+#: rows per float64 block of :func:`tdot`
+TDOT_ROWS = 131_072
+
+
+def tdot(X, Y) -> np.ndarray:
+    """X^T Y in float64 for X (S, m) and Y (S,) or (S, k) of float32 or float64 storage:
+    summed over blocks of TDOT_ROWS rows, each cast to float64 (no float64 copy of a
+    whole float32 array)."""
+    X = np.asarray(X)
+    Y = np.asarray(Y)
+    if X.dtype == np.float64 and Y.dtype == np.float64:
+        return X.T @ Y
+    out = np.zeros((X.shape[1],) + Y.shape[1:])
+    for i in range(0, X.shape[0], TDOT_ROWS):
+        out += X[i:i + TDOT_ROWS].astype(np.float64).T @ Y[i:i + TDOT_ROWS].astype(np.float64)
+    return out
 
 
 def _frame_sums(fi, X, nf):
@@ -416,12 +442,15 @@ class Engine:
                 return 1e-2 * cls.scales[name]
         return _BASE_STEPS.get(name, 1e-6)
 
-    def fd_columns(self, specs, theta) -> np.ndarray:
-        """Central-difference columns (S, len(specs)); spec = (settings dict, param name)."""
+    def fd_columns(self, specs, theta, dtype=np.float64) -> np.ndarray:
+        """Central-difference columns (S, len(specs)); spec = (settings dict, param name).
+
+        dtype: the columns' storage (:data:`STORE`: float32 on long recordings; each
+        difference is computed in float64 and rounded once when stored)."""
         n_res = len(self.obs["lug_w"]) * 2 + len(self.obs["body_w"]) * 2
         if not specs:
-            return np.zeros((n_res, 0))
-        out = np.empty((n_res, len(specs)))
+            return np.zeros((n_res, 0), dtype)
+        out = np.empty((n_res, len(specs)), dtype)
         per = max(1, self.lanes // 2)  # columns per batched evaluation
         for j0 in range(0, len(specs), per):
             pts, hs = [], []
@@ -477,7 +506,7 @@ class Engine:
         coupled = [k for k in COUPLED if k in self.cur_packing.names] \
             if self.effects_active(theta) else []
         if self.chunked:
-            F = self.fd_columns([({}, k) for k in coupled + list(extra)], theta)
+            F = self.fd_columns([({}, k) for k in coupled + list(extra)], theta, STORE)
             if r is None:
                 r = self.residuals(theta)[0]
             return NormalJacobian(self.base_chunks(theta), F,
@@ -587,8 +616,8 @@ def screen_normal(engine, theta, r, NJ: NormalJacobian, effects, extra_names, ge
 
     def project(C, JtC):
         Q = M.T @ JtC
-        gram = C.T @ C - Q.T @ Q  # Cp^T Cp
-        rhs = C.T @ r - Q.T @ qr  # Cp^T r_perp
+        gram = tdot(C, C) - Q.T @ Q  # Cp^T Cp
+        rhs = tdot(C, r) - Q.T @ qr  # Cp^T r_perp
         return gram, rhs
 
     out = {}
@@ -637,7 +666,7 @@ def _alternative_columns(engine, NJ, theta, alts, per_pass: int = 4):
 
     for alt in alts:
         th = engine.with_values(theta, alt.settings)
-        group.append((alt, th, engine.fd_columns(alt.columns, th)))
+        group.append((alt, th, engine.fd_columns(alt.columns, th, STORE)))
         if sum(g[2].shape[1] for g in group) >= per_pass:
             yield from flush()
             group = []

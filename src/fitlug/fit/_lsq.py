@@ -1112,7 +1112,10 @@ class RowChunks:
         A = np.zeros((self.n_par, self.n_par)) if with_A else None
         V = self.r[:, None] if V is None else V
         Vs = V if isinstance(V, list) else [V]  # several (S, m_i): J^T of each, no stacking
-        Vs = [np.asarray(v, float) for v in Vs]
+        # float32 columns (the explanation's stored differences) stay float32 here: each
+        # block's rows are cast to float64 below, not the whole array at once
+        Vs = [np.asarray(v) if np.asarray(v).dtype in (np.float32, np.float64)
+              else np.asarray(v, float) for v in Vs]
         gs = [np.zeros((self.n_par,) + v.shape[1:]) for v in Vs]
         for k, (lay_k, _, plan_k, glob) in enumerate(self._parts):
             prep = self._prep(k)
@@ -1126,7 +1129,7 @@ class RowChunks:
                 for j0 in range(0, m, step):
                     cols = v2[:, j0:j0 + step]
                     if glob is None:
-                        vb = np.ascontiguousarray(cols.T)
+                        vb = np.ascontiguousarray(cols.T, dtype=np.float64)
                     else:  # block rows; its padding rows (zero weight) get zeros
                         vb = np.zeros((cols.shape[1], n_rows))
                         vb[:, real] = cols[glob[real]].T
