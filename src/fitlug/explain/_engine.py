@@ -196,11 +196,16 @@ class NormalJacobian:
 
 
 #: storage of the long recordings' difference columns (the engine's coupled and extra
-#: columns F, the screened alternatives' columns C): float32. Each difference is computed
-#: in float64 and rounded once when stored (relative 6e-8, against the central
-#: differences' own truncation and rounding error of ~1e-5 and more), and every product
-#: with them sums in float64 (:func:`tdot`); it halves their memory, the largest share of
-#: an explanation's peak on 100 000 frames (9 columns of 2.8 M rows: 200 -> 100 MB).
+#: columns F, the screened alternatives' columns C): float32, which halves their memory,
+#: the largest share of an explanation's peak on 100 000 frames (9 columns of 2.8 M rows:
+#: 200 -> 100 MB). Each difference is computed in float64 and rounded once when stored
+#: (2-3e-8 relative: more than the central differences' own error on the base columns,
+#: 1e-9 to 1e-11), and every product with them sums in float64 (:func:`tdot`). They only
+#: steer the search (its screening and LM steps, each step judged on exact residuals);
+#: the final fit's polish and errors use the exact Jacobian. Measured on a 30 000-frame
+#: belt-sag recording against float64 storage (benchmarks/results/2026-11-26c): both
+#: rounds' screened delta chi^2 of every catalog effect within 7e-5 relative (1e-4 in
+#: chi^2), their starts within 4e-5, the sag's LM fit within 4e-6 in chi^2 of 8.4e5.
 STORE = np.float32
 #: rows per float64 block of :func:`tdot`
 TDOT_ROWS = 131_072
