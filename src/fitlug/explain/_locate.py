@@ -50,14 +50,22 @@ class Location:
 
 
 def _shares(m: np.ndarray, labels: np.ndarray, names, pairs: np.ndarray) -> dict:
+    # sums per label in one pass (bincount): a mask per name made the time windows' breakdown
+    # quadratic in the recording's length (windows x samples)
+    n = len(names)
+    labels = np.asarray(labels)
+    ok = (labels >= 0) & (labels < n)
+    lab = labels[ok].astype(np.int64)
+    count = np.bincount(lab, minlength=n)
+    vs = np.bincount(lab, weights=np.asarray(m, float)[ok], minlength=n)
+    ps = np.bincount(lab, weights=np.asarray(pairs, float)[ok], minlength=n)
     out = {}
     tot = 0.0
     for i, name in enumerate(names):
-        sel = labels == i
-        if not sel.any():
+        if count[i] == 0:
             continue
-        v = float(m[sel].sum())
-        out[name] = (v, float(np.sqrt(max(pairs[sel].sum(), 1.0))))
+        v = float(vs[i])
+        out[name] = (v, float(np.sqrt(max(ps[i], 1.0))))
         tot += max(v, 0.0)
     return {k: {"share": (max(v, 0.0) / tot if tot > 0 else 0.0), "misfit_chi2": v,
                 "z": v / sd} for k, (v, sd) in out.items()}
