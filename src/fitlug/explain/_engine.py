@@ -142,8 +142,7 @@ class NormalJacobian:
             Vs = [np.asarray(v).reshape(len(v), -1) for v in V]
             _, JbVs = self.chunks.normal(Vs, with_A=False)
             return np.hstack([self._assemble(JbV, tdot(self.F, v)) for JbV, v in zip(JbVs, Vs)])
-        V = np.asarray(V) if np.asarray(V).dtype in (np.float32, np.float64) \
-            else np.asarray(V, float)
+        V = np.asarray(V)  # chunks.normal and tdot cast block by block
         one = V.ndim == 1
         V2 = V[:, None] if one else V
         _, JbV = self.chunks.normal(V2, with_A=False)

@@ -936,13 +936,18 @@ def _prepare(flat, fixed: dict, lay, obs: dict, packing: Packing, plan: ChunkPla
     preP = shared["preP0"] + jnp.cumsum(segP[:C + 1], 0)[:-1]
     own = {"r": r, "dr_dX": dr_dX, "dr_dpsi": dr_dpsi, "t_row": t_row, "sig_col": sig_col,
            "sig_val": sig_val, "J_rest": J_rest, "preX": preX, "preP": preP}
-    return own if pass_shared else {**own, **{k: shared[k] for k in _SHARED_KEYS}}
+    return own if pass_shared else _with_shared(own, shared)
 
 
 #: what a time block's prepared buffers take from :func:`block_shared` unchanged (the
 #: whole grid's banded derivatives): a compiled :func:`_prepare` returning them would hand
 #: back COPIES of them (XLA outputs are new buffers), ~115 MB at 100 000 frames
 _SHARED_KEYS = ("nx", "npsi", "ncol", "ix", "ipsi", "icol", "refX", "refP")
+
+
+def _with_shared(own: dict, shared: dict) -> dict:
+    """A time block's own prepared buffers with :func:`block_shared`'s arrays beside them."""
+    return {**own, **{k: shared[k] for k in _SHARED_KEYS}}
 
 
 def _rest_index(packing: Packing) -> np.ndarray:
@@ -983,7 +988,7 @@ def _prepare_jit(flat, fixed, lay, obs, packing: Packing, plan: ChunkPlan, share
     """:func:`_prepare`, compiled; a given `shared`'s arrays are passed through as they
     are (the same buffers), not returned by the compiled function."""
     prep = _prepare_compiled(flat, fixed, lay, obs, packing, plan, shared)
-    return prep if shared is None else {**prep, **{k: shared[k] for k in _SHARED_KEYS}}
+    return prep if shared is None else _with_shared(prep, shared)
 
 
 @eqx.filter_jit
@@ -1114,8 +1119,8 @@ class RowChunks:
         Vs = V if isinstance(V, list) else [V]  # several (S, m_i): J^T of each, no stacking
         # float32 columns (the explanation's stored differences) stay float32 here: each
         # block's rows are cast to float64 below, not the whole array at once
-        Vs = [np.asarray(v) if np.asarray(v).dtype in (np.float32, np.float64)
-              else np.asarray(v, float) for v in Vs]
+        Vs = [np.asarray(v) for v in Vs]
+        Vs = [v if v.dtype in (np.float32, np.float64) else v.astype(float) for v in Vs]
         gs = [np.zeros((self.n_par,) + v.shape[1:]) for v in Vs]
         for k, (lay_k, _, plan_k, glob) in enumerate(self._parts):
             prep = self._prep(k)
