@@ -14,6 +14,13 @@
   the marker under a new id ('trk17', numbers drawn at random: no pattern); every
   fragment gets such a new id, the first included, so names say nothing.
 
+`drive_through(rec, seed=...)` is the commonest recording of all: the camera is triggered,
+the robot drives in, crosses a window narrower than its travel and drives out. It draws
+what a user could film - a window of 300-637 mm placed anywhere along the travel (the
+robot outside the picture at the start, the end or both; only the cruise, only a ramp),
+markers lost within a few mm of the picture's edge (a marker is found only once it is
+fully inside) - and puts every fault of `realistic` on top.
+
 Everything random comes from `seed`. `info["fragments"]` maps each new id to its
 original marker and role; `write_realistic(dir, rec, rig, wide=True)` writes the wide
 export form (DATA.md: time_s, <id>_x_mm, <id>_y_mm) and a rig.toml that lists the roles.
@@ -146,6 +153,70 @@ def realistic(rec: Recording, *, seed: int = 0, fov_mm: float | None = FOV_MM,
     for r, dx, dy in glitch_list:
         info["glitches"].append((names[frag_of_row[r]], float(rec.t[r]), dx, dy))
     return out, info
+
+
+def drive_through(rec: Recording, *, seed: int = 0, window_mm=(300.0, 637.0),
+                  edge_mm=(0.0, 8.0), faults: bool = True, need_motion: bool = False,
+                  **kw):
+    """(Recording, info): `rec` seen through a window narrower than the robot's travel.
+
+    The window's width is drawn uniformly in `window_mm`; its centre anywhere such that
+    at least 30 % of the window's width of travel is seen by both marker kinds (lug and
+    body markers each seen over >= 0.5 s), so the robot enters, leaves, or both, in any
+    phase of its motion. A marker is lost `edge` mm before it reaches the picture's edge
+    (a tracker finds a marker only once it is fully inside; `edge` drawn in `edge_mm`).
+    With `faults`, every fault of :func:`realistic` (misses, occlusions, glitches, ids
+    split after gaps) is added on top; `kw` go to :func:`realistic`.
+    `need_motion`: the window must see a speed change (k and C_rr identifiable).
+    info adds "window": (lo, hi) in ground x and "edge_mm".
+    """
+    rng = np.random.default_rng([seed, 26])
+    valid = np.isfinite(rec.x) & np.isfinite(rec.y)
+    xv = rec.x[valid]
+    lug = np.isin(rec.marker_index, [m for m, r in enumerate(rec.roles) if r == "lug"])
+    fps = _fps(rec)
+    for _ in range(200):
+        width = float(rng.uniform(*window_mm))
+        edge = float(rng.uniform(*edge_mm))
+        centre = float(rng.uniform(xv.min() + 0.2 * width, xv.max() - 0.2 * width))
+        lo, hi = centre - width / 2 + edge, centre + width / 2 - edge
+        inside = valid & (rec.x >= lo) & (rec.x <= hi)
+        t_lug = np.unique(rec.t[inside & lug])
+        t_body = np.unique(rec.t[inside & ~lug])
+        if len(t_lug) < 0.5 * fps or len(t_body) < 0.5 * fps:
+            continue
+        if need_motion and not _sees_speed_change(rec, inside, fps):
+            continue
+        break
+    else:
+        raise ValueError("drive_through: no window sees both marker kinds")
+    opts = dict(miss=0.01, occlusion_rate=0.1, glitches=True, split_gap_frames=10,
+                rename=True) if faults else dict(miss=0.0, occlusion_rate=0.0,
+                                                 glitches=False, split_gap_frames=None,
+                                                 rename=False)
+    opts.update(kw)
+    out, info = realistic(rec, seed=seed, fov_mm=hi - lo, fov_center_mm=0.5 * (lo + hi),
+                          **opts)
+    info["window"] = (centre - width / 2, centre + width / 2)
+    info["edge_mm"] = edge
+    return out, info
+
+
+def _sees_speed_change(rec, inside, fps) -> bool:
+    """Whether the body markers seen inside the window speed up or slow down by > 30 %."""
+    body = [m for m, r in enumerate(rec.roles) if r == "body"]
+    for m in body:
+        sel = inside & (rec.marker_index == m)
+        t, x = rec.t[sel], rec.x[sel]
+        if len(t) < 10:
+            continue
+        o = np.argsort(t)
+        v = np.gradient(x[o], t[o])
+        k = max(1, int(0.1 * fps))
+        vs = np.convolve(v, np.ones(k) / k, mode="valid")
+        if len(vs) and np.ptp(vs) > 0.3 * max(np.max(np.abs(vs)), 1e-9):
+            return True
+    return False
 
 
 def shift_time(rec: Recording, offset_s: float) -> Recording:

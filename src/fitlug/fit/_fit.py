@@ -44,7 +44,22 @@ def fit_problem(prob: Problem, p_start: dict | None = None, *, free=None, max_st
     """
     p0 = dict(prob.p0 if p_start is None else p_start)
     free = free_parameters(prob.lay) if free is None else list(free)
+    held_steps = 0
+    if p_start is None and "beta" in free and len(free) > 1:
+        # from the data-derived start, first with the slip slope beta held at 0: where the
+        # picture shows little or no speed change (the robot drives through it in the
+        # cruise, or enters during a ramp) beta is nearly free, and from a start whose
+        # speed spline is only extrapolated where no body marker is seen, LM traded beta
+        # against spurious accelerations and stopped at chi2/dof 1e4..1e7 (issue 26); with
+        # beta held the geometry, phases and speed converge in a few steps, and beta then
+        # moves from a point where the accelerations are the data's own
+        held = least_squares(p0, [k for k in free if k != "beta"], prob.lay, prob.obs,
+                             max_steps=max_steps)
+        if np.all(np.isfinite(held.r)):
+            p0 = {**p0, **held.params}
+            held_steps = held.steps
     out = least_squares(p0, free, prob.lay, prob.obs, max_steps=max_steps)
+    out = out._replace(steps=out.steps + held_steps)
     if not out.converged and out.J is not None and np.all(np.isfinite(out.r)):
         # LM stopped at its step limit (a direction the data hardly constrain, e.g. the slip
         # slope beta of a cruise-only recording, creeps on for hundreds of steps): full
