@@ -9,6 +9,7 @@ import numpy as np
 
 from .._errors import InputError
 from ..model import belt_length, make_layout, param_names, place_knots
+from ..model._knots import top_run_tracks
 from ..model._model import BASE_SCALARS, default_params
 from ..model.effects import CATALOG
 from . import _fragments, _init
@@ -120,8 +121,13 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
     t_hi = float(t_all.max()) + 3.0 / fps
     tracks = [(rec.t[sel], rec.x[sel]) for sel in
               (valid & (rec.marker_index == m) for m in body_ids)]
+    # lug markers on the top run measure the speed where no body marker does (the robot
+    # entering or leaving the picture)
+    lug_tracks = [(rec.t[sel], rec.x[sel], rec.y[sel]) for sel in
+                  (valid & (rec.marker_index == m) for m in lug_ids)]
+    aux = top_run_tracks(lug_tracks, top_y=geom["y_off"] + 2 * geom["R"] + geom["e"], slip=s)
     breaks = place_knots(tX, X, t_lo=t_lo, t_hi=t_hi, R=geom["R"], pitch=P / N, slip=s,
-                         tracks=tracks)
+                         tracks=tracks, aux_tracks=aux)
     # a clamped cubic B-spline's first and last basis functions live in the first and last
     # knot intervals only: an end interval with no sample in it (the 3-frame margin beyond
     # the last sample can hold a whole ramp-spaced interval) leaves that speed coefficient

@@ -23,9 +23,13 @@ knots), measured on each body
 marker's own track (never on a chained average, where a marker entering or leaving the
 picture makes a step), after isolated gross errors are set aside (a sample far from the
 cubic through its 4 neighbours), and only where the smoothing window is covered on both
-sides: a track's ends and gaps are not ramps. Spans where no body marker measures the
-acceleration (all out of the picture or hidden) get the ramp spacing when the speed
-differs across them or a ramp touches them, else the cruise spacing.
+sides: a track's ends and gaps are not ramps. Where no body marker measures the
+acceleration (the robot entering or leaving the picture shows its lugs first and last;
+all body markers hidden), lug markers on the straight top run stand in for them: they
+move at v + v_t = v (2 - s) / (1 - s), so their x scaled by (1 - s) / (2 - s) is the
+body's travel up to an offset (`aux_tracks`; see :func:`top_run_tracks`). Spans that
+neither measures get the ramp spacing when the speed differs across them or a ramp
+touches them, else the cruise spacing.
 """
 
 from __future__ import annotations
@@ -137,15 +141,61 @@ def _period_mean(t: np.ndarray, a: np.ndarray, window_s: float) -> np.ndarray:
     return out
 
 
+#: an end span of the recording (before the first or after the last time any track
+#: measures the acceleration) longer than this gets the ramp spacing; a recording that
+#: starts or ends in view leaves ~0.1 s there (the smoothing window's half, plus margins)
+END_SPAN_S = 0.15
+
+
+def top_run_tracks(tracks, *, top_y: float, slip: float, tol_mm: float = 0.5,
+                   min_samples: int = 8) -> list:
+    """Body-travel stand-ins from lug markers on the straight top run.
+
+    tracks: (t, x, y) of each lug marker (ground frame, mm, NaN-free, sorted by t);
+    top_y: the top run's height (mm). Returns (t, x (1 - s) / (2 - s)) for every run of
+    consecutive samples within `tol_mm` of top_y (at least `min_samples` long): on the top
+    run a lug marker moves at v + v_t = v (2 - s) / (1 - s), so that scaled x advances
+    like the body's X (up to an offset, and to a slip change over the run)."""
+    out = []
+    scale = (1.0 - slip) / (2.0 - slip)
+    for t, x, y in tracks:
+        on = np.abs(np.asarray(y) - top_y) < tol_mm
+        if on.sum() < min_samples:
+            continue
+        k = np.flatnonzero(np.diff(np.r_[0, on.astype(np.int8), 0]))
+        for a, b in zip(k[::2], k[1::2]):
+            if b - a >= min_samples:
+                out.append((np.asarray(t[a:b], float), scale * np.asarray(x[a:b], float)))
+    return out
+
+
+def _uncovered(parts, aux):
+    """The aux tracks' samples at times where no body track measures the acceleration."""
+    tb = np.sort(np.concatenate([p[0][np.isfinite(p[2])] for p in parts])) \
+        if parts else np.zeros(0)
+    out = []
+    for t, v, a in aux:
+        if len(tb):
+            j = np.clip(np.searchsorted(tb, t), 1, max(len(tb) - 1, 1))
+            near = np.minimum(np.abs(tb[j - 1] - t), np.abs(tb[np.minimum(j, len(tb) - 1)] - t))
+            keep = near > 0.05
+        else:
+            keep = np.ones(len(t), bool)
+        out.append((t, np.where(keep, v, np.nan), np.where(keep, a, np.nan)))
+    return out
+
+
 def place_knots(t: np.ndarray, X: np.ndarray, *, t_lo: float, t_hi: float, R: float,
                 pitch: float, slip: float = 0.0, coarse_s: float | None = None,
-                fine_s: float | None = None, tracks=None) -> np.ndarray:
+                fine_s: float | None = None, tracks=None, aux_tracks=None) -> np.ndarray:
     """Break points of the speed spline over [t_lo, t_hi].
 
     t, X: body reference position samples (s, mm), sorted by t (NaN-free).
     tracks: optional list of (t, x) of each body marker (each sorted by t); when given,
         velocity and acceleration come from each track separately (markers that enter,
         leave or are hidden then make no artefacts).
+    aux_tracks: optional (t, X-like) stand-ins (:func:`top_run_tracks`), used only at times
+        where no body track measures the acceleration.
     R, pitch: wheel pitch radius and lug pitch, mm; slip: rough slip (for belt speed).
     """
     t = np.asarray(t, float)
@@ -153,6 +203,8 @@ def place_knots(t: np.ndarray, X: np.ndarray, *, t_lo: float, t_hi: float, R: fl
     if tracks is None:
         tracks = [(t, X)]
     parts = [_track_derivs(tt, xx, 0.2) for tt, xx in tracks]
+    if aux_tracks:
+        parts = parts + _uncovered(parts, [_track_derivs(tt, xx, 0.2) for tt, xx in aux_tracks])
     vall = np.concatenate([p[1] for p in parts])
     v_max = float(np.nanmax(np.abs(vall))) if np.isfinite(vall).any() else 0.0
     if not np.isfinite(vall).any() and len(t) > 1:
@@ -195,10 +247,15 @@ def place_knots(t: np.ndarray, X: np.ndarray, *, t_lo: float, t_hi: float, R: fl
     edges = np.r_[t_lo, tk, t_hi]
     vedge = np.r_[vk[:1] if len(vk) else [0.0], vk, vk[-1:] if len(vk) else [0.0]]
     aedge = np.r_[False, active, False]
+    last = len(edges) - 2
     for k in np.flatnonzero(np.diff(edges) > 0.1):
         a_, b_ = edges[k], edges[k + 1]
+        # at the recording's ends nothing says what the speed did (the robot enters or
+        # leaves the picture showing only its arcs and bottom run, where a ramp may begin):
+        # an end span longer than END_SPAN_S gets the ramp spacing
+        end = (k == 0 or k == last) and b_ - a_ > END_SPAN_S
         if len(vk) == 0 or abs(vedge[k + 1] - vedge[k]) > 0.05 * max(v_max, 1.0) \
-                or aedge[k] or aedge[k + 1]:
+                or aedge[k] or aedge[k + 1] or end:
             spans.append([a_ - margin if aedge[k] else a_, b_ + margin if aedge[k + 1] else b_])
     spans.sort()
     windows = []
