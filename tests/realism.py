@@ -155,9 +155,22 @@ def realistic(rec: Recording, *, seed: int = 0, fov_mm: float | None = FOV_MM,
     return out, info
 
 
+def drive_scenario(seed: int) -> dict:
+    """Keyword arguments of tests/independent_sim.make for a drive-through recording:
+    100-250 fps, 5-8 s, rests of 0.2-1 s, ramps of 0.8-1.6 s, cruise at 120-260 mm/s
+    (0.5-1.6 m of travel, longer than any window of 300-637 mm)."""
+    rng = np.random.default_rng([seed, 7])
+    fps = float(rng.choice([100.0, 120.0, 200.0, 250.0]))
+    dur = float(rng.uniform(5.0, 8.0))
+    ramp = float(rng.uniform(0.8, 1.6))
+    rest0, rest1 = (float(v) for v in rng.uniform(0.2, 1.0, 2))
+    return {"fps": fps, "duration": dur, "t_acc": (rest0, rest0 + ramp),
+            "t_dec": (dur - rest1 - ramp, dur - rest1), "v_max": float(rng.uniform(120, 260))}
+
+
 def drive_through(rec: Recording, *, seed: int = 0, window_mm=(300.0, 637.0),
                   edge_mm=(0.0, 8.0), faults: bool = True, need_motion: bool = False,
-                  **kw):
+                  window=None, **kw):
     """(Recording, info): `rec` seen through a window narrower than the robot's travel.
 
     The window's width is drawn uniformly in `window_mm`; its centre anywhere such that
@@ -168,6 +181,7 @@ def drive_through(rec: Recording, *, seed: int = 0, window_mm=(300.0, 637.0),
     With `faults`, every fault of :func:`realistic` (misses, occlusions, glitches, ids
     split after gaps) is added on top; `kw` go to :func:`realistic`.
     `need_motion`: the window must see a speed change (k and C_rr identifiable).
+    `window`: (lo, hi) in ground x instead of a drawn one (the edge loss is still drawn).
     info adds "window": (lo, hi) in ground x and "edge_mm".
     """
     rng = np.random.default_rng([seed, 26])
@@ -179,6 +193,8 @@ def drive_through(rec: Recording, *, seed: int = 0, window_mm=(300.0, 637.0),
         width = float(rng.uniform(*window_mm))
         edge = float(rng.uniform(*edge_mm))
         centre = float(rng.uniform(xv.min() + 0.2 * width, xv.max() - 0.2 * width))
+        if window is not None:
+            width, centre = window[1] - window[0], 0.5 * (window[0] + window[1])
         lo, hi = centre - width / 2 + edge, centre + width / 2 - edge
         inside = valid & (rec.x >= lo) & (rec.x <= hi)
         t_lug = np.unique(rec.t[inside & lug])
