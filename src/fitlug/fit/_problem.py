@@ -17,6 +17,7 @@ from ._checks import check_recording
 from ._noise import estimate_noise
 
 MIN_FRAMES = 20
+END_FRAMES = 4  # frames with data in each end interval of the speed spline
 
 
 @dataclass
@@ -131,11 +132,19 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
     # a clamped cubic B-spline's first and last basis functions live in the first and last
     # knot intervals only: an end interval with no sample in it (the 3-frame margin beyond
     # the last sample can hold a whole ramp-spaced interval) leaves that speed coefficient
-    # unconstrained, a zero Jacobian column and NaN standard errors; merge it inward
+    # unconstrained, a zero Jacobian column and NaN standard errors; merge it inward.
+    # And an end interval with only a frame or two after the gauge time (the ramp spacing
+    # where a robot enters the picture, seen at first by one marker) leaves its
+    # coefficient trading with the offsets (X(t) shifted by a constant after it): a null
+    # direction of the Jacobian that made effect parameters look unidentifiable. Each end
+    # interval holds at least END_FRAMES frames with data besides its end sample.
+    frames_v = np.unique(t_all)
     t_first_s, t_last_s = float(t_all.min()), float(t_all.max())
-    while len(breaks) > 2 and breaks[-2] >= t_last_s:
+    while len(breaks) > 2 and np.count_nonzero((frames_v >= breaks[-2])
+                                               & (frames_v < t_last_s)) < END_FRAMES:
         breaks = np.delete(breaks, -2)
-    while len(breaks) > 2 and breaks[1] <= t_first_s:
+    while len(breaks) > 2 and np.count_nonzero((frames_v > t_first_s)
+                                               & (frames_v <= breaks[1])) < END_FRAMES:
         breaks = np.delete(breaks, 1)
 
     lug_rows = _rows(rec, lug_ids)
