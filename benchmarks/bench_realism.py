@@ -14,6 +14,15 @@ Rows (the transform is tests/realism.py):
   longer than 10 frames (new ids 'trkNN'), no glitches;
 - all: everything above together, written in the wide export form with the roles in
   rig.toml, read back with fitlug.io;
+- drive (issue 26): the robot drives through the picture: tests/realism.py's
+  `drive_through` window of 300-637 mm placed anywhere along the travel (the robot outside
+  the picture at the start, the end or both), markers lost within 0-8 mm of the edge, and
+  another rig and speed profile per recording (`drive_scenario`: 100-250 fps, 5-8 s,
+  n, L, R, pitch, belt, mass, k, C_rr, markers drawn); every other recording also gets
+  every fault of the fov row plus glitches. Effects that need a place in time or in the
+  picture are put in the window (frame_drop's t* mid-way through what is seen; the lens
+  centre at the window's centre). With --twins, each recording's in-view twin (the same
+  recording and faults, no window) is fitted too and the verdicts compared.
 - rendered (only when asked for: --rows ...,rendered): the noise-free recording rendered as
   camera frames by fitlug.vision.render_video (637 mm x 117 mm picture at 0.39 mm/px: the
   robot crosses it; lens, motion blur, lighting gradient, vignetting, sensor noise),
@@ -49,7 +58,7 @@ sys.path.insert(0, os.path.join(HERE, "..", "tests"))
 from test_explain_independent import CASES, FPS  # noqa: E402
 
 EFFECTS = {k: v for k, v in CASES.items() if len(v) == 1}
-ROWS = ("clean", "glitched", "fov", "all")
+ROWS = ("clean", "glitched", "fov", "all", "drive")
 RENDER_SIZE = (1632, 300)  # px: 637 mm wide at 0.39 mm/px, 117 mm high (the markers' band)
 
 
@@ -93,15 +102,70 @@ def transform(row: str, rec, rig, seed: int):
     raise ValueError(row)
 
 
+def drive(effect, seed: int, twins: bool = False):
+    """The drive row's recording: (recording through the window, rig, truth, in-view twin
+    or None, info)."""
+    import independent_sim as isim
+    from realism import drive_scenario, drive_through
+
+    kw = drive_scenario(seed)
+    faults = seed % 2 == 0
+    rec, rig, truth = isim.make(seed, **kw)
+    cut, info = drive_through(rec, seed=seed, faults=faults)
+    if effect:
+        eff = {k: dict(v) for k, v in EFFECTS[effect].items()}
+        ok = np.isfinite(cut.x)
+        t0, t1 = float(cut.t[ok].min()), float(cut.t[ok].max())
+        if effect == "frame_drop":
+            eff["frame_drop"] = {"drop_dt": 1.0 / kw["fps"], "drop_tstar": round(
+                0.5 * (t0 + t1) * kw["fps"]) / kw["fps"]}
+        if effect == "lens_distortion":
+            eff["lens_distortion"]["lens_cx"] = 0.5 * sum(info["window"])
+        rec, rig, truth = isim.make(seed, effects=eff, **kw)
+        cut, info = drive_through(rec, seed=seed, faults=faults, window=info["window"])
+    twin = None
+    if twins:
+        from realism import realistic
+
+        opts = {} if faults else dict(miss=0.0, occlusion_rate=0.0, glitches=False,
+                                      split_gap_frames=None, rename=False)
+        twin, _ = realistic(rec, seed=seed, fov_mm=None, **opts)
+    info["faults"] = faults
+    info["fps"] = kw["fps"]
+    return cut, rig, truth, twin, info
+
+
 def one(task):
     """Fit and explain one recording: a dict of what came out (never raises)."""
-    row, effect, seed = task
+    row, effect, seed = task[:3]
+    twins = len(task) > 3 and task[3]
     import independent_sim as isim
 
     from fitlug.explain import explain
     from fitlug.fit import fit
 
     t0 = time.perf_counter()
+    if row == "drive":
+        out = {"row": row, "effect": effect, "seed": seed}
+        try:
+            rec2, rig2, truth, twin, info = drive(effect, seed, twins)
+            ok = np.isfinite(rec2.x)
+            out.update(truth=truth["slip"], window=[round(v, 1) for v in info["window"]],
+                       seen_s=[float(rec2.t[ok].min()), float(rec2.t[ok].max())],
+                       faults=bool(info["faults"]), fps=info["fps"])
+            for key, r in (("", rec2), ("twin_", twin)):
+                if r is None:
+                    continue
+                ex = explain(fit(r, rig2))
+                fin = ex.final
+                out.update({key + "verdict": ex.verdict, key + "named": sorted(ex.effects),
+                            key + "slip": float(fin.slip.value),
+                            key + "std": float(fin.slip.std),
+                            key + "chi2": float(fin.chi2_per_dof)})
+        except Exception as exc:  # noqa: BLE001 - a benchmark counts failures
+            out["error"] = f"{type(exc).__name__}: {exc}"[:300]
+        out["seconds"] = time.perf_counter() - t0
+        return out
     eff = EFFECTS.get(effect) if effect else None
     noise = {"noise_lug": 0.0, "noise_body": 0.0} if row == "rendered" else {}
     rec, rig, truth = isim.make(seed, fps=FPS, v_max=240.0, effects=eff, **noise)
@@ -141,6 +205,19 @@ def summarise(results, rows, effects):
         print(f"{row:10s} {len(null):4d} {nfail:5d} {fa:12.3f} {bias:11.2e} "
               f"{(z.mean() if len(z) else np.nan):7.2f} "
               f"{(np.sqrt(np.mean(z ** 2)) if len(z) else np.nan):6.2f}  {' '.join(det)}")
+    for row in rows:
+        allr = [r for r in results if r["row"] == row and "error" not in r and "std" in r]
+        if allr:
+            z = np.array([(r["slip"] - r["truth"]) / r["std"] for r in allr])
+            print(f"{row}: slip within 3 reported sigma of the truth in "
+                  f"{int(np.sum(np.abs(z) <= 3))}/{len(z)} recordings (nulls and effects; "
+                  f"within 2 sigma: {int(np.sum(np.abs(z) <= 2))}/{len(z)})")
+    twin = [r for r in results if "twin_verdict" in r and "error" not in r]
+    if twin:
+        same = sum(1 for r in twin if (r["verdict"], r["named"])
+                   == (r["twin_verdict"], r["twin_named"]))
+        print(f"drive-through vs in-view twin: same verdict and named effects {same}/"
+              f"{len(twin)}")
     errs = [r for r in results if "error" in r]
     for r in errs[:10]:
         print(f"  failure {r['row']}/{r['effect']}/seed {r['seed']}: {r['error']}")
@@ -161,6 +238,8 @@ def main(argv=None):
                     help="append one JSON line per recording as it finishes (a run cut short "
                          "keeps what it did)")
     ap.add_argument("--from-log", default=None, help="summarise a --log file, no new fits")
+    ap.add_argument("--twins", action="store_true",
+                    help="drive row: also fit each recording's in-view twin")
     a = ap.parse_args(argv)
     rows = [r for r in a.rows.split(",") if r]
     effects = [e for e in a.effects.split(",") if e] if a.n_effect > 0 else []
@@ -173,9 +252,10 @@ def main(argv=None):
     tasks = []
     for row in rows:
         n, n_eff = (a.n_rendered, a.n_rendered) if row == "rendered" else (a.n, a.n_effect)
-        tasks += [(row, None, a.seed0 + k) for k in range(n)]
+        tw = (a.twins,) if row == "drive" else ()
+        tasks += [(row, None, a.seed0 + k) + tw for k in range(n)]
         for i, e in enumerate(effects):
-            tasks += [(row, e, a.seed0 + 10000 * (i + 1) + k) for k in range(n_eff)]
+            tasks += [(row, e, a.seed0 + 10000 * (i + 1) + k) + tw for k in range(n_eff)]
     # interleave rows and effects, so that a run cut short has a bit of every row
     tasks = sorted(tasks, key=lambda t: (t[2] % 10000, t[0], t[1] or ""))
     t0 = time.perf_counter()

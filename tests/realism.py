@@ -155,17 +155,42 @@ def realistic(rec: Recording, *, seed: int = 0, fov_mm: float | None = FOV_MM,
     return out, info
 
 
-def drive_scenario(seed: int) -> dict:
+def drive_scenario(seed: int, *, rig: bool = True) -> dict:
     """Keyword arguments of tests/independent_sim.make for a drive-through recording:
     100-250 fps, 5-8 s, rests of 0.2-1 s, ramps of 0.8-1.6 s, cruise at 120-260 mm/s
-    (0.5-1.6 m of travel, longer than any window of 300-637 mm)."""
+    (0.5-1.6 m of travel, longer than any window of 300-637 mm); with `rig`, another
+    track and robot too: n 6-10, L 100-160 mm, wheels R 18-35 mm, pitch 15-22 mm and a
+    belt of 18-26 lugs (straight runs 60-200 mm), marker offset e 1.5-4 mm, 6-10 lug
+    markers on consecutive lugs, two body markers anywhere along the body, mass 2-12 kg,
+    k 0.1-0.4 N/mm, C_rr 0.03-0.15 (steady slip 0.01-0.2)."""
     rng = np.random.default_rng([seed, 7])
     fps = float(rng.choice([100.0, 120.0, 200.0, 250.0]))
     dur = float(rng.uniform(5.0, 8.0))
     ramp = float(rng.uniform(0.8, 1.6))
     rest0, rest1 = (float(v) for v in rng.uniform(0.2, 1.0, 2))
-    return {"fps": fps, "duration": dur, "t_acc": (rest0, rest0 + ramp),
-            "t_dec": (dur - rest1 - ramp, dur - rest1), "v_max": float(rng.uniform(120, 260))}
+    out = {"fps": fps, "duration": dur, "t_acc": (rest0, rest0 + ramp),
+           "t_dec": (dur - rest1 - ramp, dur - rest1), "v_max": float(rng.uniform(120, 260))}
+    if not rig:
+        return out
+    while True:
+        R = float(rng.uniform(18, 35))
+        pitch = float(rng.uniform(15, 22))
+        N = int(rng.integers(18, 27))
+        D = (N * pitch - 2 * np.pi * R) / 2
+        n, L = int(rng.choice([6, 8, 10])), float(rng.uniform(100, 160))
+        m, k, C_rr = (float(rng.uniform(2, 12)), float(rng.uniform(0.1, 0.4)),
+                      float(rng.uniform(0.03, 0.15)))
+        slip = 2 * m * C_rr * 9.81 / (k * n * L)
+        if 60 <= D <= 200 and 0.01 <= slip <= 0.2:
+            break
+    half = D / 2 + R
+    body = ((float(rng.uniform(-half, 0)), float(rng.uniform(2.2 * R, 3.2 * R))),
+            (float(rng.uniform(0, half)), float(rng.uniform(2.2 * R, 3.2 * R))))
+    out.update(m=m, k=k, C_rr=C_rr, n=n, L=L, R=R, pitch=pitch, N=N,
+               e=float(rng.uniform(1.5, 4.0)), x_off=float(rng.uniform(-5, 5)),
+               y_off=float(rng.uniform(2, 8)), n_lug=int(rng.integers(6, min(11, N // 2 + 1))),
+               body=body)
+    return out
 
 
 def drive_through(rec: Recording, *, seed: int = 0, window_mm=(300.0, 637.0),
