@@ -53,7 +53,7 @@ def _value(prop: ET.Element | None, path: str, what: str):
         if kind == "boolean":
             return text == "true"
     except ValueError:
-        raise InputError(path, f"{what}: {text!r} is not a {kind}", place=what) from None
+        raise InputError(path, f"{text!r} is not a {kind}", place=what) from None
     if kind == "object":
         return prop.find("object")
     return text
