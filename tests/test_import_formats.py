@@ -170,3 +170,68 @@ def test_broken_files_get_one_line_naming_file_place_problem(tmp_path, name, tex
         read_any(path, **opts)
     msg = str(err.value)
     assert "\n" not in msg and str(path) in msg and problem in msg, msg
+
+
+def _trk(coords: str, points: str, unit="cm") -> str:
+    return ('<?xml version="1.0" encoding="UTF-8"?>\n'
+            '<object class="org.opensourcephysics.cabrillo.tracker.TrackerPanel">\n'
+            f'<property name="coords" type="object">{coords}</property>\n'
+            f'<property name="length_unit" type="string">{unit}</property>\n'
+            '<property name="tracks" type="collection" class="java.util.ArrayList">'
+            '<property name="item" type="object">'
+            '<object class="org.opensourcephysics.cabrillo.tracker.PointMass">'
+            '<property name="name" type="string">C1</property>'
+            f'<property name="framedata" type="array">{points}</property>'
+            '</object></property></property></object>\n')
+
+
+def _fd(k, **v):
+    cls = "PointMass$FrameData" if "x" in v else "ImageCoordSystem$FrameData"
+    props = "".join(f'<property name="{n}" type="double">{x!r}</property>' for n, x in v.items())
+    return f'<property name="[{k}]" type="object"><object class="{cls}">{props}</object></property>'
+
+
+def test_tracker_key_frames_hold_until_the_next(tmp_path):
+    """A coordinate system whose origin moves at key frame 3 and whose angle is fixed:
+    frames 0-2 use key frame 0's origin, frames 3-5 key frame 3's (OSP's setOriginXY with
+    updateToKeyFrames); no delta_t: the time needs --fps."""
+    frames = "".join([_fd(0, xorigin=100.0, yorigin=200.0, angle=90.0, xscale=10.0, yscale=10.0),
+                      _fd(3, xorigin=110.0, yorigin=190.0, angle=90.0, xscale=10.0, yscale=10.0)])
+    coords = ('<object class="org.opensourcephysics.media.core.ImageCoordSystem">'
+              '<property name="fixedorigin" type="boolean">false</property>'
+              '<property name="fixedangle" type="boolean">true</property>'
+              '<property name="fixedscale" type="boolean">true</property>'
+              f'<property name="framedata" type="array">{frames}</property></object>')
+    pts = "".join(_fd(k, x=120.0, y=150.0) for k in range(6))
+    path = _write(tmp_path, "keys.trk", _trk(coords, pts))
+    from fitlug.io import read_tracks
+
+    tr = read_tracks(path)
+    # angle 90 deg: the world x axis points up the image. By hand: u = (x - x0)/s,
+    # w = -(y - y0)/s, X = cos a u + sin a w = w, Y = -sin a u + cos a w = -u; cm -> mm
+    for k, (x0, y0) in enumerate([(100, 200)] * 3 + [(110, 190)] * 3):
+        u, w = (120 - x0) / 10, -(150 - y0) / 10
+        np.testing.assert_allclose(tr.xy_mm[k, 0], [10 * w, -10 * u], atol=1e-12)
+    assert tr.t is None
+    with pytest.raises(InputError, match="no time stamps"):
+        read_any(path)
+    assert read_any(path, fps=50).fps == pytest.approx(50)
+
+
+def test_tracker_text_one_track_and_kinovea_milliseconds(tmp_path):
+    # Tracker, one track: its name (spaces as '_'), then t x y; space-delimited
+    p = _write(tmp_path, "one.txt", "masa_A\nt x y\n0.0 0.10 0.20\n0.01 0.11 0.21\n"
+                                    "0.02  \n0.03 0.13 0.23\n")
+    assert detect_format(p) == "tracker-text"
+    rec = read_any(p, length_unit="m", body=["masa_A"])
+    assert rec.markers == ("masa_A",) and rec.meta["fps"] == "100"
+    np.testing.assert_allclose(rec.x[rec.valid], [100, 110, 130])
+    # Kinovea CSV whose Time column is in ms (a user preference): --fps tells it
+    p = _write(tmp_path, "ms.csv", '"Time","C1/0/X","C1/0/Y"\n"0","1.5","2"\n"10","1.6","2"\n'
+                                   '"20","",""\n"30","1.8","2.1"\n')
+    rec = read_any(p, length_unit="mm", fps=100)
+    assert rec.meta["time_unit"] == "ms"
+    np.testing.assert_allclose(rec.t, [0, 0.01, 0.02, 0.03])
+    assert np.isnan(rec.x[2]) and rec.x[3] == pytest.approx(1.8)
+    with pytest.raises(InputError, match="matches 25 fps in none of s, ms"):
+        read_any(p, length_unit="mm", fps=25)

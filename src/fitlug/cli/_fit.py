@@ -117,6 +117,10 @@ def _command_line(args) -> str:
         parts += ["--seed", str(args.seed)]
     if getattr(args, "mcmc_budget", 60.0) != 60.0:
         parts += ["--mcmc-budget", f"{args.mcmc_budget:g}"]
+    for opt in ("format", "fps", "mm_per_px", "calib", "body", "length_unit", "y_origin",
+                "likelihood"):  # other trackers' files (cli/_import.py)
+        if getattr(args, opt, None) is not None:
+            parts += ["--" + opt.replace("_", "-"), f"{getattr(args, opt)}"]
     for flag in ("no_mcmc", "no_explain", "no_report"):
         if getattr(args, flag, False):
             parts.append("--" + flag.replace("_", "-"))
