@@ -21,10 +21,13 @@ BODY = ["C1", "C2"]
 
 
 @pytest.fixture(scope="module")
-def twin():
-    rec, truth = simulate(SCENARIO, 0)
-    res = fit(rec)
-    return rec, res.quantities["slip"]
+def sim():
+    return simulate(SCENARIO, 0)[0]
+
+
+@pytest.fixture(scope="module")
+def twin(sim):
+    return sim, fit(sim).quantities["slip"]
 
 
 def _px_to_mm(xy):  # the scale-only mapping of `fit-lug track`, origin at the image's bottom
@@ -94,9 +97,9 @@ def test_each_format_gives_the_canonical_twins_slip(twin, tmp_path):
         assert abs(s.value - slip.value) < 0.05 * slip.std, fmt
 
 
-def test_deeplabcut_h5_and_dataframes(twin, tmp_path):
+def test_deeplabcut_h5_and_dataframes(sim, tmp_path):
     pd = pytest.importorskip("pandas")
-    rec, _ = twin
+    rec = sim
     df = ex.dlc_dataframe(rec)
     got = Recording.from_dataframe(df, fps=100, mm_per_px=ex.S, body=BODY)
     _same_positions(got, rec, 1e-9)
@@ -235,3 +238,18 @@ def test_tracker_text_one_track_and_kinovea_milliseconds(tmp_path):
     assert np.isnan(rec.x[2]) and rec.x[3] == pytest.approx(1.8)
     with pytest.raises(InputError, match="matches 25 fps in none of s, ms"):
         read_any(p, length_unit="mm", fps=25)
+
+
+def test_a_wrong_pixel_origin_is_caught_by_the_physics(sim, tmp_path):
+    """A DLTdv7 file (origin bottom-left) read as DLTdv8 (top-left) turns the track upside
+    down: the lugs would run fastest along the bottom, which a crawler track never does."""
+    rec = sim
+    path = _write(tmp_path, "old_xypts.csv", ex.dltdv(rec, "XY7"))
+    opts = {"fps": 100, "body": ["pt11", "pt12"], "pixels_to_mm": _px_to_mm}
+    with pytest.warns(UserWarning, match="looks upside down"):
+        read_any(path, y_origin="top", **opts)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_any(path, y_origin="bottom", **opts)

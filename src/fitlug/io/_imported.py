@@ -254,9 +254,55 @@ def tracks_to_recording(tracks: Tracks, *, pixels_to_mm: Callable | None = None,
         meta["fps"] = f"{1.0 / step:.10g}"
     meta.update(tracks.meta)
     meta["positions"] = units
-    return Recording(markers=tracks.markers, roles=tuple(roles), t=t[rows],
-                     marker_index=cols.astype(np.int64), x=mm[rows, cols, 0], y=mm[rows, cols, 1],
-                     frame=tracks.frame[rows], meta=meta, path=tracks.path, **optional)
+    rec = Recording(markers=tracks.markers, roles=tuple(roles), t=t[rows],
+                    marker_index=cols.astype(np.int64), x=mm[rows, cols, 0], y=mm[rows, cols, 1],
+                    frame=tracks.frame[rows], meta=meta, path=tracks.path, **optional)
+    _warn_if_upside_down(rec, tracks.format)
+    return rec
+
+
+def upside_down_score(rec: Recording) -> float | None:
+    """Correlation between a lug marker's height and its speed along the body's travel.
+
+    On a crawler track the lugs stall on the ground (bottom) and run forward at about
+    twice the body's speed over the top, so with y up the score is near +1; near -1 the
+    y axis points down (a flipped image convention). None without body and lug markers
+    or without travel."""
+    body, lug = rec.select("body"), rec.select("lug")
+    if body.size == 0 or lug.size == 0:
+        return None
+    ok = body[np.isfinite(rec.x[body])]
+    if ok.size < 2:
+        return None
+    first, last = ok[np.argmin(rec.t[ok])], ok[np.argmax(rec.t[ok])]
+    travel = rec.x[last] - rec.x[first]
+    if not np.isfinite(travel) or travel == 0:
+        return None
+    heights, speeds = [], []
+    for k in rec.markers_of("lug"):
+        i = np.flatnonzero((rec.marker_index == k) & rec.valid)
+        if i.size < 3:
+            continue
+        i = i[np.argsort(rec.t[i])]
+        heights.append(rec.y[i][1:])
+        speeds.append(np.sign(travel) * np.diff(rec.x[i]) / np.diff(rec.t[i]))
+    if not heights:
+        return None
+    h, v = np.concatenate(heights), np.concatenate(speeds)
+    if h.size < 10 or np.std(h) == 0 or np.std(v) == 0:
+        return None
+    return float(np.corrcoef(h, v)[0, 1])
+
+
+def _warn_if_upside_down(rec: Recording, fmt: str) -> None:
+    score = upside_down_score(rec)
+    if score is not None and score < -0.5:
+        import warnings
+
+        warnings.warn(f"{rec.path}: the lug markers run fastest at the bottom of their path "
+                      f"(height-speed correlation {score:.2f}): the y axis of this {fmt} file "
+                      f"looks upside down (fitlug wants y up; check --y-origin, the "
+                      f"format's pixel origin or --length-unit px)", stacklevel=3)
 
 
 def merge_by_time(path: str, fmt: str, series: list[tuple[str, np.ndarray, np.ndarray]],
