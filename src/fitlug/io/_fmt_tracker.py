@@ -236,12 +236,15 @@ def read_tracker_text(path: str, length_unit: str | None = None) -> Tracks:
     if not header or header[0] != "t":
         raise InputError(path, f"the column names must start with t, got {header[:1]}",
                          line=head_no)
-    cells = _split(names_line, delim) if k else [names_line.strip()]
+    cells = _split(names_line, delim)
+    multi = bool(k) or len([c for c in cells if c]) > 1  # names over their columns
+    if not multi:
+        cells = [names_line.strip()]
     owner, current = [], None
     for j in range(len(header)):
-        if k and j < len(cells) and cells[j]:
+        if multi and j < len(cells) and cells[j]:
             current = cells[j]
-        owner.append(current if k else cells[0])
+        owner.append(current if multi else cells[0])
     groups: dict[str, dict[str, int]] = {}
     for j, name in enumerate(header[1:], 1):
         if owner[j] is None:
@@ -300,8 +303,7 @@ def looks_like_tracker_text(lines: list[str]) -> bool:
     if len(body) < k + 2:
         return False
     head = _split(body[k + 1], _delimiter(body[k + 1]))
-    return bool(head) and head[0] == "t" and "x" in head and "y" in head \
-        and (k == 1 or len(_split(body[0], _delimiter(body[0]))) <= 1 or "\t" not in body[0])
+    return bool(head) and head[0] == "t" and "x" in head and "y" in head
 
 
 def is_tracker_xml(head: bytes) -> bool:

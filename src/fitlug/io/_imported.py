@@ -193,8 +193,8 @@ def _times(tracks: Tracks, fps: float | None) -> np.ndarray:
         steps = np.diff(t) / np.maximum(np.diff(tracks.frame), 1)
         data_fps = 1.0 / float(np.median(steps))
         if abs(fps / data_fps - 1) > _FPS_TOLERANCE:
-            raise InputError(tracks.path, f"the given fps {fps:g} disagrees with the file's time "
-                             f"stamps ({data_fps:.6g} frames/s)")
+            raise InputError(tracks.path, f"the fps {fps:g} (--fps or [camera] fps) disagrees "
+                             f"with the file's time stamps ({data_fps:.6g} frames/s)")
     return t
 
 
@@ -220,8 +220,8 @@ def tracks_to_recording(tracks: Tracks, *, pixels_to_mm: Callable | None = None,
         InputError: pixels without a mapping, no time and no fps, an fps that disagrees
             with the time stamps, a marker whose role cannot be told.
     """
-    if fps is None and rig is not None and tracks.t is None:
-        fps = rig.fps
+    if fps is None and rig is not None:
+        fps = rig.fps  # the time where the file has none, else checked against its stamps
     if pixels_to_mm is not None:
         if tracks.xy_px is None:
             raise InputError(tracks.path, f"the {tracks.format} file holds no pixel positions: "
