@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import re
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Callable
 
@@ -94,9 +93,6 @@ def length_factor(unit: str, path: str, place: str) -> float:
 
 
 # -- text helpers shared by the readers --------------------------------------------------------
-
-_NUMBER = re.compile(r"^[+-]?(\d+([.,]\d*)?|[.,]\d+)([eE][+-]?\d+)?$")
-
 
 def number(text: str, decimal_comma: bool = False) -> float:
     """A cell as a float: empty or NaN -> NaN; a decimal comma when `decimal_comma`.
