@@ -87,7 +87,8 @@ def _coords(panel: ET.Element, path: str, n_frames: int) -> np.ndarray:
         out[:, 5] = 0.0
         return out
     fixed = [_get(cs, k, path) for k in ("fixedorigin", "fixedangle", "fixedscale")]
-    data = _indexed(_props(cs).get("framedata"))
+    data = {k: v for k, v in _indexed(_props(cs).get("framedata")).items()
+            if v.find("property") is not None}  # an empty entry is not a key frame
     if 0 not in data:
         raise InputError(path, "the coordinate system has no frame 0 entry",
                          place="coords/framedata")
