@@ -23,6 +23,8 @@ SUBCOMMANDS = {
     "calibrate": ("_calibrate", "calibrate the camera from board images -> calib.json"),
     "campaign": ("_campaign", "fit a campaign of recordings: the track's traction-slip law"),
     "noise": ("_noise", "measurement noise per marker type from a stationary recording"),
+    "import": ("_import", "convert another tracker's export (Tracker, DLTdv, Kinovea, "
+                          "DeepLabCut, trackpy) to trajectories.csv"),
 }
 
 

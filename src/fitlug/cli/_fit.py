@@ -21,15 +21,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mcmc-budget", type=float, default=60.0, metavar="S",
                    help="time budget of the sampler in seconds (default 60)")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
+    from ._import import add_source_options
+
+    add_source_options(p)  # other trackers' files, converted on the way in
 
 
 def run(args) -> int:
-    from ..io import find_rig, read_rig, read_trajectories, write_json
+    from ..io import find_rig, read_rig, write_json
 
     t_start = time.perf_counter()
     stage(args, "reading", args.csv)
     rig = read_rig(args.rig) if args.rig else find_rig(args.csv)
-    rec = read_trajectories(args.csv, rig=rig)
+    from ._import import recording_from_args
+
+    rec = recording_from_args(args.csv, args, rig)
     out = args.out or os.path.join("fits", recording_name(args.csv))
     check_out_folder(out, "--out" if args.out else "output folder")
     prog = progress_enabled(args)
@@ -112,6 +117,10 @@ def _command_line(args) -> str:
         parts += ["--seed", str(args.seed)]
     if getattr(args, "mcmc_budget", 60.0) != 60.0:
         parts += ["--mcmc-budget", f"{args.mcmc_budget:g}"]
+    for opt in ("format", "fps", "mm_per_px", "calib", "body", "length_unit", "y_origin",
+                "likelihood"):  # other trackers' files (cli/_import.py)
+        if getattr(args, opt, None) is not None:
+            parts += ["--" + opt.replace("_", "-"), f"{getattr(args, opt)}"]
     for flag in ("no_mcmc", "no_explain", "no_report"):
         if getattr(args, flag, False):
             parts.append("--" + flag.replace("_", "-"))

@@ -9,6 +9,12 @@ from ._atomic import write_bytes_atomic as write_bytes_atomic
 from ._atomic import write_text_atomic as write_text_atomic
 from ._fitjson import read_json as read_json
 from ._fitjson import write_json as write_json
+from ._formats import FORMATS as FORMATS
+from ._formats import detect_format as detect_format
+from ._formats import read_any as read_any
+from ._formats import read_tracks as read_tracks
+from ._imported import Tracks as Tracks
+from ._imported import tracks_to_recording as tracks_to_recording
 from ._recording import Recording as Recording
 from ._recording import check_enough_samples as check_enough_samples
 from ._rig import Rig as Rig
@@ -23,4 +29,5 @@ __all__ = [
     "Rig", "read_rig", "write_rig", "find_rig",
     "write_json", "read_json",
     "atomic_path", "write_text_atomic", "write_bytes_atomic",
+    "FORMATS", "detect_format", "read_tracks", "read_any", "Tracks", "tracks_to_recording",
 ]

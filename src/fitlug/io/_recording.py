@@ -158,6 +158,28 @@ class Recording:
             return None
         return float(1.0 / np.median(steps))
 
+    @classmethod
+    def from_dataframe(cls, df, *, fps: float | None = None, mm_per_px: float | None = None,
+                       calibration=None, rig=None, body=None, lug=None,
+                       likelihood: float = 0.6) -> "Recording":
+        """A Recording from a pandas DataFrame, for notebooks.
+
+        Takes the canonical long table (time_s, marker, role, x_mm, y_mm), trackpy's linked
+        features (frame, particle, x, y in px; markers named by particle number) or a
+        DeepLabCut table (MultiIndex columns; samples below `likelihood` missing). Pixels
+        become mm through `calibration` (a `fitlug.vision.Calibration`) or the scale
+        `mm_per_px` (y up), as `fit-lug track` maps them; time is frame / `fps`; roles
+        from `rig`, `body`/`lug` lists (with `body` alone the rest are lugs) or the names.
+
+        Raises:
+            InputError: missing columns, pixels without a scale, no fps, unknown roles.
+        """
+        from ._fmt_trackpy import recording_from_dataframe
+
+        return recording_from_dataframe(df, fps=fps, mm_per_px=mm_per_px,
+                                        calibration=calibration, rig=rig, body=body, lug=lug,
+                                        likelihood=likelihood)
+
     def with_(self, **changes) -> "Recording":
         """A copy with some fields replaced (validated like a new Recording)."""
         return dataclasses.replace(self, **changes)

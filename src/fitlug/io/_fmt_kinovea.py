@@ -1,0 +1,157 @@
+"""Kinovea trajectory exports: CSV (one table) and TXT (one section per track).
+
+CSV (Kinovea's `ExporterCSVTrajectory`): a header `"Time","<track>/<point>/X",
+"<track>/<point>/Y",...`, every cell double-quoted, an empty cell where a point has no
+value, the locale's decimal separator (the list separator becomes ';' when the decimal is
+a comma). TXT (`ExporterTXTTrajectory`): `#Kinovea Trajectory data export`, `#T X Y`, then
+per track a `# <name>` line and space-separated `t x y` rows. Time is in seconds by default
+(or frames, ms, µs, by the user's preference; older versions write time codes
+`h:mm:ss:cc`, the last field hundredths, or thousandths above 100 fps). Coordinates are
+Kinovea's coordinate system (y up) in its calibrated unit, or pixels without calibration;
+the unit is not written, so `length_unit` ('px', 'mm', 'cm', 'm', ...) must be given.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+
+import numpy as np
+
+from .._errors import InputError
+from ._imported import Tracks, length_factor, merge_by_time, number, read_text
+
+_TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "frames": None}
+
+
+def _time_value(text: str, decimal_comma: bool) -> float:
+    s = text.strip().strip('"')
+    if ":" in s:  # a time code h:mm:ss:cc (or :ccc)
+        parts = s.split(":")
+        if len(parts) != 4 or not all(p.isdigit() for p in parts):
+            raise ValueError(s)
+        h, m, sec, frac = parts
+        return int(h) * 3600 + int(m) * 60 + int(sec) + int(frac) / 10 ** len(frac)
+    return number(s, decimal_comma)
+
+
+def _seconds(t: np.ndarray, fps: float | None, path: str, codes: bool) -> tuple[np.ndarray, str]:
+    """Kinovea's time column in s: as written (s) unless an fps shows it is ms, µs or frames."""
+    if codes or fps is None or t.size < 3:
+        return t, "s"
+    step = float(np.median(np.diff(t)))
+    for unit, scale in _TIME_UNITS.items():
+        s = step * (scale if scale is not None else 1.0 / fps)
+        if step > 0 and abs(s * fps - 1) <= 0.02:
+            return (t * scale if scale is not None else t / fps), unit
+    raise InputError(path, f"the time column steps by {step:g} per frame, which matches "
+                           f"{fps:g} fps in none of s, ms, µs or frames")
+
+
+def _positions(xy: np.ndarray, length_unit: str | None, path: str) -> dict:
+    if not length_unit:
+        raise InputError(path, "Kinovea's export does not say its length unit: give "
+                               "--length-unit (px when it is not calibrated, or mm, cm, m)")
+    if length_unit == "px":
+        return {"xy_px": xy, "px_y_up": True}
+    return {"xy_mm": xy * length_factor(length_unit, path, "--length-unit")}
+
+
+def read_kinovea_csv(path: str, length_unit: str | None = None,
+                     fps: float | None = None) -> Tracks:
+    """Kinovea's trajectory CSV; see the module docstring for the conventions."""
+    text = read_text(path)
+    first = text.lstrip().splitlines()[0] if text.strip() else ""
+    delim = ";" if first.startswith('"Time";') else ","
+    rows = list(csv.reader(io.StringIO(text), delimiter=delim))
+    numbered = [(i + 1, r) for i, r in enumerate(rows) if any(c.strip() for c in r)]
+    header = [c.strip() for c in numbered[0][1]]
+    if not header or header[0] != "Time":
+        raise InputError(path, "a Kinovea CSV starts with the column \"Time\"", line=1)
+    names: dict[str, dict[str, int]] = {}
+    for j, h in enumerate(header[1:], 1):
+        base, _, axis = h.rpartition("/")
+        if axis not in ("X", "Y") or not base:
+            raise InputError(path, f"column {h!r} is not <track>/<point>/X or /Y", line=1)
+        names.setdefault(base, {})[axis] = j
+    for base, c in names.items():
+        if set(c) != {"X", "Y"}:
+            raise InputError(path, f"{base} has no {'Y' if 'X' in c else 'X'} column", line=1)
+    data, lines = [r for _, r in numbered[1:]], [n for n, _ in numbered[1:]]
+    if not data:
+        raise InputError(path, "no rows below the header", line=1)
+    decimal_comma = delim == ";"
+    codes = any(":" in r[0] for r in data[:5])
+    t = np.empty(len(data))
+    for i, r in enumerate(data):
+        try:
+            t[i] = _time_value(r[0], decimal_comma)
+        except ValueError:
+            raise InputError(path, f"Time {r[0]!r} is not a number or a time code",
+                             line=lines[i]) from None
+    xy = np.full((len(data), len(names), 2), np.nan)
+    for m, base in enumerate(names):
+        for a, axis in enumerate("XY"):
+            j = names[base][axis]
+            for i, r in enumerate(data):
+                try:
+                    xy[i, m, a] = number(r[j] if j < len(r) else "", decimal_comma)
+                except ValueError:
+                    raise InputError(path, f"column {header[j]}: {r[j]!r} is not a number",
+                                     line=lines[i]) from None
+    t, unit = _seconds(t, fps, path, codes)
+    # short names: the track alone when each track has one point
+    tracks = [b.split("/")[0] for b in names]
+    short = tracks if len(set(tracks)) == len(tracks) else list(names)
+    return Tracks("kinovea-csv", path, tuple(short), np.arange(t.size), t=t,
+                  meta={"time_unit": unit, "length_unit": length_unit or ""},
+                  **_positions(xy, length_unit, path))
+
+
+def read_kinovea_txt(path: str, length_unit: str | None = None,
+                     fps: float | None = None) -> Tracks:
+    """Kinovea's trajectory TXT (gnuplot style); see the module docstring."""
+    lines = read_text(path).splitlines()
+    if not lines or not lines[0].startswith("#Kinovea Trajectory data export"):
+        raise InputError(path, "not a Kinovea trajectory TXT (first line "
+                               "'#Kinovea Trajectory data export')", line=1)
+    series, name, rows = [], None, []
+
+    def close():
+        if name is not None:
+            if not rows:
+                raise InputError(path, f"track {name!r} has no rows")
+            arr = np.array([r[1] for r in rows])
+            series.append((name, np.array([r[0] for r in rows]), arr))
+
+    codes = False
+    for no, ln in enumerate(lines, 1):
+        s = ln.strip()
+        if not s or s.startswith("#T") or no == 1:
+            continue
+        if s.startswith("#"):
+            close()
+            name, rows = s[1:].strip(), []
+            continue
+        if name is None:
+            raise InputError(path, "a data row before any '# <track name>' line", line=no)
+        cells = s.split()
+        if len(cells) < 3:
+            raise InputError(path, f"expected 't x y', got {s!r}", line=no)
+        try:
+            codes = codes or ":" in cells[0]
+            rows.append((_time_value(cells[0], True), (number(cells[1], True),
+                                                        number(cells[2], True))))
+        except ValueError:
+            raise InputError(path, f"not numbers: {s!r}", line=no) from None
+    close()
+    if not series:
+        raise InputError(path, "no track section ('# <name>' and rows)")
+    names = [s[0] for s in series]
+    if len(set(names)) != len(names):
+        raise InputError(path, "two tracks share a name")
+    t, xy = merge_by_time(path, "Kinovea", series)
+    t, unit = _seconds(t, fps, path, codes)
+    return Tracks("kinovea-txt", path, tuple(names), np.arange(t.size), t=t,
+                  meta={"time_unit": unit, "length_unit": length_unit or ""},
+                  **_positions(xy, length_unit, path))

@@ -1,0 +1,319 @@
+"""What another tracker exported, before it becomes a `Recording`: `Tracks`.
+
+Each reader of a foreign format (Tracker, DLTdv, Kinovea, DeepLabCut, trackpy) returns a
+`Tracks`: one row per frame, one column per marker, positions either in the image's pixels
+or already in world millimetres (y up), time stamps when the file has them.
+`tracks_to_recording` turns it into a `Recording` in ground-frame mm: pixels through the
+caller's mapping (the vision calibration of `fit-lug track`), time from the file or from
+fps, roles from the rig, a body list or the marker names.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Callable
+
+import numpy as np
+
+from .._errors import InputError
+from ._recording import Recording
+
+if TYPE_CHECKING:
+    from ._rig import Rig
+
+# world length units -> mm
+LENGTH_UNITS = {"mm": 1.0, "cm": 10.0, "dm": 100.0, "m": 1000.0, "km": 1e6, "um": 1e-3,
+                "µm": 1e-3, "μm": 1e-3, "nm": 1e-6, "in": 25.4, "ft": 304.8, "yd": 914.4}
+# time stamps and an fps must agree to this relative tolerance
+_FPS_TOLERANCE = 0.02
+
+
+@dataclass
+class Tracks:
+    """Marker positions as another program exported them, one row per frame.
+
+    Attributes:
+        format: the format's id (see `fitlug.io.FORMATS`).
+        path: the file read.
+        markers: (M,) marker names.
+        frame: (F,) int64 frame numbers, increasing.
+        t: (F,) float64 time stamps in s, or None when the file has none (then fps is needed).
+        xy_mm: (F, M, 2) world positions in mm, y up, NaN where missing; or None.
+        xy_px: (F, M, 2) image positions in px, NaN where missing; or None.
+        px_y_up: True when xy_px's y axis points up from the image's bottom edge (DLTdv7),
+            False for the usual image convention (origin top-left, y down).
+        image_size: (width, height) px when the file says it, else None.
+        quality: (F, M) per-sample score (DeepLabCut's likelihood), or None.
+        meta: `# key: value` lines for the written trajectories.csv (where it came from).
+    """
+
+    format: str
+    path: str
+    markers: tuple[str, ...]
+    frame: np.ndarray
+    t: np.ndarray | None = None
+    xy_mm: np.ndarray | None = None
+    xy_px: np.ndarray | None = None
+    px_y_up: bool = False
+    image_size: tuple[int, int] | None = None
+    quality: np.ndarray | None = None
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.markers = tuple(str(m) for m in self.markers)
+        self.frame = np.asarray(self.frame, dtype=np.int64)
+        n, m = self.frame.shape[0], len(self.markers)
+        for name in ("xy_mm", "xy_px"):
+            value = getattr(self, name)
+            if value is not None:
+                value = np.asarray(value, dtype=np.float64)
+                if value.shape != (n, m, 2):
+                    raise ValueError(f"Tracks.{name} has shape {value.shape}, expected {(n, m, 2)}")
+                setattr(self, name, value)
+        if self.t is not None:
+            self.t = np.asarray(self.t, dtype=np.float64)
+        if self.xy_mm is None and self.xy_px is None:
+            raise ValueError("Tracks needs xy_mm or xy_px")
+
+    def with_(self, **changes) -> "Tracks":
+        return dataclasses.replace(self, **changes)
+
+
+def length_factor(unit: str, path: str, place: str) -> float:
+    """mm per `unit` (m, cm, mm, in, ...); InputError naming `place` for an unknown unit."""
+    key = unit.strip()
+    if key in LENGTH_UNITS:
+        return LENGTH_UNITS[key]
+    if key.lower() in LENGTH_UNITS:
+        return LENGTH_UNITS[key.lower()]
+    raise InputError(path, f"unknown length unit {unit!r} (known: "
+                           f"{', '.join(k for k in LENGTH_UNITS if k.isascii())})", place=place)
+
+
+# -- text helpers shared by the readers --------------------------------------------------------
+
+def number(text: str, decimal_comma: bool = False) -> float:
+    """A cell as a float: empty or NaN -> NaN; a decimal comma when `decimal_comma`.
+    Raises ValueError for text."""
+    s = text.strip().strip('"').strip()
+    if not s or s.lower() in ("nan", "-nan", "na", "null"):
+        return float("nan")
+    if decimal_comma:
+        s = s.replace(",", ".")
+    value = float(s)
+    if not np.isfinite(value):
+        raise ValueError(f"not a finite number: {text!r}")
+    return value
+
+
+def numbers_column(rows: list[list[str]], j: int, lines: list[int], path: str, name: str,
+                   decimal_comma: bool = False) -> np.ndarray:
+    """Column j of `rows` as float64 (empty -> NaN); InputError at the line of a bad cell."""
+    out = np.empty(len(rows))
+    for i, row in enumerate(rows):
+        cell = row[j] if j < len(row) else ""
+        try:
+            out[i] = number(cell, decimal_comma)
+        except ValueError:
+            raise InputError(path, f"column {name}: {cell.strip()!r} is not a number",
+                             line=lines[i]) from None
+    return out
+
+
+def read_text(path: str) -> str:
+    """The file as text (UTF-8, else Latin-1 as some Windows programs write), with a clear
+    InputError for a missing or unreadable file."""
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read()
+    except FileNotFoundError:
+        raise InputError(path, "file not found") from None
+    except IsADirectoryError:
+        raise InputError(path, "is a directory, not a file") from None
+    except OSError as exc:
+        raise InputError(path, f"cannot read file: {exc.strerror or exc}") from None
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        return data.decode("latin-1")
+
+
+# -- Tracks -> Recording ------------------------------------------------------------------------
+
+def _roles(tracks: Tracks, rig: "Rig | None", body, lug) -> list[str]:
+    from ._trajectories import _role_from_name
+
+    body = set(body or ()) | set(rig.body_markers if rig is not None else ())
+    lug = set(lug or ()) | set(rig.lug_markers if rig is not None else ())
+    unknown = sorted((body | lug) - set(tracks.markers))
+    if unknown and (body or lug):
+        raise InputError(tracks.path, f"marker {unknown[0]!r} named in the roles is not in the "
+                         f"file (markers: {', '.join(tracks.markers)})")
+    roles = []
+    for marker in tracks.markers:
+        if marker in body:
+            role = "body"
+        elif marker in lug:
+            role = "lug"
+        elif body and not lug:
+            role = "lug"  # a body list alone: every other marker is a lug
+        else:
+            role = _role_from_name(marker)
+        if role is None:
+            raise InputError(tracks.path, f"cannot tell the role of marker {marker!r}: give "
+                             f"--body NAME,... (the others are lugs) or list it under [markers] "
+                             f"in rig.toml (body markers may also be named C*, Q*, QS*, body*; "
+                             f"lug markers B*, L*, COG*, lug*)")
+        roles.append(role)
+    return roles
+
+
+def _times(tracks: Tracks, fps: float | None) -> np.ndarray:
+    if fps is not None and not (np.isfinite(fps) and fps > 0):
+        raise InputError("--fps", f"must be a number > 0, got {fps!r}")
+    if tracks.t is None:
+        if fps is None:
+            raise InputError(tracks.path, f"the {tracks.format} file has no time stamps: give "
+                             f"the frame rate (--fps, or [camera] fps in rig.toml)")
+        return (tracks.frame - tracks.frame[0]) / float(fps)
+    t = tracks.t
+    if not np.isfinite(t).all():
+        raise InputError(tracks.path, "a frame has no valid time stamp")
+    if np.any(np.diff(t) <= 0):
+        k = int(np.flatnonzero(np.diff(t) <= 0)[0])
+        raise InputError(tracks.path, f"time going backwards or repeated: frame "
+                         f"{int(tracks.frame[k + 1])} at {t[k + 1]!r} s after {t[k]!r} s")
+    if fps is not None and t.size > 2:
+        steps = np.diff(t) / np.maximum(np.diff(tracks.frame), 1)
+        data_fps = 1.0 / float(np.median(steps))
+        if abs(fps / data_fps - 1) > _FPS_TOLERANCE:
+            raise InputError(tracks.path, f"the fps {fps:g} (--fps or [camera] fps) disagrees "
+                             f"with the file's time stamps ({data_fps:.6g} frames/s)")
+    return t
+
+
+def tracks_to_recording(tracks: Tracks, *, pixels_to_mm: Callable | None = None,
+                        image_height: float | None = None, fps: float | None = None,
+                        rig: "Rig | None" = None, body=None, lug=None) -> Recording:
+    """A `Recording` in ground-frame mm from what another tracker exported.
+
+    Args:
+        tracks: a reader's output.
+        pixels_to_mm: maps (..., 2) image points (px, origin top-left, y down) to ground mm
+            (y up), e.g. a vision `Calibration`'s `pixels_to_mm` (plus its origin); when
+            given, pixels are used even where the file also has world units (Tracker).
+        image_height: image height, px, to turn pixels measured up from the bottom edge
+            (DLTdv7) into the usual convention; for a scale alone any value gives the same
+            result (the fit does not depend on where the origin is).
+        fps: frame rate, 1/s: the time when the file has none; checked against the file's
+            time stamps when it has them (2 %).
+        rig: roles from its [markers] (and its [camera] fps when `fps` is not given).
+        body, lug: marker names by role; with only `body`, every other marker is a lug.
+
+    Raises:
+        InputError: pixels without a mapping, no time and no fps, an fps that disagrees
+            with the time stamps, a marker whose role cannot be told.
+    """
+    if fps is None and rig is not None:
+        fps = rig.fps  # the time where the file has none, else checked against its stamps
+    if pixels_to_mm is not None:
+        if tracks.xy_px is None:
+            raise InputError(tracks.path, f"the {tracks.format} file holds no pixel positions: "
+                             f"--mm-per-px and --calib do not apply to it")
+        px = tracks.xy_px.copy()
+        if tracks.px_y_up:
+            px[..., 1] = (image_height or 0.0) - px[..., 1]
+        mm = np.asarray(pixels_to_mm(px), dtype=np.float64)
+        units = "px mapped to mm"
+    elif tracks.xy_mm is not None:
+        mm, units = tracks.xy_mm, "mm"
+    else:
+        raise InputError(tracks.path, f"the {tracks.format} file holds positions in pixels: "
+                         f"give their scale (--mm-per-px S) or a camera calibration (--calib "
+                         f"calib.json)")
+    t = _times(tracks, fps)
+    roles = _roles(tracks, rig, body, lug)
+    f, m = mm.shape[:2]
+    rows = np.tile(np.arange(f), m)          # marker by marker, in time order
+    cols = np.repeat(np.arange(m), f)
+    optional = {}
+    if tracks.xy_px is not None:
+        optional["x_px"] = tracks.xy_px[rows, cols, 0]
+        optional["y_px"] = tracks.xy_px[rows, cols, 1]
+    if tracks.quality is not None:
+        optional["quality"] = tracks.quality[rows, cols]
+    meta = {"source": f"{tracks.format} {os.path.basename(tracks.path)}", "units": "mm"}
+    if t.size > 1:
+        step = float(np.median(np.diff(t) / np.maximum(np.diff(tracks.frame), 1)))
+        meta["fps"] = f"{1.0 / step:.10g}"
+    meta.update(tracks.meta)
+    meta["positions"] = units
+    rec = Recording(markers=tracks.markers, roles=tuple(roles), t=t[rows],
+                    marker_index=cols.astype(np.int64), x=mm[rows, cols, 0], y=mm[rows, cols, 1],
+                    frame=tracks.frame[rows], meta=meta, path=tracks.path, **optional)
+    _warn_if_upside_down(rec, tracks.format)
+    return rec
+
+
+def upside_down_score(rec: Recording) -> float | None:
+    """Correlation between a lug marker's height and its speed along the body's travel.
+
+    On a crawler track the lugs stall on the ground (bottom) and run forward at about
+    twice the body's speed over the top, so with y up the score is near +1; near -1 the
+    y axis points down (a flipped image convention). None without body and lug markers
+    or without travel."""
+    body, lug = rec.select("body"), rec.select("lug")
+    if body.size == 0 or lug.size == 0:
+        return None
+    ok = body[np.isfinite(rec.x[body])]
+    if ok.size < 2:
+        return None
+    first, last = ok[np.argmin(rec.t[ok])], ok[np.argmax(rec.t[ok])]
+    travel = rec.x[last] - rec.x[first]
+    if not np.isfinite(travel) or travel == 0:
+        return None
+    heights, speeds = [], []
+    for k in rec.markers_of("lug"):
+        i = np.flatnonzero((rec.marker_index == k) & rec.valid)
+        if i.size < 3:
+            continue
+        i = i[np.argsort(rec.t[i])]
+        heights.append(rec.y[i][1:])
+        speeds.append(np.sign(travel) * np.diff(rec.x[i]) / np.diff(rec.t[i]))
+    if not heights:
+        return None
+    h, v = np.concatenate(heights), np.concatenate(speeds)
+    if h.size < 10 or np.std(h) == 0 or np.std(v) == 0:
+        return None
+    return float(np.corrcoef(h, v)[0, 1])
+
+
+def _warn_if_upside_down(rec: Recording, fmt: str) -> None:
+    score = upside_down_score(rec)
+    if score is not None and score < -0.5:
+        import warnings
+
+        warnings.warn(f"{rec.path}: the lug markers run fastest at the bottom of their path "
+                      f"(height-speed correlation {score:.2f}): the y axis of this {fmt} file "
+                      f"looks upside down (fitlug wants y up; check --y-origin, the "
+                      f"format's pixel origin or --length-unit px)", stacklevel=3)
+
+
+def merge_by_time(path: str, fmt: str, series: list[tuple[str, np.ndarray, np.ndarray]],
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """One table from per-marker (name, t (K,), xy (K, 2)) series: the sorted union of their
+    time stamps (equal to 1e-9 s) and (F, M, 2) positions, NaN where a marker has no sample."""
+    all_t = np.concatenate([s[1] for s in series]) if series else np.zeros(0)
+    if all_t.size == 0:
+        raise InputError(path, f"no samples in the {fmt} file")
+    keys = np.round(all_t, 9)
+    times = np.unique(keys)
+    xy = np.full((times.size, len(series), 2), np.nan)
+    for k, (name, t, v) in enumerate(series):
+        idx = np.searchsorted(times, np.round(t, 9))
+        if np.unique(idx).size != idx.size:
+            raise InputError(path, f"marker {name!r} has two samples at one time stamp")
+        xy[idx, k] = v
+    return times, xy
