@@ -47,7 +47,7 @@ def _coverage_one(args):
 
     if limit:  # pulls up to ~0.86 F_max at cruise on both grounds (issue 32)
         k, grounds = LIMIT_K, LIMIT_GROUNDS
-        runs = limit_runs(n_rec, grounds=grounds, k=k, masses=(1.5,))
+        runs = limit_runs(n_rec, grounds=grounds, masses=(1.5,))
     else:
         k, grounds = K, GROUNDS
         runs = default_runs(n_rec)

@@ -35,9 +35,9 @@ def _pull_for(s0, ground):
     return F0 - MASS * gr["C_rr"] * G
 
 
-# (name, ground, steady slip): the issue's three loads, and one light run per ground
-RUNS = [Run("c_light", MASS, _pull_for(0.05, "concrete"), "concrete"),
-        Run("c_017", MASS, _pull_for(0.172, "concrete"), "concrete"),
+# the issue's three loads, and a light run on the second ground (two recordings a ground:
+# each ground's C_rr and F_max, and its recordings testable against the others)
+RUNS = [Run("c_017", MASS, _pull_for(0.172, "concrete"), "concrete"),
         Run("c_027", MASS, _pull_for(0.268, "concrete"), "concrete"),
         Run("s_light", MASS, _pull_for(0.08, "sand"), "sand"),
         Run("s_040", MASS, _pull_for(0.396, "sand"), "sand")]
@@ -63,7 +63,7 @@ def test_a_ramp_past_the_friction_limit_is_refused():
 
 
 def test_the_limit_campaign_reaches_the_limit_without_spinning():
-    runs = limit_runs(8, grounds=LIMIT_GROUNDS, k=LIMIT_K, masses=(MASS,))
+    runs = limit_runs(8, grounds=LIMIT_GROUNDS, masses=(MASS,))
     scen = campaign_scenarios(runs, k=LIMIT_K, grounds=LIMIT_GROUNDS, law="janosi_hanamoto",
                               base=SMALL_BASE)
     ratios = {}
@@ -77,7 +77,10 @@ def test_the_limit_campaign_reaches_the_limit_without_spinning():
         assert max(r) > 0.8 and min(r) < 0.35, (g, r)
 
 
+@pytest.mark.slow
 def test_a_campaign_at_the_friction_limit(tmp_path):
+    """Four recordings explained in full (~2 CPU minutes): fails on the code before issue
+    32 (c_027 and s_040 came out `unexplained`, and were flagged)."""
     from fitlug.campaign import campaign
 
     data = tmp_path / "data"
