@@ -18,7 +18,7 @@
    the noise sigma of each role.
 4. limit (not in the default set): lug_sliding up to the friction limit (issue 32): the
    light track of fitlug.sim LIMIT_* (k 0.0524 N/mm, F_max 5 N, 1.5 kg) pulled to steady
-   slips 0.06 .. 0.40 (F0/F_max 0.27 .. 0.83, ramps to 0.88), short recordings (4 s at
+   slips 0.06 .. 0.40 (F0/F_max 0.28 .. 0.88; the last one's acceleration ramp peaks at 0.97 F_max), short recordings (4 s at
    60 fps); per load and seed the verdict, whether lug_sliding alone is named, chi^2/dof
    and (truth - estimate)/std of s_K, k, C_rr and the slip.
 """
