@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._errors import FitlugError
 from ..model import CATALOG
 from ._candidates import physical, screen, sliding_starts
 from ._detect import ALPHA, Detection, detect
@@ -283,7 +284,10 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
         extra = extra + eng.free_names(best)
         theta, r, chi2 = out.theta, out.r, out.chi2
         if not out.converged:  # the search's fit stopped short: finish it exactly
-            th_p = polished_theta(res, eng, accepted, theta)
+            try:
+                th_p = polished_theta(res, eng, accepted, theta)
+            except FitlugError:  # the search's own fit stands
+                th_p = theta
             r_p = eng.residuals(th_p)[0]
             if float(r_p @ r_p) < chi2:
                 theta, r, chi2 = th_p, r_p, float(r_p @ r_p)
