@@ -15,7 +15,11 @@ Coverage: --n campaigns whose per-recording points are drawn from the law
 (fitlug.sim.simulate_points: each point's error the size of one short recording's fit),
 NOT from simulated recordings (that would take hours); each is fitted by the campaign model
 (law choice, flags, emcee) and we count how often the 95 % interval of k holds the truth
-(target 90-98 %). Parallel over campaigns with --workers processes (spawn).
+(target 90-98 %), of C_rr's and (sliding law) F_max's per ground, and how many recordings
+are flagged wrongly; each law twice: the default campaign far from the friction limit, and
+fitlug.sim's limit campaign (LIMIT_K, LIMIT_GROUNDS, limit_runs: pulls to ~0.86 F_max at
+cruise, ramps to 0.97, two grounds; issue 32). Parallel over campaigns with --workers
+processes (spawn).
 """
 
 from __future__ import annotations
@@ -36,31 +40,44 @@ GROUNDS = {"concrete": {"C_rr": 0.06, "F_max": 50.0}, "sand": {"C_rr": 0.15, "F_
 
 
 def _coverage_one(args):
-    seed, law, n_rec = args
+    seed, law, n_rec, limit = args
     from fitlug.campaign import fit_points
-    from fitlug.sim._campaign import default_runs, simulate_points
+    from fitlug.sim._campaign import (LIMIT_GROUNDS, LIMIT_K, default_runs, limit_runs,
+                                      simulate_points)
 
-    runs = default_runs(n_rec)
-    pts = simulate_points(runs, k=K, grounds=GROUNDS, law=law, seed=seed)
+    if limit:  # pulls up to ~0.86 F_max at cruise on both grounds (issue 32)
+        k, grounds = LIMIT_K, LIMIT_GROUNDS
+        runs = limit_runs(n_rec, grounds=grounds, masses=(1.5,))
+    else:
+        k, grounds = K, GROUNDS
+        runs = default_runs(n_rec)
+    pts = simulate_points(runs, k=k, grounds=grounds, law=law, seed=seed)
     res = fit_points(pts, seed=seed)
     lo, hi = res.stiffness["ci95"]
     crr = res.rolling_resistance
-    c_in = all(crr[g]["ci95"][0] <= GROUNDS[g]["C_rr"] <= crr[g]["ci95"][1] for g in crr)
-    return {"k_in": lo <= K <= hi, "crr_in": c_in, "law_ok": res.law == law,
-            "flagged": len(res.flagged), "z": (res.stiffness["value"] - K) / res.stiffness["std"]}
+    c_in = all(crr[g]["ci95"][0] <= grounds[g]["C_rr"] <= crr[g]["ci95"][1] for g in crr)
+    fm = res.F_max or {}
+    f_in = (all(fm[g]["ci95"][0] <= grounds[g]["F_max"] <= fm[g]["ci95"][1] for g in fm)
+            if fm else None)
+    return {"k_in": lo <= k <= hi, "crr_in": c_in, "fmax_in": f_in, "law_ok": res.law == law,
+            "flagged": len(res.flagged), "n_rec": len(pts),
+            "z": (res.stiffness["value"] - k) / res.stiffness["std"]}
 
 
-def coverage(n: int, law: str, n_rec: int, workers: int) -> dict:
-    jobs = [(1000 + i, law, n_rec) for i in range(n)]
+def coverage(n: int, law: str, n_rec: int, workers: int, limit: bool = False) -> dict:
+    jobs = [(1000 + i, law, n_rec, limit) for i in range(n)]
     if workers > 1:
         with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as ex:
             out = list(ex.map(_coverage_one, jobs))
     else:
         out = [_coverage_one(j) for j in jobs]
+    fin = [o["fmax_in"] for o in out if o["fmax_in"] is not None]
     return {"n": n, "k_coverage": sum(o["k_in"] for o in out) / n,
             "crr_coverage": sum(o["crr_in"] for o in out) / n,
+            "fmax_coverage": (sum(fin) / len(fin)) if fin else None,
             "law_named": sum(o["law_ok"] for o in out) / n,
             "false_flags": sum(o["flagged"] for o in out),
+            "flag_rate": sum(o["flagged"] for o in out) / sum(o["n_rec"] for o in out),
             "z_sd": float(__import__("numpy").std([o["z"] for o in out]))}
 
 
@@ -121,12 +138,18 @@ def main() -> None:
     if not a.skip_coverage:
         laws = ("linear", "janosi_hanamoto") if a.law == "both" else (a.law,)
         for law in laws:
-            t = time.perf_counter()
-            c = coverage(a.n, law, 8, a.workers)
-            print(f"coverage ({law}, {c['n']} campaigns of 8 simulated points): k 95 % band "
-                  f"{100 * c['k_coverage']:.0f} %, C_rr bands {100 * c['crr_coverage']:.0f} %, "
-                  f"law named {100 * c['law_named']:.0f} %, false flags {c['false_flags']}, "
-                  f"sd of (k - truth)/std {c['z_sd']:.2f}  ({time.perf_counter() - t:.0f} s)")
+            for limit in (False, True):
+                t = time.perf_counter()
+                c = coverage(a.n, law, 8, a.workers, limit)
+                fm = ("" if c["fmax_coverage"] is None else
+                      f"F_max bands {100 * c['fmax_coverage']:.0f} %, ")
+                where = "to 0.86 F_max" if limit else "far from F_max"
+                print(f"coverage ({law}, {where}, {c['n']} campaigns of 8 simulated points): "
+                      f"k 95 % band {100 * c['k_coverage']:.0f} %, C_rr bands "
+                      f"{100 * c['crr_coverage']:.0f} %, {fm}law named "
+                      f"{100 * c['law_named']:.0f} %, recordings flagged wrongly "
+                      f"{c['false_flags']} ({100 * c['flag_rate']:.1f} %), sd of (k - truth)/std "
+                      f"{c['z_sd']:.2f}  ({time.perf_counter() - t:.0f} s)")
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """How well and how fast fitlug.explain finds left-out physics. Prints figures; asserts nothing.
 
-    python benchmarks/bench_explain.py [--part speed,far,ladder] [--clean 20]
+    python benchmarks/bench_explain.py [--part speed,far,ladder,limit] [--clean 20]
         [--seeds 4] [--effects lug_ripple,...] [--out results.json]
 
 1. speed: wall and CPU time of explain() on a 650-frame recording with a hidden lug
@@ -16,6 +16,11 @@
    stops at the first rung found >= 90 % of the time. The amplitude in units of the
    noise is the RMS over all samples of the effect's noise-free displacement divided by
    the noise sigma of each role.
+4. limit (not in the default set): lug_sliding up to the friction limit (issue 32): the
+   light track of fitlug.sim LIMIT_* (k 0.0524 N/mm, F_max 5 N, 1.5 kg) pulled to steady
+   slips 0.06 .. 0.40 (F0/F_max 0.28 .. 0.88; the last one's acceleration ramp peaks at 0.97 F_max), short recordings (4 s at
+   60 fps); per load and seed the verdict, whether lug_sliding alone is named, chi^2/dof
+   and (truth - estimate)/std of s_K, k, C_rr and the slip.
 """
 
 from __future__ import annotations
@@ -184,6 +189,54 @@ def part_ladder(out, effects, seeds, rungs=RUNGS):
     out["ladder"] = {"seeds_per_rung": seeds, "rungs": list(rungs), "effects": res_all}
 
 
+LIMIT_SLIPS = (0.061, 0.109, 0.172, 0.268, 0.396)
+
+
+def part_limit(out, seeds):
+    from fitlug.sim._campaign import LIMIT_K, SMALL_BASE
+
+    n, L, m, crr, F_max = 8, 127.0, 1.5, 0.06, 5.0
+    s_K = 2 * F_max / (LIMIT_K * n * L)
+    base = SMALL_BASE.replace(duration_s=4.0, fps=60.0, travel_mm=400.0, ramp_s=0.8)
+    rows = []
+    print("limit: s0  F0/Fmax seed verdict named chi2/dof  z(s_K) z(k) z(C_rr) z(slip)  s")
+    for s0 in LIMIT_SLIPS:
+        F0 = F_max * (1 - math.exp(-s0 / s_K))
+        for seed in range(seeds):
+            sc = base.replace(mass_kg=m, rolling_resistance=crr, drawbar_pull_N=F0 - m * crr * 9.81,
+                              slip=2 * F0 / (LIMIT_K * n * L),
+                              effects={"lug_sliding": {"slide_mu": 1 / s_K}})
+            rec, tr = simulate(sc, seed=100 + seed)
+            t0 = time.perf_counter()
+            ex = explain(fit(rec, rig_of(sc)))
+            dt = time.perf_counter() - t0
+            doc = ex.to_json()
+            q = ex.final.quantities
+
+            def z(est, want):
+                return (est.value - want) / est.std if est is not None and est.std else None
+
+            zs = None
+            for e in doc["effects"]:
+                if e["id"] == "lug_sliding" and e["params_std"]:
+                    zs = (e["params"]["s_K"] - s_K) / e["params_std"]["s_K"]
+            row = {"s0": s0, "F0_over_Fmax": F0 / F_max, "seed": seed, "verdict": ex.verdict,
+                   "named": ex.effects, "chi2_per_dof": float(ex.final.chi2_per_dof),
+                   "z_sK": zs, "z_k": z(q["stiffness_N_per_mm"], LIMIT_K),
+                   "z_crr": z(q["rolling_resistance"], crr), "z_slip": z(q["slip"], tr["slip"]),
+                   "seconds": dt}
+            rows.append(row)
+            f = lambda v: "   -  " if v is None else f"{v:6.2f}"  # noqa: E731
+            print(f"  {s0:.3f} {F0 / F_max:.2f} {seed} {ex.verdict:11s} {','.join(ex.effects):24s}"
+                  f" {row['chi2_per_dof']:7.2f} {f(zs)} {f(row['z_k'])} {f(row['z_crr'])}"
+                  f" {f(row['z_slip'])} {dt:5.0f}", flush=True)
+    ok = [r for r in rows if r["verdict"] == "explained" and r["named"] == ["lug_sliding"]
+          and all(v is not None and abs(v) <= 3 for v in
+                  (r["z_sK"], r["z_k"], r["z_crr"], r["z_slip"]))]
+    print(f"limit: {len(ok)}/{len(rows)} explained by lug_sliding alone, all four covered (3 sd)")
+    out["limit"] = rows
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--part", default="speed,far,ladder")
@@ -204,6 +257,8 @@ def main(argv=None) -> int:
     if "ladder" in parts:
         part_ladder(out, args.effects.split(","), args.seeds,
                     tuple(float(r) for r in args.rungs.split(",")))
+    if "limit" in parts:
+        part_limit(out, args.seeds)
     if args.out:
         with open(args.out, "w") as fh:
             json.dump(out, fh, indent=1, default=float)

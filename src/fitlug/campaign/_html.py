@@ -168,11 +168,11 @@ def write_campaign_html(result, doc: dict, out: str) -> str:
                      _fmt(r.drawbar_pull_N, 4),
                      f"{_fmt(t.get('value'), 4)} &plusmn; {_fmt(t.get('std'), 2)}",
                      f"{_fmt(s.get('value'), 5)} &plusmn; {_fmt(s.get('std'), 2)}",
-                     _fmt(r.p_value, 3), st, html.escape(r.status),
+                     _fmt(r.p_value, 3), st, _verdict(e), html.escape(r.status),
                      _fmt(r.seconds, 3)])
     parts += ["<h2>Recordings</h2>",
               _table(["recording", "ground", "mass (kg)", "pull (N)", "traction (N)", "slip",
-                      "p (consistency)", "consistent", "fit", "seconds"], rows),
+                      "p (consistency)", "consistent", "own fit", "fit", "seconds"], rows),
               f"<p class='small'>Consistency: {html.escape(doc['consistency']['test'])}; "
               f"flagged when p &lt; {_fmt(result.alpha)}/N = "
               f"{_fmt(doc['consistency']['threshold'], 3)}.</p>"]
@@ -194,3 +194,15 @@ def write_campaign_html(result, doc: dict, out: str) -> str:
     path = os.path.join(out, "campaign.html")
     write_text_atomic(path, "\n".join(parts))
     return path
+
+
+def _verdict(e: dict) -> str:
+    """The recording's own explanation: its verdict and the effects named (issue 32: an
+    `unexplained` recording is shown as such, its point read with care)."""
+    v = e.get("verdict")
+    if v is None:
+        return "-"
+    named = ", ".join(e.get("effects") or [])
+    text = html.escape(v + (f": {named}" if named else ""))
+    return f"<span class='bad'>{text}</span>" if v == "unexplained" else text
+

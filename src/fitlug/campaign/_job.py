@@ -46,9 +46,10 @@ def provenance(csv_path, rig, options: dict) -> dict:
             "fitlug_version": __version__, "command": f"fit-lug campaign ({opts})"}
 
 
-def point_of_fit(res, name: str) -> dict:
+def point_of_fit(res, name: str, verdict: str | None = None) -> dict:
     """The campaign point of a fitted recording: steady slip and local slope ds/da with
-    their covariance (least-squares, delta method), under its final model."""
+    their covariance (least-squares, delta method), under its final model; `verdict`: its
+    explanation's ('none', 'explained', 'unexplained'; None without one)."""
     rig = res.problem.rig
     lay = res.problem.lay
     sl = res.packing.slices()
@@ -82,7 +83,8 @@ def point_of_fit(res, name: str) -> dict:
     return {"name": name, "slip": float(y[0]), "slope": float(y[1]), "cov": cov.tolist(),
             "mass_kg": rig.mass_kg, "drawbar_pull_N": float(rig.drawbar_pull_N),
             "ground": rig.ground, "n": int(lay.n_contact), "L": float(lay.L),
-            "effects": list(res.effects), "chi2_per_dof": float(res.chi2_per_dof)}
+            "effects": list(res.effects), "chi2_per_dof": float(res.chi2_per_dof),
+            "verdict": verdict}
 
 
 def fit_recording(csv_path: str, out_dir: str, *, rig_path: str | None = None, name=None,
@@ -121,7 +123,8 @@ def fit_recording(csv_path: str, out_dir: str, *, rig_path: str | None = None, n
         doc, final, post, expl = _fit_full(recording, rig, csv_path, seed=seed,
                                            explain=explain, mcmc=mcmc,
                                            mcmc_budget=mcmc_budget)
-        point = point_of_fit(final, name)
+        verdict = (doc.get("discrepancy") or {}).get("verdict")
+        point = point_of_fit(final, name, verdict)
         doc["provenance"] = prov
         doc["campaign_point"] = point
         os.makedirs(out_dir, exist_ok=True)

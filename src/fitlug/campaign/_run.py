@@ -119,6 +119,7 @@ class CampaignResult:
                 e["slope_per_mm_s2"] = {"value": r.point["slope"],
                                         "std": _num(math.sqrt(max(cov[1, 1], 0)))}
                 e["effects"] = r.point.get("effects")
+                e["verdict"] = r.point.get("verdict")
             recs.append(e)
         fl, fj = self.fits.get("linear"), self.fits.get("janosi_hanamoto")
         chosen = self.fits[self.law]
@@ -503,7 +504,12 @@ def _flag_reason(o, fit, samples, names, d, alpha, N) -> str:
     k_own = 2.0 * o.mass_kg / (1000.0 * p["slope"] * d.nL)
     own = ""
     c = p.get("chi2_per_dof")
-    if c is not None and c > 3:
+    if p.get("verdict") == "unexplained":
+        own = (f"; its own fit is unexplained (chi2/dof {c:.3g} under "
+               f"{', '.join(p.get('effects') or []) or 'the base model'}): the misfit left in "
+               "that recording may bias its point -- read its report before taking it for "
+               "another track")
+    elif c is not None and c > 3:
         own = (f"; its own fit is poor (chi2/dof {c:.3g} under "
                f"{', '.join(p.get('effects') or []) or 'the base model'}): a misfit the "
                "explanation left in that recording biases its point")

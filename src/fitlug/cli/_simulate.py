@@ -161,7 +161,7 @@ _OPTION_OF = {"slip": "--slip", "duration_s": "--duration", "fps": "--fps"}
 
 def _run_campaign(args) -> int:
     from .._errors import InputError
-    from ..sim._campaign import default_runs, simulate_campaign
+    from ..sim._campaign import default_runs, limit_runs, simulate_campaign
 
     names = [g.strip() for g in args.grounds.split(",") if g.strip()]
     if not names or args.runs < 2:
@@ -169,7 +169,10 @@ def _run_campaign(args) -> int:
     crr = [0.06, 0.15, 0.10, 0.20]
     fmax = [50.0, 45.0, 55.0, 40.0]
     grounds = {g: {"C_rr": crr[i % 4], "F_max": fmax[i % 4]} for i, g in enumerate(names)}
-    runs = default_runs(args.runs, grounds=tuple(names))
+    # the sliding law's campaign reaches the friction limit (issue 32): pulls to 0.9 F_max
+    # at cruise, the ramps below 0.97 F_max
+    runs = (limit_runs(args.runs, grounds=grounds, k=args.k) if args.law == "janosi_hanamoto" else
+            default_runs(args.runs, grounds=tuple(names)))
     truth = simulate_campaign(args.campaign, runs=runs, k=args.k, grounds=grounds,
                               law=args.law, seed=args.seed)
     say(args, f"wrote {len(runs)} recordings into {args.campaign} ({args.law} law, "

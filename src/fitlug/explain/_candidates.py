@@ -13,6 +13,16 @@ whose derivative vanishes at identity are scanned on a small grid instead:
 - ground_sinkage: z for u_s on a grid (3 to 120 mm);
 - lens_distortion: k1 for centres on a 5 x 3 grid over the field of view;
 - frame_drop: dt for t* at every frame (the residual jump), by cumulative sums.
+
+The Gauss-Newton step of lug_sliding is taken at the linear law (mu = 0), where its
+column is the curvature s_lin^2 / 2: near the friction limit (F0/F_max of 0.5 and more)
+the law is far from that and the step lands at a fraction of the true mu, with the linear
+law's s0 and beta, which the sliding law must move by tens of percent. Its fit then starts
+from the best of :func:`sliding_starts` as well: a grid over z0 = F0/F_max that keeps the
+steady slip and its slope ds/da of the current fit (what the data fixed) and puts the
+curvature in the law; each grid point is judged after one step of the engine's fit (the
+belt coordinates and the speed spline follow the law by millimetres, so the raw chi^2 of
+a grid point says little).
 """
 
 from __future__ import annotations
@@ -199,6 +209,34 @@ def _screen_frame_drop(engine, theta, r, U, geo, gn_start):
     start = engine.with_values(start, {"drop_dt": float(beta[0])})
     return Screened("frame_drop", float(np.sum((Cp @ beta) ** 2)), start, th, f"t*={t_star:.4f} s",
                     {"t_star_s": t_star, "jump_score": jump})
+
+
+#: the grid of F0/F_max of :func:`sliding_starts`
+SLIDING_Z0_GRID = (0.15, 0.35, 0.55, 0.7, 0.8, 0.88, 0.94)
+
+
+def sliding_starts(engine, theta) -> list:
+    """Starting vectors of lug_sliding at F0/F_max = z0 on SLIDING_Z0_GRID, from a fit
+    `theta` without it (slide_mu = 0 there, or the law's current value).
+
+    Each keeps the steady slip S and the slope B = ds/da of `theta`'s slip law: with
+    z0 = mu s0_lin, S = -ln(1 - z0) / mu and B = beta_lin / (1 - z0), so
+    mu = -ln(1 - z0) / S, s0_lin = z0 / mu and beta_lin = B (1 - z0). Vectors whose ramps
+    take the traction to F_max come out with huge chi^2 and lose."""
+    s0 = engine.get(theta, "s0")
+    beta = engine.get(theta, "beta")
+    mu0 = engine.get(theta, "slide_mu")
+    z = mu0 * s0
+    if not (0 <= z < 1) or s0 <= 0:
+        return []
+    S = s0 if z == 0 else -math.log1p(-z) / mu0  # steady slip of the current law
+    B = beta / (1.0 - z)
+    out = []
+    for z0 in SLIDING_Z0_GRID:
+        mu = -math.log1p(-z0) / S
+        out.append(engine.with_values(theta, {"slide_mu": mu, "s0": z0 / mu,
+                                              "beta": B * (1.0 - z0)}))
+    return out
 
 
 def physical(eid: str, p: dict) -> str | None:

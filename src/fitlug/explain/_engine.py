@@ -414,7 +414,8 @@ class Engine:
         return RowChunks(flat, fixed, lay, self.obs, self.cur_packing)
 
     def _base_problem(self, theta):
-        flat = jnp.asarray(theta[self.cur_idx])
+        flat = self._tangent_law(np.asarray(theta[self.cur_idx], float), theta)
+        flat = jnp.asarray(flat)
         fixed = {k: jnp.asarray(self.get(theta, k), float) for k in self.cur_fixed_names}
         lay = self.res.problem.lay
         maps = [c for e, c in CATALOG.items()
@@ -426,6 +427,29 @@ class Engine:
                 lt, bt = c.time_map(p, lt), c.time_map(p, bt)
             lay = lay.with_times(lt, lay.lug_i, bt, lay.body_j)
         return flat, fixed, lay
+
+    def _tangent_law(self, flat, theta):
+        """The starting model's linear slip law put on the tangent of an added lug_sliding
+        at the steady state (s0 -> S, beta -> B = beta / (1 - z0), z0 = mu s0): its
+        columns of the speed spline (and of everything whose change moves the slip
+        through the acceleration) then carry the slope ds/da the all-effects model has
+        there. Left at the law's own s0 and beta they are 1 - z0 of it, a factor 4 at
+        F0/F_max = 0.75, and the fit crawls (issue 32). s0 and beta's own columns are the
+        all-effects model's differences anyway (COUPLED)."""
+        if "lug_sliding" in self.res.effects or "slide_mu" not in self.slices:
+            return flat
+        mu = self.get(theta, "slide_mu")
+        pos = self.cur_positions
+        if mu == 0 or "s0" not in pos or "beta" not in pos:
+            return flat
+        s0, beta = flat[pos["s0"]], flat[pos["beta"]]
+        z = mu * s0
+        if not 0 < z < 1:
+            return flat
+        out = flat.copy()
+        out[pos["s0"]] = -np.log1p(-z) / mu
+        out[pos["beta"]] = beta / (1.0 - z)
+        return out
 
     @property
     def lanes(self) -> int:

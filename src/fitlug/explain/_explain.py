@@ -39,11 +39,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._errors import FitlugError
 from ..model import CATALOG
-from ._candidates import physical, screen
+from ._candidates import physical, screen, sliding_starts
 from ._detect import ALPHA, Detection, detect
 from ._engine import Engine
-from ._final import final_fit
+from ._final import final_fit, polished_theta
 from ._locate import Location, locate, residual_map, spectrum_summary
 from ._robust import nuisance_result, robust_result
 from ._systematics import tracker_systematics
@@ -54,6 +55,7 @@ MIN_SHARE_REMOVED = 0.3
 STRONG_MISFIT_Z = 10.0
 MAX_FITS_PER_ROUND = 4
 MAX_EFFECTS = 4
+SLIDING_GRID_STEPS = 4
 
 
 @dataclass
@@ -281,6 +283,15 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
         accepted.append(best)
         extra = extra + eng.free_names(best)
         theta, r, chi2 = out.theta, out.r, out.chi2
+        if not out.converged:  # the search's fit stopped short: finish it exactly
+            try:
+                th_p = polished_theta(res, eng, accepted, theta)
+            except FitlugError:  # the search's own fit stands
+                th_p = theta
+            r_p = eng.residuals(th_p)[0]
+            if float(r_p @ r_p) < chi2:
+                theta, r, chi2 = th_p, r_p, float(r_p @ r_p)
+                steps[-1].chi2_per_dof_after = chi2 / (N - k_cur)
         if bar:
             bar.update(1)
         det_cur = detect(geo, r, N - k_cur, sigma_estimated=sig_est, alpha=alpha)
@@ -340,7 +351,8 @@ def _method(res) -> str:
 
 
 def _start(eng, scr, chi2_cur, names):
-    """The best of: the screening's Gauss-Newton step, its effect part alone, half of that.
+    """The best of: the screening's Gauss-Newton step, its effect part alone, half of that
+    (and, for lug_sliding, the grid of :func:`._candidates.sliding_starts`).
 
     A large nonlinear effect can make the linear step overshoot; the fit then starts
     from whichever of these is lowest in chi^2.
@@ -351,9 +363,17 @@ def _start(eng, scr, chi2_cur, names):
     th_half = eng.with_values(cur, {k: 0.5 * (eng.get(th_gn, k) + eng.get(cur, k))
                                     for k in names})
     cands = np.array([th_gn, th_eff, th_half])
-    R = eng.residuals(cands)
-    c2 = np.einsum("ij,ij->i", R, R)
-    return cands[int(np.nanargmin(np.where(np.isfinite(c2), c2, np.inf)))]
+    c2, k, _ = eng.chi2_best(cands)  # one batch of residual vectors in memory at a time
+    best, best_c2 = cands[k], c2[k]
+    if scr.effect == "lug_sliding":
+        # the grid over F0/F_max (issue 32): each point after SLIDING_GRID_STEPS steps of
+        # the fit (the first moves the belt coordinates by millimetres, the next ones
+        # settle the law; after one step the order of the grid points is still wrong)
+        for th in sliding_starts(eng, cur):
+            out = eng.fit(th, names, max_iter=SLIDING_GRID_STEPS)
+            if np.isfinite(out.chi2) and out.chi2 < best_c2:
+                best, best_c2 = out.theta, out.chi2
+    return best
 
 
 def _backward(eng, accepted, steps, theta, chi2, lnN):

@@ -90,3 +90,28 @@ def final_fit(res, eng, accepted, theta) -> FitResult:
                 abs(new[k] / old[k] - 1.0) > NOISE_REFIT_TOL for k in new):
             final = _polish(reweighted(final.problem, new), final.params, free)
     return final
+
+
+def polished_theta(res, eng, accepted, theta) -> np.ndarray:
+    """Engine vector of `res`'s model plus the `accepted` effects fitted to the end with the
+    exact Jacobian (the project's Levenberg-Marquardt, fitlug.fit.fit_problem, the noise
+    per role held at the base fit's): for a step of the search whose fit stopped before its
+    minimum. The engine's Jacobian leaves out an added effect's change of the base columns;
+    near the friction limit lug_sliding changes the speed spline's slip columns several
+    times over and the search's fit crawls (issue 32), leaving a misfit that later rounds
+    would take for another effect. Undamped Gauss-Newton (:func:`_polish`) does not serve
+    there: from F0/F_max = 0.76 with mu 20 % short, no fraction of its first step lowers
+    chi^2."""
+    prob = res.problem
+    effects = tuple(res.effects) + tuple(accepted)
+    p_all = eng.params(theta)
+    prob_f, p = prob.with_effects(effects, p_all)
+    p = {k: np.asarray(p_all[k]) if k in p_all else np.asarray(v) for k, v in p.items()}
+    free = free_parameters(prob_f.lay)
+    if "body_bounce" in effects and prob.lay.n_body < 2:
+        free = [k for k in free if k != "bounce_B"]
+    from ..fit import fit_problem
+
+    out = fit_problem(prob_f, p, free=free, require_convergence=False)
+    return eng.with_values(theta, {k: v for k, v in out.params.items() if k in eng.slices})
+

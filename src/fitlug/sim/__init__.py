@@ -10,10 +10,13 @@ from ._simulate import (
     write_simulation as write_simulation,
 )
 from ._campaign import (
+    LIMIT_GROUNDS as LIMIT_GROUNDS,
+    LIMIT_K as LIMIT_K,
     Run as Run,
     campaign_scenarios as campaign_scenarios,
     law_slip as law_slip,
     law_slope as law_slope,
+    limit_runs as limit_runs,
     simulate_campaign as simulate_campaign,
     simulate_points as simulate_points,
 )

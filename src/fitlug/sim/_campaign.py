@@ -20,6 +20,7 @@ import numpy as np
 
 from ..io import write_json
 from ..model._physics import G
+from ._profile import speed_profile
 from ._scenario import Scenario
 
 LAWS = ("linear", "janosi_hanamoto")
@@ -119,6 +120,50 @@ def default_runs(n_runs: int = 8, *, grounds=("concrete", "sand"), pulls=None,
         i += 1
     return runs
 
+
+def limit_runs(n_runs: int, *, grounds: dict, masses=(8.0, 10.0),
+               base: Scenario | None = None, top: float = 0.9,
+               peak: float = 0.97, k: float | None = None,
+               max_slip: float = 0.5) -> list[Run]:
+    """A drawbar-pull campaign that reaches the friction limit (issue 32): on each ground
+    the pulls spread the steady traction F0 from no pull up to `top` x F_max, each lowered
+    where needed so that the acceleration ramp's traction F0 + m a_max / 1000 stays below
+    `peak` x F_max (the track must not spin: Scenario.check refuses that). `grounds`:
+    name -> {"C_rr", "F_max"}; `base`: the recordings' scenario (its speed profile). With
+    the track's `k`, the top pull is lowered further where the steady slip would pass
+    `max_slip` (a stiff track's law at 0.9 F_max slips by 0.9)."""
+    base = base or SMALL_BASE
+    names = list(grounds)
+    per = max(n_runs // len(names), 2)
+    runs = []
+    for gi, g in enumerate(names):
+        gr = grounds[g]
+        for j in range(per):
+            if len(runs) >= n_runs:
+                break
+            m = float(masses[j % len(masses)])
+            F_roll = m * gr["C_rr"] * G
+            sc = base.replace(mass_kg=m, rolling_resistance=gr["C_rr"])
+            t = np.linspace(0.0, sc.duration_s, 2001)
+            a_max = float(np.max(speed_profile(t, v_cruise=sc.v_cruise, duration=sc.duration_s,
+                                               rest=sc.rest_s, ramp=sc.ramp_s,
+                                               shape=sc.ramp)[1]))
+            F_top = min(top * gr["F_max"], peak * gr["F_max"] - m * a_max / 1000.0)
+            if k is not None:
+                s_K = 2.0 * gr["F_max"] / (k * base.n_contact * base.L_mm)
+                F_top = min(F_top, gr["F_max"] * -np.expm1(-max_slip / s_K))
+            F0 = F_roll + (F_top - F_roll) * j / (per - 1)
+            F_d = max(F0 - F_roll, 0.0)
+            runs.append(Run(name=f"r{len(runs) + 1:02d}_{g}_{F_d:.3g}N", mass_kg=m,
+                            drawbar_pull_N=round(F_d, 4), ground=g))
+    return runs
+
+
+#: the issue-32 campaign: a light track (k 0.0524 N/mm) on two grounds whose friction
+#: limit a pull of a few newtons reaches (use with `limit_runs`, masses ~1.5 kg)
+LIMIT_K = 0.0524
+LIMIT_GROUNDS = {"concrete": {"C_rr": 0.06, "F_max": 5.0},
+                 "sand": {"C_rr": 0.1, "F_max": 6.0}}
 
 DEFAULT_GROUNDS = {"concrete": {"C_rr": 0.06, "F_max": 50.0},
                    "sand": {"C_rr": 0.15, "F_max": 45.0}}

@@ -6,6 +6,8 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from .._reference import REFERENCE_SLIP as REFERENCE_SLIP
 
 
@@ -161,6 +163,28 @@ class Scenario:
                                      f"{', '.join(CATALOG[eid].defaults)}")
                 if _finite(v) is None:
                     raise ValueError(f"effects: {eid} {k} must be a finite number, got {v!r}")
+        peak = self.peak_friction_ratio()
+        if peak is not None and peak >= 1.0:
+            raise ValueError(
+                f"effects: lug_sliding slide_mu {self.effects['lug_sliding']['slide_mu']:g} "
+                f"puts the traction at {peak:.3g} x F_max during the acceleration ramp "
+                f"(steady {self.slip * float(self.effects['lug_sliding']['slide_mu']):.3g}); "
+                "the track would spin: lower the pull, the mass or the acceleration")
+
+    def peak_friction_ratio(self) -> float | None:
+        """max over the recording of F(t)/F_max under lug_sliding (None without it): the
+        traction F = m (a/1000 + C_rr g) + F_d peaks in the acceleration ramp; its ratio to
+        F_max is slide_mu times the linear law's slip s0 + beta a (MODEL.md §3)."""
+        mu = _finite((self.effects.get("lug_sliding") or {}).get("slide_mu", 0.0)) \
+            if isinstance(self.effects, dict) else None
+        if not mu:
+            return None
+        from ._profile import speed_profile
+
+        t = np.linspace(0.0, self.duration_s, 4001)
+        _, a = speed_profile(t, v_cruise=self.v_cruise, duration=self.duration_s,
+                             rest=self.rest_s, ramp=self.ramp_s, shape=self.ramp)
+        return float(mu * (self.slip + self.beta * np.max(a)))
 
 
 def _finite(value) -> float | None:
