@@ -50,7 +50,11 @@ class TrackerConfig:
     qs_iter: Levenberg-Marquardt steps per frame; watch_frames: frames for which the place
     a closed track's marker would be is searched (a small region detection each frame), so
     that a marker lost behind an occluder or to a bad sample is picked up again (under a
-    new id) without waiting for the next whole-frame search.
+    new id) without waiting for the next whole-frame search; scan_every: frames between
+    cheap scans of the whole frame (a quarter-size copy) for bright spots that no track
+    follows - markers coming into view anywhere: across an edge, round a wheel, from behind
+    an occluder, or in a recording that starts with nothing in view (0: never);
+    scan_checks: the most spots checked (a region detection each) per scan.
     """
 
     kinds: tuple = (COG, QS)
@@ -59,13 +63,15 @@ class TrackerConfig:
     qs_half: float | None = None
     min_contrast: float = 0.0
     redetect_every: int = 200
-    edge_every: int = 1
+    edge_every: int = 0
     max_gap: int = 8
     max_step: float = 30.0
     min_quality: float = 0.5
     min_length: int = 5
     qs_iter: int = 1
     watch_frames: int = 40
+    scan_every: int = 2
+    scan_checks: int = 4
 
 
 class Tracker:
@@ -83,6 +89,8 @@ class Tracker:
         self.qs_half = self.config.qs_half
         self._n = 0
         self._watch: list = []  # (closed track, last frame to search for its marker)
+        self._checked: list = []  # (box px, last frame to leave it alone): spots of the
+        # scan where nothing was found
 
     # -- helpers ---------------------------------------------------------------------------
     def _detect(self, frame, roi=None, kinds=None, scale=1, known=None, refine=True):
@@ -140,6 +148,8 @@ class Tracker:
                 self._pick_up_lost(frame, frame_no)
             if cfg.edge_every and self._n % cfg.edge_every == 0:
                 self._pick_up_at_edges(frame, frame_no)
+            if cfg.scan_every and self._n % cfg.scan_every == 0:
+                self._pick_up_anywhere(frame, frame_no)
         self._n += 1
 
     def _cog_quality(self, t, area, radius, shear):
@@ -404,6 +414,8 @@ class Tracker:
                 near = d <= reach
                 if near.any():
                     sel = np.flatnonzero(near)
+                    if sel.size == 1 and self._reopen(t, det, int(sel[0]), frame_no):
+                        continue  # the same marker, back: its track goes on
                     det = Detections(det.xy[sel], det.kind[sel], det.size[sel], det.contrast[sel],
                                      {k_: v[np.flatnonzero(near[det.kind == QS])]
                                       for k_, v in det.extra.items()})
@@ -411,6 +423,32 @@ class Tracker:
             if len(self.tracks) == n_before:
                 keep.append((t, until))
         self._watch = keep
+
+    def _reopen(self, t, det, j, frame_no):
+        """Give a closed track its marker back when the tracker can tell it is the same:
+        a body marker (QS: rigid with the body, few and far apart), the one checker found
+        near its prediction, with the same contrast (sign and size within 25 %), and no
+        other closed checker predicted near it. Lug markers are many, alike and close
+        together: a lug marker seen again gets a new track (the fit joins fragments)."""
+        if t.kind != QS or det.kind[j] != QS or t.params is None:
+            return False
+        c = float(det.contrast[j])
+        if c * t.contrast <= 0 or abs(c / t.contrast - 1.0) > 0.25:
+            return False
+        x, y = det.xy[j]
+        for o, until in self._watch:
+            if o is not t and o.kind == QS and frame_no <= until:
+                (px, py), _ = o.predict(frame_no)
+                if math.hypot(px - x, py - y) < 4.0 * o.size:
+                    return False
+        row = int(np.flatnonzero(det.kind[:j + 1] == QS).size - 1)
+        t.add(frame_no, (x, y), score(c / t.contrast - 1.0, self._qs_contrast_tol(t)))
+        t.params = np.array(det.extra["qs_params"][row], dtype=np.float64)
+        t.contrast = c
+        t.rms = None  # (its residual's reference: learnt afresh, as a new track's)
+        t.alive = True
+        self._live.append(t)
+        return True
 
     def _pick_up_at_edges(self, frame, frame_no):
         """Markers come into view across the frame's edges: search the strips along them
@@ -436,6 +474,71 @@ class Tracker:
             roi = (max(x0 - pad, 0), max(y0 - pad, 0), min(x1 + pad, w), min(y1 + pad, h))
             self._add_new(self._detect(frame, roi=roi, scale=self._search_scale(),
                                        known=self._known(frame_no)), frame_no)
+
+    def _pick_up_anywhere(self, frame, frame_no):
+        """Markers coming into view anywhere (`_scan.bright_spots`): the spots that stand
+        out where no live track's marker is (nor a closed track's, which `_pick_up_lost`
+        looks for), each checked by a region detection. A place where nothing was found
+        is left alone until the next scan, and for 4 scans once the same spot (unmoved,
+        away from the picture's edges) was found empty 4 times in a row: a marker coming
+        into view is half hidden for a few frames (it moves: checked at every scan), and
+        something bright that is not a marker and stays put must not cost a detection at
+        every scan."""
+        from ._scan import bright_spots
+
+        cfg = self.config
+        sizes = [r for r in (self.cog_radius, self.qs_half) if r is not None]
+        size = max(sizes) if sizes else None
+        self._checked = [c for c in self._checked if c[1] >= frame_no - 2 * cfg.scan_every]
+        # (each: region px, last frame to leave it alone, times found empty, spot px)
+        masked = [c[0] for c in self._checked if c[1] >= frame_no]
+        for t in self._live:
+            x, y = t.xs[-1], t.ys[-1]
+            if t.frames[-1] != frame_no:
+                (x, y), _ = t.predict(frame_no)
+            # (round a disc: its dark lug, twice its radius, and the background between
+            # two lugs, which stands out of the dark discs either side as a spot would)
+            r = (4.0 if t.kind == COG else 2.0) * t.size + 3.0
+            masked.append((x - r, y - r, x + r, y + r))
+        for t, until in self._watch:
+            if frame_no <= until:
+                (x, y), unc = t.predict(frame_no)
+                r = 2.0 * t.size + 3.0 + min(3.0 * (unc or cfg.max_step), cfg.max_step)
+                masked.append((x - r, y - r, x + r, y + r))
+        # (a threshold of 5 x the noise - single pixels are looked at - and never under
+        # 12 grey levels: a marker's bright part stands out by a hundred or more)
+        thresh = max(5.0 * self.noise, 12.0, 0.25 * cfg.min_contrast)
+        pad = 48.0 if size is None else 2.5 * size + 6.0
+        # (the opening's square: larger than a disc 1.3 x the known radius across, or a
+        # checker's quarter; 32 px while no marker is known)
+        span = 32.0 if size is None else 2.6 * max(self.cog_radius or 0.0, self.qs_half or 0.0)
+        spots = bright_spots(frame, thresh, masked, max_spots=cfg.scan_checks, spot_px=pad,
+                             size_px=span)
+        h, w = frame.shape
+        for x, y in spots:
+            n_before = len(self.tracks)
+            roi = (x - pad, y - pad, x + pad + 1, y + pad + 1)
+            det = self._detect(frame, roi=roi, known=self._known(frame_no))
+            if len(det) and self.cog_radius is not None:
+                # a disc still partly hidden (by an edge, a plate) measures smaller: its
+                # centre would be off (a disc 16 % smaller: 0.6 px); it is taken a frame
+                # or two later, whole
+                whole = (det.kind != COG) | (det.size >= 0.9 * self.cog_radius)
+                if not whole.all():
+                    sel = np.flatnonzero(whole)
+                    det = Detections(det.xy[sel], det.kind[sel], det.size[sel],
+                                     det.contrast[sel], det.extra)  # (QS rows all kept)
+            self._add_new(det, frame_no)
+            if len(self.tracks) == n_before:
+                # found empty before at the same place (to the quarter-size pixel): a thing
+                # that stays put; one that moved, a marker coming in, is checked every scan
+                # (at the picture's edges every scan: a lug marker laid on the ground there
+                # creeps in with the slip, a fraction of a pixel a frame)
+                fails = 1 + max((n for _, _, n, (x0, y0) in self._checked
+                                 if abs(x - x0) < 2.0 and abs(y - y0) < 2.0), default=0)
+                edge = min(x, y, w - 1 - x, h - 1 - y) < pad
+                wait = 1 if fails < 4 or edge else 4 * cfg.scan_every
+                self._checked.append((roi, frame_no + wait, fails, (x, y)))
 
     def _add_new(self, det, frame_no):
         """Start a track for each detection that no live track is following."""
