@@ -159,13 +159,22 @@ def render_video(out_dir: str | os.PathLike, t, markers: Sequence[str], roles: S
 
 
 def render_recording(out_dir: str | os.PathLike, scenario, *, seed: int = 0,
-                     frames: int | None = None, progress: bool = True, **kwargs) -> dict:
+                     frames: int | None = None, progress: bool = True,
+                     window_mm: float | None = None, window_at: float | None = None,
+                     lens_k1: float | None = None, **kwargs) -> dict:
     """Render a simulated recording (`fitlug.sim.Scenario`) as camera frames.
 
     The markers are drawn at their noise-free positions (the camera adds its own noise);
     lug markers as COG discs, body markers as QS checkers. frames: render only the first
-    N frames. Other keyword arguments go to `render_video` (mm_per_px, image_size,
-    origin_mm, camera, options). Returns what `render_video` returns.
+    N frames. A drive-through (the robot entering, crossing and leaving a fixed picture):
+    window_mm, the ground width the picture spans, mm (mm per px = window_mm / image
+    width; default 0.39 mm/px); window_at, where the picture's centre sits along the
+    travel: 0 where the markers' centre is at the first frame, 1 where it is at the last
+    (default: the picture centred on every position the markers take); lens_k1: the radial
+    distortion rendered in (focal length 1.225 x the image width; 0: none; default: the
+    mild barrel of `default_camera`). Other keyword arguments go to `render_video`
+    (mm_per_px, image_size, origin_mm, camera, options). Returns what `render_video`
+    returns. Raises ValueError for a window or position out of range.
     """
     from ..sim import simulate
 
@@ -174,11 +183,31 @@ def render_recording(out_dir: str | os.PathLike, scenario, *, seed: int = 0,
     if frames is not None:
         if frames < 1:
             raise ValueError(f"frames must be at least 1, got {frames}")
-        t = t[:frames]
     xy = np.full((t.size, rec.n_markers, 2), np.nan)
     row = np.searchsorted(t, rec.t)
-    keep = (row < t.size) & (t[np.minimum(row, t.size - 1)] == rec.t)
-    xy[row[keep], rec.marker_index[keep], 0] = rec.x[keep]
-    xy[row[keep], rec.marker_index[keep], 1] = rec.y[keep]
+    xy[row, rec.marker_index, 0] = rec.x
+    xy[row, rec.marker_index, 1] = rec.y
+    w, h = (int(v) for v in kwargs.pop("image_size", (1632, 1200)))
+    if window_mm is not None:
+        if not (np.isfinite(window_mm) and window_mm > 0):
+            raise ValueError(f"window_mm must be a positive number of mm, got {window_mm!r}")
+        kwargs["mm_per_px"] = float(window_mm) / w
+    s = float(kwargs.get("mm_per_px", 0.39))
+    if lens_k1 is not None and "camera" not in kwargs:
+        kwargs["camera"] = default_camera(s, (w, h), focal_px=1.225 * w,
+                                          dist_coeffs=None if lens_k1 == 0 else
+                                          (float(lens_k1), 0.0, 0.0, 0.0, 0.0))
+    if window_at is not None and "origin_mm" not in kwargs:
+        if not (np.isfinite(window_at) and -1.0 <= window_at <= 2.0):
+            raise ValueError(f"window_at must be between -1 and 2, got {window_at!r}")
+        centre = np.nanmean(xy, axis=1)  # (F, 2): the markers' centre, frame by frame
+        ok = np.isfinite(centre).all(axis=1)
+        c0, c1 = centre[ok][0], centre[ok][-1]
+        lo, hi = np.nanmin(xy[..., 1]), np.nanmax(xy[..., 1])
+        cx = c0[0] + window_at * (c1[0] - c0[0])
+        kwargs["origin_mm"] = (float(np.round(cx - 0.5 * w * s, 3)),
+                               float(np.round(0.5 * (lo + hi) - 0.5 * h * s, 3)))
+    if frames is not None:
+        t, xy = t[:frames], xy[:frames]
     return render_video(out_dir, t, list(rec.markers), list(rec.roles), xy, seed=seed,
-                        progress=progress, **kwargs)
+                        progress=progress, image_size=(w, h), **kwargs)

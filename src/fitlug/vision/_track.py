@@ -89,6 +89,7 @@ class Tracker:
         self.qs_half = self.config.qs_half
         self._n = 0
         self._watch: list = []  # (closed track, last frame to search for its marker)
+        self._radii: list = []  # radii of the discs of confirmed tracks
         self._checked: list = []  # (box px, last frame to leave it alone): spots of the
         # scan where nothing was found
 
@@ -156,7 +157,11 @@ class Tracker:
         """How much a COG sample looks like the track's marker: a partly hidden or merged
         disc changes its area (flux over interior level, whatever the lighting), its width
         across the blur or its shape (traceless second moments, px²)."""
-        if t.area is None:
+        if t.area is None or len(t.frames) < 3:
+            # (the references come from the 2nd and 3rd samples: the first two are refined
+            # with a round aperture, the speed and the streak unknown; the third with the
+            # streak's - on a disc streaking 2 px its area and width differ by 3 %, which
+            # failed every new track of a marker coming into view at speed)
             return 1.0
         # tolerances ~8x the scatter on clean frames of big discs (0.08 %, 0.07 %,
         # 0.015 px²): a disc that lost 0.6 % of its area at the rim has moved ~0.04 px and
@@ -280,7 +285,17 @@ class Tracker:
         if len(det) == 0:
             return
         if t.kind == COG:
-            fit = refine_cog(frame, det.xy, t.size, blur_px=self._blur(t)[0], n_iter=3)
+            # (the aperture and lighting slope of the track's other samples, as
+            # `_refine_cog` takes them: a disc streaking 2 px measures ~1.5 % wider through
+            # a round aperture than through the streak's, and a sample so measured failed
+            # the checks against references taken the other way - a track that missed one
+            # frame lost the next ones too)
+            length, direction = self._blur(t)
+            n = det.xy.shape[0]
+            fit = refine_cog(frame, det.xy, t.size, blur_px=length,
+                             blur_dir=None if direction is None else np.tile(direction, (n, 1)),
+                             gain_slope=None if t.slope is None else np.tile(t.slope, (n, 1)),
+                             n_iter=3)
             good = np.flatnonzero(np.isfinite(fit.xy[:, 0])
                                   & (fit.contrast > max(8.0 * self.noise, cfg.min_contrast)))
             if good.size == 0:
@@ -343,9 +358,21 @@ class Tracker:
             t.qs.append(float(q))
             t.misses = 0
             if len(t.frames) >= cfg.min_length:
+                if not t.confirmed and t.kind == COG and cfg.cog_radius is None \
+                        and t.radius is not None:
+                    # the disc size the searches use: from the followed discs, not from the
+                    # first one found (which may have been coming into view, half hidden)
+                    self._radii.append(t.radius)
+                    self.cog_radius = float(np.median(self._radii[-16:]))
+                if not t.confirmed and t.kind == COG and t.radius is not None \
+                        and t.first_size < 0.9 * t.radius and t.frames[1] == t.frames[0] + 1:
+                    # its first sample was of a disc still coming into view (found before
+                    # the size of the discs was known): its centre is off
+                    for a in (t.frames, t.xs, t.ys, t.qs):
+                        a.pop(0)
                 t.confirmed = True
             if t.kind == COG:
-                if t.area is None:
+                if t.area is None or len(t.frames) == 3:
                     t.area, t.radius, t.shear, t.slope = extra
                 else:  # (ema, written out)
                     t.area = 0.8 * t.area + 0.2 * extra[0]
@@ -498,16 +525,18 @@ class Tracker:
                 (x, y), _ = t.predict(frame_no)
             # (round a disc: its dark lug, twice its radius, and the background between
             # two lugs, which stands out of the dark discs either side as a spot would)
-            r = (4.0 if t.kind == COG else 2.0) * t.size + 3.0
+            # (a lug's neighbour, 1.5 lugs away along the belt, stays clear of it)
+            r = (3.0 if t.kind == COG else 2.0) * t.size + 3.0
             masked.append((x - r, y - r, x + r, y + r))
         for t, until in self._watch:
-            if frame_no <= until:
+            if frame_no <= until:  # (where `_pick_up_lost` looks for it anyway)
                 (x, y), unc = t.predict(frame_no)
-                r = 2.0 * t.size + 3.0 + min(3.0 * (unc or cfg.max_step), cfg.max_step)
+                r = 2.0 * t.size + 3.0
                 masked.append((x - r, y - r, x + r, y + r))
-        # (a threshold of 5 x the noise - single pixels are looked at - and never under
-        # 12 grey levels: a marker's bright part stands out by a hundred or more)
-        thresh = max(5.0 * self.noise, 12.0, 0.25 * cfg.min_contrast)
+        # (a threshold of 8 x the noise, as a detection's - single pixels are looked at,
+        # and the opening leaves the noise's peaks standing ~1.5 x the noise high - and
+        # never under 16 grey levels: a marker's bright part stands out by a hundred)
+        thresh = max(8.0 * self.noise, 16.0, 0.25 * cfg.min_contrast)
         pad = 48.0 if size is None else 2.5 * size + 6.0
         # (the opening's square: larger than a disc 1.3 x the known radius across, or a
         # checker's quarter; 32 px while no marker is known)
@@ -518,17 +547,7 @@ class Tracker:
         for x, y in spots:
             n_before = len(self.tracks)
             roi = (x - pad, y - pad, x + pad + 1, y + pad + 1)
-            det = self._detect(frame, roi=roi, known=self._known(frame_no))
-            if len(det) and self.cog_radius is not None:
-                # a disc still partly hidden (by an edge, a plate) measures smaller: its
-                # centre would be off (a disc 16 % smaller: 0.6 px); it is taken a frame
-                # or two later, whole
-                whole = (det.kind != COG) | (det.size >= 0.9 * self.cog_radius)
-                if not whole.all():
-                    sel = np.flatnonzero(whole)
-                    det = Detections(det.xy[sel], det.kind[sel], det.size[sel],
-                                     det.contrast[sel], det.extra)  # (QS rows all kept)
-            self._add_new(det, frame_no)
+            self._add_new(self._detect(frame, roi=roi, known=self._known(frame_no)), frame_no)
             if len(self.tracks) == n_before:
                 # found empty before at the same place (to the quarter-size pixel): a thing
                 # that stays put; one that moved, a marker coming in, is checked every scan
@@ -547,6 +566,12 @@ class Tracker:
         qs_rows = np.cumsum(det.kind == QS) - 1
         live = list(self._live)
         for j in range(len(det)):
+            if det.kind[j] == COG and self.cog_radius is not None \
+                    and not det.size[j] >= 0.9 * self.cog_radius:
+                # a disc still partly hidden (by an edge, a plate, a post) measures smaller
+                # and its centre is off (16 % smaller: 0.6 px): it is taken a frame or two
+                # later, whole
+                continue
             near = False
             for t in live:
                 if t.kind != det.kind[j]:
