@@ -7,13 +7,16 @@ looks like the marker it follows - COG: area (flux over interior level, which li
 does not change), width and shape; QS: fit residual and contrast - and lies near the
 prediction; else the frame is a gap (a partly hidden, merged or cut-off marker gives no
 position rather than a wrong one). A track that misses is searched for around its
-prediction for `max_gap` frames (a region detection), then closed: a marker seen again
-later gets a new id, never an old one. New markers: a whole-frame search on the first
-frame and every `redetect_every` frames, a cheap search along the frame's edges every
-`edge_every` frames for markers coming into view, and for `watch_frames` frames a region
-search where the marker of a closed track would be (back from behind an occluder, or
-after samples that failed the checks); a detection on a live track's marker is not a
-new marker.
+prediction for `max_gap` frames (a region detection), then closed: a lug marker seen
+again later gets a new id; a body marker (a checker) found again near its closed track's
+prediction with the same contrast gets its track back. New markers: a whole-frame search
+on the first frame and every `redetect_every` frames; a cheap scan of the whole frame
+every `scan_every` frames for bright spots that no track follows (`_scan`: markers coming
+into view anywhere - across an edge, round a wheel, from behind an occluder, after an
+empty start), each checked by a region detection; optionally a search along the frame's
+edges every `edge_every` frames; and for `watch_frames` frames a region search where the
+marker of a closed track would be (back from behind an occluder, or after samples that
+failed the checks); a detection on a live track's marker is not a new marker.
 
 The checks scale with the noise: a small disc (8-10 px across) in a noisy frame (sigma 4
 grey levels) scatters in area and width several times more than the fixed tolerances
@@ -43,7 +46,8 @@ class TrackerConfig:
     cog_radius / qs_half: disc radius and half checker side if known (else measured on
     detection); min_contrast: least marker contrast, grey levels (default: from the noise);
     redetect_every: frames between full-frame searches for new markers; edge_every: frames
-    between searches along the frame's edges for markers coming into view (0: never);
+    between searches along the frame's edges for markers coming into view (0: never, the
+    default: the scan below covers them);
     max_gap: frames a lost marker is searched for before its track is closed; max_step:
     the farthest a marker may move between two frames before its speed is known;
     min_quality: samples below it are gaps; min_length: shorter tracks are dropped;
@@ -285,16 +289,15 @@ class Tracker:
         if len(det) == 0:
             return
         if t.kind == COG:
-            # (the aperture and lighting slope of the track's other samples, as
-            # `_refine_cog` takes them: a disc streaking 2 px measures ~1.5 % wider through
-            # a round aperture than through the streak's, and a sample so measured failed
-            # the checks against references taken the other way - a track that missed one
-            # frame lost the next ones too)
+            # (the aperture of the track's other samples, as `_refine_cog` takes them: a
+            # disc streaking 2 px measures ~1.5 % wider through a round aperture than
+            # through the streak's, and a sample so measured failed the checks against
+            # references taken the other way - a track that missed one frame lost the
+            # next ones too)
             length, direction = self._blur(t)
             n = det.xy.shape[0]
             fit = refine_cog(frame, det.xy, t.size, blur_px=length,
                              blur_dir=None if direction is None else np.tile(direction, (n, 1)),
-                             gain_slope=None if t.slope is None else np.tile(t.slope, (n, 1)),
                              n_iter=3)
             good = np.flatnonzero(np.isfinite(fit.xy[:, 0])
                                   & (fit.contrast > max(8.0 * self.noise, cfg.min_contrast)))
