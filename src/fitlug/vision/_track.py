@@ -162,11 +162,7 @@ class Tracker(PickUp):
         """How much a COG sample looks like the track's marker: a partly hidden or merged
         disc changes its area (flux over interior level, whatever the lighting), its width
         across the blur or its shape (traceless second moments, px²)."""
-        if t.area is None or len(t.frames) < 3:
-            # (the references come from the 2nd and 3rd samples: the first two are refined
-            # with a round aperture, the speed and the streak unknown; the third with the
-            # streak's - on a disc streaking 2 px its area and width differ by 3 %, which
-            # failed every new track of a marker coming into view at speed)
+        if t.area is None:
             return 1.0
         # tolerances ~8x the scatter on clean frames of big discs (0.08 %, 0.07 %,
         # 0.015 px²): a disc that lost 0.6 % of its area at the rim has moved ~0.04 px and
@@ -176,8 +172,11 @@ class Tracker(PickUp):
         # noise 2-4): the tolerances never go below 3.5 times 1.3, 1.1 and 1.6 that.
         rel = self.noise / max(t.contrast * t.radius, 1e-9)
         # the references of a young track rest on a few samples, the first of them taken
-        # with a round aperture before the blur's direction was known: wider tolerances
-        young = 1.0 if t.confirmed else 3.0
+        # with a round aperture before the blur's direction was known: wider tolerances;
+        # those of a marker coming into view at speed were taken through apertures that
+        # differ by its streak (a streak of 2 px: 3 % in area and width, seen on
+        # drive-throughs): wider still by the streak
+        young = 1.0 if t.confirmed else 3.0 + self._blur(t)[0] - 0.25
         ds = math.hypot(shear[0] - t.shear[0], shear[1] - t.shear[1])
         return min(score(area / t.area - 1, young * max(0.006, 3.5 * 1.3 * rel)),
                    score(radius / t.radius - 1, young * max(0.005, 3.5 * 1.1 * rel)),
@@ -376,7 +375,7 @@ class Tracker(PickUp):
                         a.pop(0)
                 t.confirmed = True
             if t.kind == COG:
-                if t.area is None or len(t.frames) == 3:
+                if t.area is None:
                     t.area, t.radius, t.shear, t.slope = extra
                 else:  # (ema, written out)
                     t.area = 0.8 * t.area + 0.2 * extra[0]
