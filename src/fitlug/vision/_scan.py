@@ -48,8 +48,10 @@ def bright_spots(frame: np.ndarray, threshold: float, masked=(), max_spots: int 
         c, d = int(x1) // SHRINK + 1, int(y1) // SHRINK + 1
         if c > 0 and d > 0:
             top[b:d, a:c] = 0
-    over = top > (threshold if top.dtype != np.uint8 else min(int(threshold), 254))
-    pts = cv2.findNonZero(over.view(np.uint8))
+    thr = threshold if top.dtype != np.uint8 else min(int(threshold), 254)
+    if cv2.minMaxLoc(top)[1] <= thr:  # (the usual case: nothing new; listing costs more)
+        return np.zeros((0, 2))
+    pts = cv2.findNonZero((top > thr).view(np.uint8))
     if pts is None:
         return np.zeros((0, 2))
     pts = pts.reshape(-1, 2)
