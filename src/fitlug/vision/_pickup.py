@@ -15,6 +15,7 @@ import math
 import numpy as np
 
 from ._detect import COG, QS, Detections
+from ._scan import bright_spots
 from ._trackstate import score
 
 
@@ -142,8 +143,6 @@ class PickUp:
         into view is half hidden for a few frames (it moves: checked at every scan), and
         something bright that is not a marker and stays put must not cost a detection at
         every scan."""
-        from ._scan import bright_spots
-
         cfg = self.config
         sizes = [r for r in (self.cog_radius, self.qs_half) if r is not None]
         size = max(sizes) if sizes else None

@@ -51,7 +51,8 @@ def bright_spots(frame: np.ndarray, threshold: float, masked=(), max_spots: int 
     thr = threshold if top.dtype != np.uint8 else min(int(threshold), 254)
     if cv2.minMaxLoc(top)[1] <= thr:  # (the usual case: nothing new; listing costs more)
         return np.zeros((0, 2))
-    pts = cv2.findNonZero((top > thr).view(np.uint8))
+    over = top > thr
+    pts = cv2.findNonZero(over.view(np.uint8))
     if pts is None:
         return np.zeros((0, 2))
     pts = pts.reshape(-1, 2)
@@ -59,9 +60,18 @@ def bright_spots(frame: np.ndarray, threshold: float, masked=(), max_spots: int 
     order = np.argsort(vals, kind="stable")[::-1]
     pts = pts[order].astype(np.float64)
     near = spot_px / SHRINK
+    # a bright line across the spot's window (a strip of background between a dark bar
+    # and the picture's edge, or between two dark things) is no marker: a marker's bright
+    # part is at most k - 1 samples across
+    m = k
+    qh, qw = over.shape
     out = []
     while pts.shape[0] and len(out) < max_spots:
         p = pts[0]
-        out.append(p)
+        x, y = int(p[0]), int(p[1])
+        col = over[max(y - m, 0):y + m + 1, x]
+        row = over[y, max(x - m, 0):x + m + 1]
+        if col.sum() < min(2 * m, col.size) and row.sum() < min(2 * m, row.size):
+            out.append(p)
         pts = pts[np.abs(pts - p).max(axis=1) > near]
-    return np.asarray(out) * SHRINK + 0.5 * (SHRINK - 1)
+    return np.asarray(out).reshape(-1, 2) * SHRINK + 0.5 * (SHRINK - 1)
