@@ -143,3 +143,24 @@ def test_bright_spots_finds_a_disc_and_ignores_dark_bars():
     assert np.hypot(*(spots[0] - [200.3, 120.6])) < 4.0
     # masked: nothing reported there
     assert bright_spots(img, 32.0, masked=[(180, 100, 220, 140)], size_px=16.0).shape == (0, 2)
+
+
+def test_simulate_renders_a_drive_through_window(tmp_path, capsys):
+    import json
+
+    from fitlug.cli import main
+
+    video = tmp_path / "video"
+    assert main(["simulate", str(tmp_path / "sim"), "--video", str(video), "--image-size",
+                 "160x120", "--window-mm", "300", "--window-at", "0.5", "--lens-k1", "0",
+                 "--frames", "3", "-q"]) == 0
+    cal = json.loads((video / "calib.json").read_text())
+    assert cal["mm_per_px"] == pytest.approx(300.0 / 160)
+    assert cal["dist_coeffs"] is None and cal["image_size"] == [160, 120]
+    # the picture sits mid-travel: the robot, at rest at its start, is out of view
+    rows = [r.split(",") for r in (video / "truth_px.csv").read_text().splitlines()
+            if r and not r.startswith(("#", "frame"))]
+    assert len(rows) > 0 and all(r[-1] == "0" for r in rows)
+    assert main(["simulate", str(tmp_path / "bad"), "--video", str(video), "--window-mm",
+                 "-3"]) != 0
+    assert "--window-mm" in capsys.readouterr().err
