@@ -241,6 +241,9 @@ def measure_qs_half(img, xy, angle, half_guess, noise):
 def ring_like(img, px, py):
     """Bilinear grey levels at points (px, py) of any shape; NaN outside the image."""
     h, w = img.shape
+    bad = ~(np.isfinite(px) & np.isfinite(py))
+    if bad.any():  # (NaN centres: off the picture, without a cast warning)
+        px, py = np.where(bad, -2.0, px), np.where(bad, -2.0, py)
     x0, y0 = np.floor(px).astype(np.int64), np.floor(py).astype(np.int64)
     fx, fy = px - x0, py - y0
     ok = (x0 >= 0) & (y0 >= 0) & (x0 < w - 1) & (y0 < h - 1)
