@@ -146,7 +146,7 @@ def fit_video(i, sc, seed, res, cam, origin, k1, args, out_root):
         out["effects"] = ",".join(e["id"] for e in d.get("effects") or []) or "-"
         s = doc.get("slip") or {}
         if s.get("value") is not None:
-            out["slip"] = f"{s['value']:.5f}+-{s.get('std') or float('nan'):.5f}"
+            out["slip"] = f"{s['value']:.6f}+-{s.get('std') or float('nan'):.2g}"
             if s.get("std"):
                 out["dev_sigma"] = abs(s["value"] - truth["slip"]) / s["std"]
         else:
