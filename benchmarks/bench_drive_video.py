@@ -2,7 +2,7 @@
 
 Each video is a simulated recording of the reference model (`fitlug.sim`, its travel
 lengthened so that the robot is outside the picture for a while at the start and the end)
-rendered in memory (`fitlug.vision.recording_scene` + `render_frames`: the renderer behind
+rendered in memory (`fitlug.vision._render_video.recording_scene` + `render_frames`: the renderer behind
 `fit-lug simulate --video`) through a window 300-637 mm wide placed along the travel,
 at 100-250 frames/s, with and without lens distortion rendered in. The frames go through
 `fitlug.vision.track` (the library function behind `fit-lug track`); against the renderer's
