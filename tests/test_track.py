@@ -121,7 +121,8 @@ def test_a_small_marker_appearing_mid_picture_is_picked_up_by_the_periodic_searc
     # small markers (8 px discs, 10 px checkers, noise 4): the whole-frame search for new
     # markers runs on a half-size frame once their sizes are known; a disc that appears in
     # the middle of the picture (neither at an edge nor where a track was lost) is found
-    # by it and followed from then on
+    # by it and followed from then on (the scan for bright spots, which would find it at
+    # once, is off here)
     f = 36
     t = np.arange(f)
     px = np.full((f, 4, 2), np.nan)
@@ -132,7 +133,7 @@ def test_a_small_marker_appearing_mid_picture_is_picked_up_by_the_periodic_searc
     opt = OPT.replace(noise_sigma=4.0, cog_diameter_mm=8 * S, lug_diameter_mm=16 * S,
                       qs_size_mm=10 * S)
     images, truth, visible = _clip(px, ["lug", "lug", "body", "lug"], opt=opt, seed=3)
-    cfg = TrackerConfig(redetect_every=10, edge_every=0, watch_frames=0)
+    cfg = TrackerConfig(redetect_every=10, edge_every=0, watch_frames=0, scan_every=0)
     res = track(images, fps=100, config=cfg)
     owner = _match(res, truth, tol=0.1)
     assert sorted(owner) == [0, 1, 2, 3]

@@ -103,6 +103,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-truth", action="store_true", help="do not write truth.json")
     p.add_argument("--video", metavar="VIDEO_DIR", help="also render the camera frames there")
     p.add_argument("--frames", type=int, help="with --video: render only the first N frames")
+    p.add_argument("--image-size", metavar="WxH", default="1632x1200",
+                   help="with --video: the picture's size in px (default 1632x1200)")
+    p.add_argument("--window-mm", type=float, metavar="MM",
+                   help="with --video: the ground width the picture spans, mm (mm per px = "
+                        "MM / width; default 0.39 mm/px, 637 mm at 1632 px); with a window "
+                        "shorter than the travel the robot drives through the picture")
+    p.add_argument("--window-at", type=float, metavar="F",
+                   help="with --video: where the picture's centre sits along the travel: 0 "
+                        "at the markers' start position, 1 at their end position (default: "
+                        "the picture centred on all the markers' positions)")
+    p.add_argument("--lens-k1", type=float, metavar="K",
+                   help="with --video: radial lens distortion rendered in (0: none; default "
+                        "-0.02 with a focal length of 2000 px); calib.json carries it")
     p.add_argument("-q", "--quiet", action="store_true")
 
 
@@ -153,6 +166,26 @@ def _check_options(args) -> None:
             raise InputError(option, f"must be a number {bounds}, got {value!r}")
     if args.frames is not None and args.frames < 1:
         raise InputError("--frames", f"must be >= 1, got {args.frames}")
+    for option, value, lo, hi in (("--window-mm", args.window_mm, 1.0, 1e5),
+                                  ("--window-at", args.window_at, -1.0, 2.0),
+                                  ("--lens-k1", args.lens_k1, -1.0, 1.0)):
+        if value is not None and not (math.isfinite(value) and lo <= value <= hi):
+            raise InputError(option, f"must be a number from {lo:g} to {hi:g}, got {value!r}")
+    image_size(args.image_size)
+
+
+def image_size(text: str) -> tuple[int, int]:
+    """'WxH' -> (W, H) px; raises InputError unless both are integers >= 32."""
+    from .._errors import InputError
+
+    w, sep, h = str(text).lower().partition("x")
+    try:
+        size = (int(w), int(h))
+    except ValueError:
+        size = None
+    if not sep or size is None or min(size) < 32:
+        raise InputError("--image-size", f"must be WxH with whole numbers >= 32, got {text!r}")
+    return size
 
 
 # Scenario field -> the option that sets it
@@ -237,6 +270,8 @@ def run(args) -> int:
         from ..vision import render_recording
 
         render_recording(args.video, sc, seed=args.seed, frames=args.frames,
-                         progress=progress_enabled(args))
+                         progress=progress_enabled(args), image_size=image_size(args.image_size),
+                         window_mm=args.window_mm, window_at=args.window_at,
+                         lens_k1=args.lens_k1)
         say(args, f"rendered the video frames into {args.video}")
     return 0

@@ -16,6 +16,7 @@ The same circles measure the checker's size when it is not given.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -212,8 +213,10 @@ def measure_qs_half(img, xy, angle, half_guess, noise):
                 prof = ring_like(img, px, py)
                 for sign in (-1, 1):
                     sel = lambda lo, hi: (sign * t >= lo * h0) & (sign * t <= hi * h0)
-                    quad = np.nanmedian(np.where(sel(0.3, 0.8), prof, np.nan), axis=1)
-                    bg = np.nanmedian(np.where(sel(1.25, 1.5), prof, np.nan), axis=1)
+                    with warnings.catch_warnings():  # (a line off the picture: all NaN)
+                        warnings.simplefilter("ignore", RuntimeWarning)
+                        quad = np.nanmedian(np.where(sel(0.3, 0.8), prof, np.nan), axis=1)
+                        bg = np.nanmedian(np.where(sel(1.25, 1.5), prof, np.nan), axis=1)
                     mid = 0.5 * (quad + bg)
                     d = (prof - mid[:, None]) * np.sign(quad - bg)[:, None]
                     # last sample inside (d > 0) going outwards from the middle of the quarter
@@ -238,6 +241,9 @@ def measure_qs_half(img, xy, angle, half_guess, noise):
 def ring_like(img, px, py):
     """Bilinear grey levels at points (px, py) of any shape; NaN outside the image."""
     h, w = img.shape
+    bad = ~(np.isfinite(px) & np.isfinite(py))
+    if bad.any():  # (NaN centres: off the picture, without a cast warning)
+        px, py = np.where(bad, -2.0, px), np.where(bad, -2.0, py)
     x0, y0 = np.floor(px).astype(np.int64), np.floor(py).astype(np.int64)
     fx, fy = px - x0, py - y0
     ok = (x0 >= 0) & (y0 >= 0) & (x0 < w - 1) & (y0 < h - 1)

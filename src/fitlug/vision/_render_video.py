@@ -158,27 +158,81 @@ def render_video(out_dir: str | os.PathLike, t, markers: Sequence[str], roles: S
     return {"frames": int(t.size), "origin_mm": origin, "calib": calib_path, "truth": truth_path}
 
 
-def render_recording(out_dir: str | os.PathLike, scenario, *, seed: int = 0,
-                     frames: int | None = None, progress: bool = True, **kwargs) -> dict:
-    """Render a simulated recording (`fitlug.sim.Scenario`) as camera frames.
+def recording_scene(scenario, *, seed: int = 0, image_size=(1632, 1200),
+                    mm_per_px: float = 0.39, window_mm: float | None = None,
+                    window_at: float | None = None, lens_k1: float | None = None) -> dict:
+    """What `render_recording` draws: {"t" (F,) s, "markers", "roles", "xy_mm" (F, M, 2)
+    noise-free ground positions, "camera", "origin_mm" (None: centred on the markers)}.
 
-    The markers are drawn at their noise-free positions (the camera adds its own noise);
-    lug markers as COG discs, body markers as QS checkers. frames: render only the first
-    N frames. Other keyword arguments go to `render_video` (mm_per_px, image_size,
-    origin_mm, camera, options). Returns what `render_video` returns.
+    window_mm: the ground width the picture spans (else mm_per_px x the width); window_at:
+    where the picture's centre sits along the travel (0: the markers' centre at the first
+    frame, 1: at the last); lens_k1: radial distortion (focal length 1.225 x the width;
+    0: none; None: `default_camera`'s). Raises ValueError for a window out of range.
     """
     from ..sim import simulate
 
     rec, _ = simulate(scenario.replace(noise_lug_mm=0.0, noise_body_mm=0.0), seed)
     t = np.unique(rec.t)
-    if frames is not None:
-        if frames < 1:
-            raise ValueError(f"frames must be at least 1, got {frames}")
-        t = t[:frames]
     xy = np.full((t.size, rec.n_markers, 2), np.nan)
     row = np.searchsorted(t, rec.t)
-    keep = (row < t.size) & (t[np.minimum(row, t.size - 1)] == rec.t)
-    xy[row[keep], rec.marker_index[keep], 0] = rec.x[keep]
-    xy[row[keep], rec.marker_index[keep], 1] = rec.y[keep]
-    return render_video(out_dir, t, list(rec.markers), list(rec.roles), xy, seed=seed,
-                        progress=progress, **kwargs)
+    xy[row, rec.marker_index, 0] = rec.x
+    xy[row, rec.marker_index, 1] = rec.y
+    w, h = (int(v) for v in image_size)
+    if window_mm is not None:
+        if not (np.isfinite(window_mm) and window_mm > 0):
+            raise ValueError(f"window_mm must be a positive number of mm, got {window_mm!r}")
+        mm_per_px = float(window_mm) / w
+    s = float(mm_per_px)
+    if lens_k1 is None:
+        camera = default_camera(s, (w, h))
+    else:
+        camera = default_camera(s, (w, h), focal_px=1.225 * w,
+                                dist_coeffs=None if lens_k1 == 0 else
+                                (float(lens_k1), 0.0, 0.0, 0.0, 0.0))
+    origin = None
+    if window_at is not None:
+        if not (np.isfinite(window_at) and -1.0 <= window_at <= 2.0):
+            raise ValueError(f"window_at must be between -1 and 2, got {window_at!r}")
+        centre = np.nanmean(xy, axis=1)  # (F, 2): the markers' centre, frame by frame
+        c0, c1 = centre[0], centre[-1]
+        lo, hi = np.nanmin(xy[..., 1]), np.nanmax(xy[..., 1])
+        cx = c0[0] + window_at * (c1[0] - c0[0])
+        origin = (float(np.round(cx - 0.5 * w * s, 3)),
+                  float(np.round(0.5 * (lo + hi) - 0.5 * h * s, 3)))
+    return {"t": t, "markers": list(rec.markers), "roles": list(rec.roles), "xy_mm": xy,
+            "camera": camera, "origin_mm": origin}
+
+
+def render_recording(out_dir: str | os.PathLike, scenario, *, seed: int = 0,
+                     frames: int | None = None, progress: bool = True,
+                     window_mm: float | None = None, window_at: float | None = None,
+                     lens_k1: float | None = None, **kwargs) -> dict:
+    """Render a simulated recording (`fitlug.sim.Scenario`) as camera frames.
+
+    The markers are drawn at their noise-free positions (the camera adds its own noise);
+    lug markers as COG discs, body markers as QS checkers. frames: render only the first
+    N frames. A drive-through (the robot entering, crossing and leaving a fixed picture):
+    window_mm, the ground width the picture spans, mm (mm per px = window_mm / image
+    width; default 0.39 mm/px); window_at, where the picture's centre sits along the
+    travel: 0 where the markers' centre is at the first frame, 1 where it is at the last
+    (default: the picture centred on every position the markers take); lens_k1: the radial
+    distortion rendered in (focal length 1.225 x the image width; 0: none; default: the
+    mild barrel of `default_camera`); see `recording_scene`. Other keyword arguments go to
+    `render_video` (mm_per_px, image_size, origin_mm, camera, options). Returns what
+    `render_video` returns. Raises ValueError for a window or position out of range.
+    """
+    if frames is not None and frames < 1:
+        raise ValueError(f"frames must be at least 1, got {frames}")
+    image_size = kwargs.pop("image_size", (1632, 1200))
+    sc = recording_scene(scenario, seed=seed, image_size=image_size,
+                         mm_per_px=kwargs.pop("mm_per_px", 0.39), window_mm=window_mm,
+                         window_at=window_at, lens_k1=lens_k1)
+    camera = kwargs.pop("camera", None) or sc["camera"]
+    origin = kwargs.pop("origin_mm", None)
+    origin = sc["origin_mm"] if origin is None else origin
+    t, xy = sc["t"], sc["xy_mm"]
+    if frames is not None:
+        t, xy = t[:frames], xy[:frames]
+    return render_video(out_dir, t, sc["markers"], sc["roles"], xy, seed=seed,
+                        progress=progress, image_size=camera.image_size,
+                        mm_per_px=camera.mm_per_px, origin_mm=origin, camera=camera, **kwargs)

@@ -7,13 +7,16 @@ looks like the marker it follows - COG: area (flux over interior level, which li
 does not change), width and shape; QS: fit residual and contrast - and lies near the
 prediction; else the frame is a gap (a partly hidden, merged or cut-off marker gives no
 position rather than a wrong one). A track that misses is searched for around its
-prediction for `max_gap` frames (a region detection), then closed: a marker seen again
-later gets a new id, never an old one. New markers: a whole-frame search on the first
-frame and every `redetect_every` frames, a cheap search along the frame's edges every
-`edge_every` frames for markers coming into view, and for `watch_frames` frames a region
-search where the marker of a closed track would be (back from behind an occluder, or
-after samples that failed the checks); a detection on a live track's marker is not a
-new marker.
+prediction for `max_gap` frames (a region detection), then closed: a lug marker seen
+again later gets a new id; a body marker (a checker) found again near its closed track's
+prediction with the same contrast gets its track back. New markers: a whole-frame search
+on the first frame and every `redetect_every` frames; a cheap scan of the whole frame
+every `scan_every` frames for bright spots that no track follows (`_scan`: markers coming
+into view anywhere - across an edge, round a wheel, from behind an occluder, after an
+empty start), each checked by a region detection; optionally a search along the frame's
+edges every `edge_every` frames; and for `watch_frames` frames a region search where the
+marker of a closed track would be (back from behind an occluder, or after samples that
+failed the checks); a detection on a live track's marker is not a new marker.
 
 The checks scale with the noise: a small disc (8-10 px across) in a noisy frame (sigma 4
 grey levels) scatters in area and width several times more than the fixed tolerances
@@ -32,6 +35,7 @@ import numpy as np
 from ._detect import COG, QS, Detections, detect_markers, estimate_noise
 from ._qs import _B, _SLOPES, N_PARAMS, refine_qs
 from ._refine import refine_cog
+from ._pickup import PickUp
 from ._trackstate import ema, score, Track
 
 
@@ -43,14 +47,19 @@ class TrackerConfig:
     cog_radius / qs_half: disc radius and half checker side if known (else measured on
     detection); min_contrast: least marker contrast, grey levels (default: from the noise);
     redetect_every: frames between full-frame searches for new markers; edge_every: frames
-    between searches along the frame's edges for markers coming into view (0: never);
+    between searches along the frame's edges for markers coming into view (0: never, the
+    default: the scan below covers them);
     max_gap: frames a lost marker is searched for before its track is closed; max_step:
     the farthest a marker may move between two frames before its speed is known;
     min_quality: samples below it are gaps; min_length: shorter tracks are dropped;
     qs_iter: Levenberg-Marquardt steps per frame; watch_frames: frames for which the place
     a closed track's marker would be is searched (a small region detection each frame), so
     that a marker lost behind an occluder or to a bad sample is picked up again (under a
-    new id) without waiting for the next whole-frame search.
+    new id) without waiting for the next whole-frame search; scan_every: frames between
+    cheap scans of the whole frame (a quarter-size copy) for bright spots that no track
+    follows - markers coming into view anywhere: across an edge, round a wheel, from behind
+    an occluder, or in a recording that starts with nothing in view (0: never);
+    scan_checks: the most spots checked (a region detection each) per scan.
     """
 
     kinds: tuple = (COG, QS)
@@ -59,16 +68,18 @@ class TrackerConfig:
     qs_half: float | None = None
     min_contrast: float = 0.0
     redetect_every: int = 200
-    edge_every: int = 1
+    edge_every: int = 0
     max_gap: int = 8
     max_step: float = 30.0
     min_quality: float = 0.5
     min_length: int = 5
     qs_iter: int = 1
     watch_frames: int = 40
+    scan_every: int = 2
+    scan_checks: int = 4
 
 
-class Tracker:
+class Tracker(PickUp):
     """Stateful frame-by-frame tracker; feed frames in order with `step`, then `result`."""
 
     def __init__(self, config: TrackerConfig | None = None):
@@ -83,6 +94,9 @@ class Tracker:
         self.qs_half = self.config.qs_half
         self._n = 0
         self._watch: list = []  # (closed track, last frame to search for its marker)
+        self._radii: list = []  # radii of the discs of confirmed tracks
+        self._checked: list = []  # (box px, last frame to leave it alone): spots of the
+        # scan where nothing was found
 
     # -- helpers ---------------------------------------------------------------------------
     def _detect(self, frame, roi=None, kinds=None, scale=1, known=None, refine=True):
@@ -140,6 +154,8 @@ class Tracker:
                 self._pick_up_lost(frame, frame_no)
             if cfg.edge_every and self._n % cfg.edge_every == 0:
                 self._pick_up_at_edges(frame, frame_no)
+            if cfg.scan_every and self._n % cfg.scan_every == 0:
+                self._pick_up_anywhere(frame, frame_no)
         self._n += 1
 
     def _cog_quality(self, t, area, radius, shear):
@@ -156,8 +172,11 @@ class Tracker:
         # noise 2-4): the tolerances never go below 3.5 times 1.3, 1.1 and 1.6 that.
         rel = self.noise / max(t.contrast * t.radius, 1e-9)
         # the references of a young track rest on a few samples, the first of them taken
-        # with a round aperture before the blur's direction was known: wider tolerances
-        young = 1.0 if t.confirmed else 3.0
+        # with a round aperture before the blur's direction was known: wider tolerances;
+        # those of a marker coming into view at speed were taken through apertures that
+        # differ by its streak (a streak of 2 px: 3 % in area and width, seen on
+        # drive-throughs): wider still by the streak
+        young = 1.0 if t.confirmed else 3.0 + self._blur(t)[0] - 0.25
         ds = math.hypot(shear[0] - t.shear[0], shear[1] - t.shear[1])
         return min(score(area / t.area - 1, young * max(0.006, 3.5 * 1.3 * rel)),
                    score(radius / t.radius - 1, young * max(0.005, 3.5 * 1.1 * rel)),
@@ -270,7 +289,16 @@ class Tracker:
         if len(det) == 0:
             return
         if t.kind == COG:
-            fit = refine_cog(frame, det.xy, t.size, blur_px=self._blur(t)[0], n_iter=3)
+            # (the aperture of the track's other samples, as `_refine_cog` takes them: a
+            # disc streaking 2 px measures ~1.5 % wider through a round aperture than
+            # through the streak's, and a sample so measured failed the checks against
+            # references taken the other way - a track that missed one frame lost the
+            # next ones too)
+            length, direction = self._blur(t)
+            n = det.xy.shape[0]
+            fit = refine_cog(frame, det.xy, t.size, blur_px=length,
+                             blur_dir=None if direction is None else np.tile(direction, (n, 1)),
+                             n_iter=3)
             good = np.flatnonzero(np.isfinite(fit.xy[:, 0])
                                   & (fit.contrast > max(8.0 * self.noise, cfg.min_contrast)))
             if good.size == 0:
@@ -333,6 +361,18 @@ class Tracker:
             t.qs.append(float(q))
             t.misses = 0
             if len(t.frames) >= cfg.min_length:
+                if not t.confirmed and t.kind == COG and cfg.cog_radius is None \
+                        and t.radius is not None:
+                    # the disc size the searches use: from the followed discs, not from the
+                    # first one found (which may have been coming into view, half hidden)
+                    self._radii.append(t.radius)
+                    self.cog_radius = float(np.median(self._radii[-16:]))
+                if not t.confirmed and t.kind == COG and t.radius is not None \
+                        and t.first_size < 0.9 * t.radius and t.frames[1] == t.frames[0] + 1:
+                    # its first sample was of a disc still coming into view (found before
+                    # the size of the discs was known): its centre is off
+                    for a in (t.frames, t.xs, t.ys, t.qs):
+                        a.pop(0)
                 t.confirmed = True
             if t.kind == COG:
                 if t.area is None:
@@ -352,113 +392,6 @@ class Tracker:
                 if t.params is not None:  # the lighting's slopes: averaged along the track
                     p[_SLOPES] = 0.9 * t.params[_SLOPES] + 0.1 * p[_SLOPES]
                 t.params = p
-
-    def _search_scale(self):
-        """Shrink factor of the image searched for each kind: with its size known and the
-        marker big enough, a half-size image (4-5 times cheaper). Measured on hard renders
-        (noise 4, blur, a lighting gradient) every disc 8-10 px across and every checker
-        10 px a side was found at half size as at full size; checkers 8 px a side were
-        not (half of them) and stay at full size."""
-        return {COG: 2 if self.cog_radius is not None and self.cog_radius >= 3.5 else 1,
-                QS: 2 if self.qs_half is not None and self.qs_half >= 4.75 else 1}
-
-    def _known(self, frame_no):
-        """The markers the live tracks sampled in this frame, {kind: (xy, radius)}: a
-        search for new markers need not refine the candidates on them (`_add_new` would
-        drop their detections, which lie within twice the radius)."""
-        out = {}
-        for t in self._live:
-            if t.frames[-1] == frame_no:
-                xy, r = out.setdefault(t.kind, ([], []))
-                xy.append((t.xs[-1], t.ys[-1]))
-                r.append(t.size)
-        return out
-
-    def _pick_up(self, frame, frame_no):
-        """Whole-frame search for markers no track follows."""
-        self._add_new(self._detect(frame, scale=self._search_scale(),
-                                   known=self._known(frame_no)), frame_no)
-
-    def _pick_up_lost(self, frame, frame_no):
-        """Search where the markers of recently closed tracks would be now (their
-        prediction, the region growing with the time since their last sample); a marker
-        found there that no live track follows starts a new track."""
-        cfg = self.config
-        h, w = frame.shape
-        keep = []
-        for t, until in self._watch:
-            if frame_no > until:
-                continue
-            (px, py), unc = t.predict(frame_no)
-            k = frame_no - t.frames[-1]
-            reach = cfg.max_step if unc is None else min(unc * 3.0 + 2.0 + 0.5 * k,
-                                                         cfg.max_step * 2)
-            pad = reach + 2.5 * t.size + 4
-            if not (-pad < px < w + pad and -pad < py < h + pad):
-                continue  # gone out of the picture
-            n_before = len(self.tracks)
-            det = self._detect(frame, roi=(px - pad, py - pad, px + pad + 1, py + pad + 1),
-                               kinds=(t.kind,), known=self._known(frame_no))
-            if len(det):
-                d = np.hypot(*(det.xy - np.array([px, py])).T)
-                near = d <= reach
-                if near.any():
-                    sel = np.flatnonzero(near)
-                    det = Detections(det.xy[sel], det.kind[sel], det.size[sel], det.contrast[sel],
-                                     {k_: v[np.flatnonzero(near[det.kind == QS])]
-                                      for k_, v in det.extra.items()})
-                    self._add_new(det, frame_no)
-            if len(self.tracks) == n_before:
-                keep.append((t, until))
-        self._watch = keep
-
-    def _pick_up_at_edges(self, frame, frame_no):
-        """Markers come into view across the frame's edges: search the strips along them
-        where something stands out (a cheap test on every third pixel first)."""
-        known = [r for r in (self.cog_radius, self.qs_half) if r is not None]
-        if not known:
-            return
-        h, w = frame.shape
-        width = int(2.5 * max(known) + self.config.max_step + 4)
-        if 2 * width >= min(h, w):
-            return
-        thresh = 10.0 * self.noise + self.config.min_contrast
-        import cv2
-
-        for x0, y0, x1, y1 in ((0, 0, width, h), (w - width, 0, w, h), (width, 0, w - width, width),
-                               (width, h - width, w - width, h)):
-            # a marker is > 8 px across: every third row (OpenCV's extrema of a view, a few
-            # times faster than numpy's over a strided one)
-            lo, hi = cv2.minMaxLoc(frame[y0:y1:3, x0:x1])[:2]
-            if hi - lo < 2 * thresh:
-                continue
-            pad = int(2 * max(known)) + 2  # markers straddling the strip's inner side too
-            roi = (max(x0 - pad, 0), max(y0 - pad, 0), min(x1 + pad, w), min(y1 + pad, h))
-            self._add_new(self._detect(frame, roi=roi, scale=self._search_scale(),
-                                       known=self._known(frame_no)), frame_no)
-
-    def _add_new(self, det, frame_no):
-        """Start a track for each detection that no live track is following."""
-        if len(det) == 0:
-            return
-        qs_rows = np.cumsum(det.kind == QS) - 1
-        live = list(self._live)
-        for j in range(len(det)):
-            near = False
-            for t in live:
-                if t.kind != det.kind[j]:
-                    continue
-                if t.frames[-1] == frame_no:
-                    near = np.hypot(t.xs[-1] - det.xy[j, 0], t.ys[-1] - det.xy[j, 1]) < 2 * t.size
-                else:
-                    (px, py), unc = t.predict(frame_no)
-                    gate = 2 * t.size + 3 * (unc or 0)
-                    near = math.hypot(px - det.xy[j, 0], py - det.xy[j, 1]) < gate
-                if near:
-                    break
-            if not near:
-                live.append(self._new_track(det, j, frame_no,
-                                            qs_rows[j] if det.kind[j] == QS else None))
 
     # -- the outcome -----------------------------------------------------------------------
     def result(self) -> "TrackResult":

@@ -20,10 +20,11 @@ class Track:
 
     __slots__ = ("uid", "kind", "size", "frames", "xs", "ys", "qs", "misses", "alive",
                  "area", "radius", "shear", "slope", "rms", "contrast", "params",
-                 "confirmed")
+                 "confirmed", "first_size")
 
     def __init__(self, uid, kind, size, frame, xy, contrast, params=None):
         self.uid, self.kind, self.size = uid, kind, float(size)
+        self.first_size = float(size)  # as detected: a disc coming into view measures smaller
         # typed arrays, not lists: 8 bytes a sample rather than ~40 (long recordings)
         self.frames = array("q", [int(frame)])
         self.xs, self.ys, self.qs = array("d", [xy[0]]), array("d", [xy[1]]), array("d", [1.0])
