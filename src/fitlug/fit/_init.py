@@ -40,7 +40,13 @@ def body_reference(rec, body_ids, t_ref=0.0):
     cnt = np.zeros_like(tu)
     j0 = order[0]
     t0, x0, _ = tracks[j0]
-    cx[j0] = float(np.interp(t_ref, t0, x0))
+    if t0[0] <= t_ref <= t0[-1]:
+        cx[j0] = float(np.interp(t_ref, t0, x0))
+    else:  # no body marker seen at t_ref (lug markers enter the picture first): the
+        # reference marker's motion extrapolated there, so that X(t_ref) = 0 as the model's
+        # gauge has it (a constant end put X 70 mm off where the robot drives in)
+        end = t0[0] if t_ref < t0[0] else t0[-1]
+        cx[j0] = _line_at(t0, x0, end, t_ref, span=0.15)
     pending = order[1:]
     while True:
         acc[:] = 0
@@ -72,6 +78,26 @@ def body_reference(rec, body_ids, t_ref=0.0):
     X = acc / np.maximum(cnt, 1)
     cy = np.array([float(np.median(y)) for _, _, y in tracks])
     return tu, X, cx, cy
+
+
+def X_at(t, tX, X, span: float = 0.15):
+    """X at times t: interpolated inside the body reference's span, extrapolated with the
+    speed at its ends outside it (lug markers seen before the first or after the last
+    body marker: np.interp's constant ends put them tens of mm off while the robot moves)."""
+    t = np.asarray(t, float)
+    out = np.interp(t, tX, X)
+    for end, side in ((tX[0], t < tX[0]), (tX[-1], t > tX[-1])):
+        if not side.any() or len(tX) < 2:
+            continue
+        near = np.abs(tX - end) <= span
+        if near.sum() < 2:
+            near = np.argsort(np.abs(tX - end))[:2]
+        tt, xx = tX[near], X[near]
+        if np.ptp(tt) == 0:
+            continue
+        slope = np.polyfit(tt - end, xx, 1)[0]
+        out[side] = np.interp(end, tX, X) + slope * (t[side] - end)
+    return out
 
 
 def _line_at(t, x, t_end, t_at, span=0.2):
@@ -137,9 +163,15 @@ def lug_geometry(rec, lug_ids, tX, X):
     for m in lug_ids:
         sel = (rec.marker_index == m) & np.isfinite(rec.x) & np.isfinite(rec.y)
         t = rec.t[sel]
-        rel.append((m, t, rec.x[sel] - np.interp(t, tX, X), rec.y[sel]))
-    allx = np.concatenate([r[2] for r in rel])
-    ally = np.concatenate([r[3] for r in rel])
+        rel.append((m, t, rec.x[sel] - X_at(t, tX, X), rec.y[sel]))
+    # the extents from the samples the body reference covers: a robot entering or leaving
+    # the picture shows lug markers for a while before and after any body marker, where X
+    # is only extrapolated
+    inside = [(t >= tX[0] - 0.02) & (t <= tX[-1] + 0.02) for _, t, _, _ in rel]
+    if sum(int(k.sum()) for k in inside) < 0.5 * sum(len(k) for k in inside):
+        inside = [np.ones(len(k), bool) for k in inside]
+    allx = np.concatenate([r[2][k] for r, k in zip(rel, inside)])
+    ally = np.concatenate([r[3][k] for r, k in zip(rel, inside)])
     if len(allx) < 10:
         raise InputError(rec.path, "too few valid lug-marker samples to fit the track")
     ylo, yhi = np.percentile(ally, [0.5, 99.5])
@@ -202,7 +234,7 @@ def slip_and_phases(rel, geom, tX, X, P):
     Xt = []
     for t, u in us:
         k = max(1, -(-len(u) // SPREAD_SAMPLES))
-        Xt.append((u[::k], np.interp(t[::k], tX, X)))
+        Xt.append((u[::k], X_at(t[::k], tX, X)))
 
     def spread(s):
         """Total circular spread of the belt coordinates and each marker's mean phase, for
