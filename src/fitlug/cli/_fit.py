@@ -152,6 +152,15 @@ def _summary(args, doc, out, report, seconds):
         f"  chi2/dof           {doc['chi2_per_dof']:.3f}   (noise: body "
         f"{1000 * doc['noise_mm']['body']:.2f} µm, lug {1000 * doc['noise_mm']['lug']:.2f} µm)",
     ]
+    applied = (doc.get("orientation") or {}).get("applied") or []
+    if applied:
+        lines.append("  axes               " + "; ".join(applied))
+    for sw in doc.get("swaps") or []:
+        lines.append(f"  identity swap      {' and '.join(sw['markers'])} from "
+                     f"{sw['t_s']:g} s: repaired")
+    for ex in doc.get("excluded") or []:
+        lines.append(f"  kept out           {ex['marker']} ({ex['role']}, {ex['n_samples']} "
+                     f"samples): {ex['reason']}")
     d = doc.get("discrepancy")
     if d:
         eff = d.get("effects") or []
