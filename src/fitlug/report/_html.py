@@ -775,6 +775,11 @@ def write_report(out_dir) -> str:
         raise InputError(fj_path, "no fit.json in the fit folder")
     fj = read_json(fj_path)
     st = load_state(out_dir)
+    a, b = fj.get("run_id"), st["meta"].get("run_id")
+    if a != b:  # a folder mixing two runs' files (fitlug.cli._outdir)
+        raise InputError(out_dir, f"fit.json (run {a or 'without an id'}) and state.npz "
+                                  f"(run {b or 'without an id'}) come from different runs: "
+                                  "rerun fit-lug to rebuild the folder")
     name = recording_label(fj, out_dir)
     s = fj.get("slip") or {}
     verdict = (fj.get("discrepancy") or {}).get("verdict")
@@ -820,6 +825,8 @@ def _page(fj, st, out_dir, name, title) -> str:
             f"<title>{html.escape(title)}</title><style>{_CSS}</style></head><body>"
             f"<h1>Track slip of {html.escape(name)}</h1>{_meta_line(fj)}{summary}{nav}"
             f"{''.join(body)}"
-            f'<p class="small">Written by fitlug from fit.json and state.npz in this folder; '
+            f'<p class="small">Written by fitlug'
+            + (f" (run {_e(fj['run_id'])})" if fj.get("run_id") else "")
+            + ' from fit.json and state.npz in this folder; '
             f"<code>fit-lug report DIR</code> rebuilds it.</p></body></html>")
     return page
