@@ -78,7 +78,18 @@ def check_rig_roles(rec, rig, marker_lines: dict) -> None:
                 raise InputError(rig.path, f"[markers] {key} lists {name}, but "
                                            f"{rec.path} line {marker_lines.get(name, '?')} "
                                            f"gives {name} the role {other}: correct the rig "
-                                           "file or the file's role column")
+                                           "file or the file's role column",
+                                 line=_rig_line(rig, key))
+
+
+def _rig_line(rig, key: str) -> int | None:
+    from ._rig import _key_line
+
+    try:
+        with open(rig.path, encoding="utf-8") as fh:
+            return _key_line(fh.read(), "markers", key)
+    except (OSError, TypeError, UnicodeDecodeError):
+        return None
 
 
 def first_lines(table, j_marker: int) -> dict:
