@@ -48,11 +48,13 @@ def _alive(pid: int) -> bool:
 
 @contextlib.contextmanager
 def locked(folder: str, run_id: str, what: str = "--out"):
-    """Hold `folder`'s lock while the block runs (the folder is created).
+    """Hold `folder`'s lock while the block runs (the folder is created, and removed
+    again if the run leaves it empty).
 
     Raises:
         InputError: the folder is in use by another run (alive, or on another machine).
     """
+    created = not os.path.isdir(folder)
     os.makedirs(folder, exist_ok=True)
     path = os.path.join(folder, LOCK)
     mine = json.dumps({"pid": os.getpid(), "host": socket.gethostname(), "run_id": run_id,
@@ -85,6 +87,9 @@ def locked(folder: str, run_id: str, what: str = "--out"):
     finally:
         with contextlib.suppress(OSError):
             os.remove(path)
+        if created:  # a run that wrote nothing leaves no folder behind
+            with contextlib.suppress(OSError):
+                os.rmdir(folder)
 
 
 def clear_outputs(folder: str) -> None:
