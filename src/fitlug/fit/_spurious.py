@@ -17,7 +17,8 @@ must do, so a track that does not do it is found:
   in the same direction: at each sample, the nearest sample of the other lugs in the
   body frame lies within LOOP_MM, and the two move the same way there (their body-frame
   velocities less than 90 degrees apart). A lug track is kept out when fewer than half
-  of its samples (at frames where the body is seen) are on the loop.
+  of its samples are on the loop; judged are the samples within the span of the body
+  reference where the belt moves (at least MIN_JUDGED of them).
 
 Nothing is judged with fewer than two body markers (for the body) or three lug markers
 (for the lugs), nor more than a third of a role's markers kept out (then the recording
@@ -34,14 +35,21 @@ RIGID_FRACTION = 0.3
 MOVED_MIN_MM = 0.2
 LOOP_MM = 4.0
 ON_LOOP = 0.5
+MAX_TRACKS = 500  # tracks of one role beyond which nothing is judged
+MIN_JUDGED = 3  # samples of a lug track within the body reference's span
 
 
 def _tracks(rec, ids):
-    valid = rec.valid
-    out = {}
-    for m in ids.tolist():
-        sel = valid & (rec.marker_index == m)
-        out[m] = (rec.t[sel], rec.x[sel], rec.y[sel])
+    """{marker: (t, x, y) of its valid samples}, in one pass (no mask per marker)."""
+    sel = rec.valid & np.isin(rec.marker_index, ids)
+    mi, t, x, y = rec.marker_index[sel], rec.t[sel], rec.x[sel], rec.y[sel]
+    order = np.lexsort((t, mi))
+    mi, t, x, y = mi[order], t[order], x[order], y[order]
+    cuts = np.flatnonzero(np.diff(mi)) + 1
+    out = {int(m): (np.empty(0), np.empty(0), np.empty(0)) for m in np.asarray(ids).tolist()}
+    for a, b in zip(np.r_[0, cuts], np.r_[cuts, mi.size]):
+        if b > a:
+            out[int(mi[a])] = (t[a:b], x[a:b], y[a:b])
     return out
 
 
@@ -77,20 +85,38 @@ def _body_outliers(tracks: dict) -> tuple[list, dict]:
             bad[m] = against
     if len(bad) * 3 > len(ids) and not (len(ids) == 2 and len(bad) == 1):
         bad = {}
-    keep = [m for m in ids if m not in bad]
-    t0, x0, y0 = tracks[keep[0]]
-    X, Y, n = np.zeros_like(x0), np.zeros_like(y0), np.zeros_like(x0)
-    for m in keep:
-        t, x, y = tracks[m]
-        common, i, j = np.intersect1d(t, t0, return_indices=True)
-        if common.size < 2:
-            continue
-        ox, oy = np.median(x[i] - x0[j]), np.median(y[i] - y0[j])
-        X[j] += x[i] - ox
-        Y[j] += y[i] - oy
-        n[j] += 1
+    return list(bad), _reference({m: tracks[m] for m in ids if m not in bad})
+
+
+def _reference(tracks: dict):
+    """The body reference (t, X, Y): the longest body track, the others chained on through
+    their overlaps (each shifted by its median offset), averaged where several are seen."""
+    ids = sorted(tracks, key=lambda m: -tracks[m][0].size)
+    t_all = np.unique(np.concatenate([tracks[m][0] for m in ids]))
+    X, Y, n = np.zeros(t_all.size), np.zeros(t_all.size), np.zeros(t_all.size)
+    pending = list(ids)
+    while pending:
+        added = False
+        for m in list(pending):
+            t, x, y = tracks[m]
+            k = np.searchsorted(t_all, t)
+            if n.any():
+                have = n[k] > 0
+                if have.sum() < 2:
+                    continue
+                ox = float(np.median(x[have] - X[k][have] / n[k][have]))
+                oy = float(np.median(y[have] - Y[k][have] / n[k][have]))
+            else:
+                ox, oy = float(x[0]), float(y[0])
+            X[k] += x - ox
+            Y[k] += y - oy
+            n[k] += 1
+            pending.remove(m)
+            added = True
+        if not added:
+            break
     ok = n > 0
-    return list(bad), (t0[ok], X[ok] / n[ok], Y[ok] / n[ok])
+    return t_all[ok], X[ok] / n[ok], Y[ok] / n[ok]
 
 
 def _velocity(t, u, w):
@@ -105,25 +131,44 @@ def _lug_outliers(tracks: dict, ref) -> list:
     tb, X, Y = ref
     if len(tracks) < 3 or tb.size < 2:
         return []
-    frame = {}
+    ids, us, ws, vs = [], [], [], []
     for m, (t, x, y) in tracks.items():
         inside = (t >= tb[0]) & (t <= tb[-1])
         t, x, y = t[inside], x[inside], y[inside]
         u, w = x - np.interp(t, tb, X), y - np.interp(t, tb, Y)
-        frame[m] = (u, w, _velocity(t, u, w))
-    share = {}
-    for m, (u, w, vel) in frame.items():
-        if u.size == 0:
-            continue
-        others = [n for n in frame if n != m and frame[n][0].size]
-        if not others:
-            return []
-        pu = np.concatenate([frame[n][0] for n in others])
-        pw = np.concatenate([frame[n][1] for n in others])
-        pv = np.concatenate([frame[n][2] for n in others])
-        dist, idx = cKDTree(np.stack([pu, pw], axis=1)).query(np.stack([u, w], axis=1))
-        same_way = np.sum(vel * pv[idx], axis=1) > 0
-        share[m] = float(np.mean((dist < LOOP_MM) & same_way))
+        ids.append(np.full(t.size, m))
+        us.append(u)
+        ws.append(w)
+        vs.append(_velocity(t, u, w))
+    mi, u, w, vel = (np.concatenate(ids), np.concatenate(us), np.concatenate(ws),
+                     np.concatenate(vs))
+    if mi.size < 10:
+        return []
+    speed = np.hypot(*vel.T)
+    # samples where the belt is (nearly) at rest say nothing about the direction, and pile
+    # up in one place: only the moving ones are judged
+    moving = speed > 0.05 * np.nanpercentile(speed, 90)
+    mi, pts, vel = mi[moving], np.stack([u, w], axis=1)[moving], vel[moving]
+    if mi.size < 10:
+        return []
+    rows = np.arange(mi.size)
+    dist, idx = cKDTree(pts).query(pts, k=min(8, mi.size))
+    other = mi[idx] != mi[:, None]
+    first = np.argmax(other, axis=1)
+    found = other[rows, first]
+    nn = idx[rows, first]
+    d = np.where(found, dist[rows, first], np.inf)
+    for m in np.unique(mi[~found]).tolist():  # its own samples nearest: search the others
+        mine = (mi == m) & ~found
+        rest = mi != m
+        if rest.any():
+            dd, jj = cKDTree(pts[rest]).query(pts[mine])
+            d[mine] = dd
+            nn[mine] = np.flatnonzero(rest)[jj]
+    on = (d < LOOP_MM) & (np.sum(vel * vel[nn], axis=1) > 0)
+    counts = np.bincount(mi)
+    shares = np.bincount(mi, weights=on.astype(float)) / np.maximum(counts, 1)
+    share = {m: float(shares[m]) for m in np.flatnonzero(counts >= MIN_JUDGED).tolist()}
     bad = [m for m, s in share.items() if s < ON_LOOP]
     return [] if len(bad) * 3 > len(tracks) else bad
 
@@ -131,10 +176,11 @@ def _lug_outliers(tracks: dict, ref) -> list:
 def find_and_exclude(rec):
     """`rec` without the tracks that are not markers, and their list:
     [{"marker", "role", "n_samples", "t_range_s", "reason"}]."""
+    if not 1 <= rec.markers_of("body").size <= MAX_TRACKS \
+            or rec.markers_of("lug").size > MAX_TRACKS:
+        return rec, []  # nothing to judge by, or a tracker gone wild (a new id per frame)
     body = _tracks(rec, rec.markers_of("body"))
     lug = _tracks(rec, rec.markers_of("lug"))
-    if not body:
-        return rec, []
     bad_body, ref = _body_outliers(body)
     bad_lug = _lug_outliers(lug, ref)
     out = []
