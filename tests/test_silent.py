@@ -334,3 +334,24 @@ def test_report_refuses_a_folder_mixing_two_runs(tmp_path):
     with pytest.raises(InputError, match="fit.json \\(run aaaaaaaaaaaa\\) and state.npz "
                                          "\\(run bbbbbbbbbbbb\\) come from different runs"):
         write_report(tmp_path)
+
+
+# -- fit-lug noise on a moving robot ---------------------------------------------------------
+
+def test_noise_of_a_moving_robot_is_refused_not_reported():
+    from types import SimpleNamespace
+
+    from fitlug.vision import noise_from_tracks
+
+    rng = np.random.default_rng(0)
+    n = 100
+    still = rng.normal(0, 0.05, (n, 2, 2)) + np.array([[100.0, 50.0], [300.0, 60.0]])
+    res = SimpleNamespace(xy_px=still, markers=["m0", "m1"], roles=["body", "lug"],
+                          kinds=["qs", "cog"], frames=np.arange(n))
+    noise = noise_from_tracks(res)  # a stationary robot: the spread is the noise (0.05 px)
+    assert noise.per_role["body"]["std_px"] == pytest.approx(0.05, rel=0.25)
+    moving = still.copy()
+    moving[:, 1, 0] += 1.5 * np.arange(n)  # the lug marker drives by at 1.5 px a frame
+    res.xy_px = moving
+    with pytest.raises(InputError, match="marker m1 moves during the recording"):
+        noise_from_tracks(res)
