@@ -59,7 +59,7 @@ def _y_points_down(rec, tb, xb) -> bool | None:
     k = min(11, vb.size)
     vb = np.convolve(vb, np.ones(k) / k, mode="same")
     body_v = np.interp(tm, vb_t, vb, left=np.nan, right=np.nan)
-    moving = np.isfinite(body_v) & (body_v > 0.3 * np.nanmax(vb))
+    moving = np.isfinite(body_v) & (body_v > 0.3 * np.nanpercentile(vb, 95))
     if not moving.any():
         return None
     ratio = v[moving] / body_v[moving]

@@ -14,7 +14,8 @@ was heading, and stays there; fitted as they stand, each id holds two markers' p
 
 The samples of a and b from t on are exchanged (the tails re-joined to their physical
 markers, as tracker fragments are), and the swap is listed (fit.json `swaps`). Swaps are
-repaired in time order, so a swap and a swap back both come undone. A jump that is no
+undone latest first (the tracker made them in time order, and two that share a marker do
+not commute), so chains of swaps and a swap back all come undone. A jump that is no
 swap (a glitch, a marker knocked loose) is left to the glitch rule and the explanation.
 """
 
@@ -67,6 +68,7 @@ def find_and_repair(rec):
     dt = float(np.median(np.diff(times)))
     mi_all = rec.marker_index.copy()
     found = []
+    found_all = []  # (t, a, b): repaired latest first (each an exchange of tails)
     for role in ("lug", "body"):
         ids = rec.markers_of(role)
         if ids.size < 2:
@@ -99,9 +101,7 @@ def find_and_repair(rec):
                     if (np.hypot(*(pa - pred[kb])) < tol and np.hypot(*(pb - pred[ka])) < tol):
                         a, b = int(mi[ka]), int(mi[kb])
                         used.update((ka, kb))
-                        tail = rec.t >= tk
-                        in_a, in_b = tail & (mi_all == a), tail & (mi_all == b)
-                        mi_all[in_a], mi_all[in_b] = b, a
+                        found_all.append((tk, a, b))
                         found.append({"markers": [rec.markers[a], rec.markers[b]],
                                       "role": role, "t_s": tk, "jump_mm": float(jump),
                                       "reason": "both ids jump in one frame, each to where "
@@ -109,6 +109,13 @@ def find_and_repair(rec):
                                                 "t_s on are exchanged"})
     if not found:
         return rec, []
+    # the faulty ids are the exchanges applied in time order, so they come undone in the
+    # reverse order (exchanges that share a marker do not commute)
+    for tk, a, b in sorted(found_all, key=lambda f: -f[0]):
+        tail = rec.t >= tk
+        in_a, in_b = tail & (mi_all == a), tail & (mi_all == b)
+        mi_all[in_a], mi_all[in_b] = b, a
+    found.sort(key=lambda f: f["t_s"])
     order = np.lexsort((rec.t, mi_all))
     changes = {name: getattr(rec, name)[order]
                for name in ("t", "x", "y", "sigma", "frame", "x_px", "y_px", "quality")
