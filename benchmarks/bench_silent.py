@@ -92,17 +92,32 @@ def case(seed: int):
     """(clean recording, rig, faulty recording, faults applied, expect 'twin'|'refused')."""
     rng = np.random.default_rng(seed)
     clean, rig, what = _clean(rng)
+    if rng.random() < 0.3:  # what a real camera and tracker deliver (tests/realism.py)
+        from realism import realistic
+
+        clean, _ = realistic(clean, seed=int(rng.integers(1 << 30)),
+                             fov_mm=[None, 637.0, 450.0][int(rng.integers(3))])
+        what += " + realism"
     rec, faults = clean, []
-    lugs = [m for m, r in enumerate(rec.roles) if r == "lug"]
     bodies = [m for m, r in enumerate(rec.roles) if r == "body"]
     times = np.unique(rec.t)
+    valid = rec.valid
     n_swaps = int(rng.integers(0, 3))
     for _ in range(n_swaps):
-        a, b = rng.choice(lugs if rng.random() < 0.8 else bodies, 2, replace=False)
-        t0 = float(times[int(rng.integers(len(times) // 10, 9 * len(times) // 10))])
-        rec = _swap(rec, int(a), int(b), t0)
-        faults.append(f"swap {rec.markers[a]}/{rec.markers[b]}@{t0:g}")
-    b0 = clean.marker_index == bodies[0]
+        k = int(rng.integers(len(times) // 10, 9 * len(times) // 10))
+        role = "lug" if rng.random() < 0.8 else "body"
+        # two markers of the role seen in the frame before and at the swap
+        seen = [m for m, r in enumerate(rec.roles) if r == role
+                and all(np.any(valid & (rec.marker_index == m) & (rec.t == times[j]))
+                        for j in (k - 2, k - 1, k, k + 1))]
+        if len(seen) < 2:
+            continue
+        a, b = rng.choice(seen, 2, replace=False)
+        rec = _swap(rec, int(a), int(b), float(times[k]))
+        valid = rec.valid
+        faults.append(f"swap {rec.markers[a]}/{rec.markers[b]}@{times[k]:g}")
+    longest = max(bodies, key=lambda m: int(np.sum(clean.marker_index == m)))
+    b0 = (clean.marker_index == longest) & clean.valid
     tb, xb = clean.t[b0], clean.x[b0]
     k0 = int(rng.integers(len(times) // 5, 3 * len(times) // 5))
     if rng.random() < 0.4:  # a reflection tracked as a lug, above the track

@@ -2,7 +2,8 @@
 
 Concatenated runs (a tracker appending the next take, a user pasting two files) show as
 a frame at which every body marker jumps at once, by one common displacement (the body
-is rigid), far more than the body moves in a frame anywhere else, and stays there. A
+is rigid) or each back against the direction of travel (the ids of the first run may
+end swapped), far more than the body moves in a frame anywhere else, and stays there. A
 glitch comes back within a frame or two; an identity swap moves two markers by opposite
 displacements; markers entering or leaving the picture do not jump. Such a file is
 refused (the line of the first frame of the second run is named): fitting it as one run
@@ -18,6 +19,7 @@ JUMP_FACTOR = 20.0
 JUMP_MIN_MM = 1.0
 AGREE = 0.2  # body markers' jumps agree to this fraction of their size
 STAY_FRAMES = 3  # no jump back within this many samples after
+BACK = 0.7  # cosine: a jump back against the direction of travel
 
 
 def find_restart(rec) -> dict | None:
@@ -46,6 +48,11 @@ def find_restart(rec) -> dict | None:
     cand = np.flatnonzero(same & (size > thresh))
     if cand.size == 0 or cand.size > 50:  # many jumps: a broken tracker, not two runs
         return None
+    # the direction of travel: the body's steps, jumps left out (the net displacement of
+    # two runs may be nil)
+    steady = same & ~(size > thresh)
+    travel = np.array([dx[steady].sum(), dy[steady].sum()])
+    travel = travel / max(float(np.hypot(*travel)), 1e-12)
     by_time: dict[float, list[int]] = {}
     for k in cand.tolist():
         by_time.setdefault(float(t[k + 1]), []).append(k)
@@ -59,7 +66,11 @@ def find_restart(rec) -> dict | None:
             continue
         vec = np.array([[dx[k], dy[k]] for k in ks])
         mean = vec.mean(axis=0)
-        if np.any(np.hypot(*(vec - mean).T) > AGREE * np.hypot(*mean)):
+        agree = not np.any(np.hypot(*(vec - mean).T) > AGREE * np.hypot(*mean))
+        # every marker thrown back against the travel (ids swapped in the first run make
+        # their jumps differ by the markers' spacing)
+        back_all = bool(np.all(vec @ travel < -BACK * np.hypot(*vec.T)))
+        if not (agree or back_all):
             continue  # opposite jumps: an identity swap, not a restart
         back = False
         for k in ks:  # the jump stays: no step back towards the old position soon after
