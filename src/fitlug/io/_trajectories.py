@@ -524,9 +524,11 @@ def read_trajectories(path: str | os.PathLike, rig: "Rig | None" = None) -> Reco
         rec = _read_wide(table, cols, rig)
     restart = _runs.find_restart(rec)
     if restart is not None:  # two runs in one file: name the first row of the second
-        j = cols["time_s"]
+        j, jm = cols["time_s"], cols.get("marker")
+        names = set(restart["markers"])
         row = next((i for i, r in enumerate(table.rows)
-                    if r[j].strip() and float(r[j]) == restart["t"]), None)
+                    if r[j].strip() and float(r[j]) == restart["t"]
+                    and (jm is None or r[jm].strip() in names)), None)
         raise table.error(_runs.restart_problem(restart), row=row)
     return _declared.apply_units(rec, table.meta, table.meta_lines)
 
