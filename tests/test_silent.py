@@ -187,6 +187,15 @@ def test_identity_swaps_are_repaired_exactly(ref, swaps):
     assert got == want
 
 
+def test_three_ids_permuted_in_one_frame_are_repaired(ref):
+    from fitlug.fit._swaps import find_and_repair
+
+    rec = _swap(_swap(ref, "B01", "B02", 3.0), "B03", "B01", 3.0)  # a 3-cycle at 3 s
+    fixed, found = find_and_repair(rec)
+    assert fixed == ref
+    assert [(sorted(f["markers"]), f["t_s"]) for f in found] == [(["B01", "B02", "B03"], 3.0)]
+
+
 # -- tracks that are not markers -------------------------------------------------------------
 
 def test_reflections_and_static_points_are_kept_out(ref):

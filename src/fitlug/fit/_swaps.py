@@ -10,7 +10,8 @@ was heading, and stays there; fitted as they stand, each id holds two markers' p
   JUMP_SIGMAS times the role's noise of steps and JUMP_MIN_MM;
 - a *swap* of markers a and b at t: both jump at t, and each lands where the other was
   heading (its position extrapolated from its two samples before t), to within
-  LAND_FRACTION of the jump and LAND_MM.
+  LAND_FRACTION of the jump and LAND_MM; three or more ids permuted in one frame are
+  the same, a cycle of landings.
 
 The samples of a and b from t on are exchanged (the tails re-joined to their physical
 markers, as tracker fragments are), and the swap is listed (fit.json `swaps`). Swaps are
@@ -58,6 +59,22 @@ def _jumps(t, x, y, mi, dt):
     return size, pred
 
 
+def _cycles(lands: dict) -> list:
+    """The cycles of a partial map (each a list of keys, in map order)."""
+    out, done = [], set()
+    for start in lands:
+        if start in done:
+            continue
+        path, k = [], start
+        while k in lands and k not in path and k not in done:
+            path.append(k)
+            k = lands[k]
+        if k == start and len(path) >= 2:
+            out.append(path)
+        done.update(path)
+    return out
+
+
 def find_and_repair(rec):
     """`rec` with swapped tails exchanged back, and the list of swaps found:
     [{"markers": [a, b], "role": .., "t_s": .., "jump_mm": .., "reason": ..}]."""
@@ -90,31 +107,33 @@ def find_and_repair(rec):
             by_time.setdefault(float(t[k]), []).append(k)
         for tk in sorted(by_time):
             ks = by_time[tk]
-            used = set()
-            for i, ka in enumerate(ks):
-                for kb in ks[i + 1:]:
-                    if ka in used or kb in used:
-                        continue
-                    jump = max(size[ka], size[kb])
-                    tol = min(LAND_FRACTION * jump, LAND_MM)
-                    pa, pb = np.array([x[ka], y[ka]]), np.array([x[kb], y[kb]])
-                    if (np.hypot(*(pa - pred[kb])) < tol and np.hypot(*(pb - pred[ka])) < tol):
-                        a, b = int(mi[ka]), int(mi[kb])
-                        used.update((ka, kb))
-                        found_all.append((tk, a, b))
-                        found.append({"markers": [rec.markers[a], rec.markers[b]],
-                                      "role": role, "t_s": tk, "jump_mm": float(jump),
-                                      "reason": "both ids jump in one frame, each to where "
-                                                "the other was heading: their samples from "
-                                                "t_s on are exchanged"})
+            # each jumping id to the marker whose path it landed on (where that one was
+            # heading); the ids that form cycles were permuted by the tracker
+            lands = {}
+            for ka in ks:
+                pa = np.array([x[ka], y[ka]])
+                near = [kb for kb in ks if kb != ka and np.hypot(*(pa - pred[kb]))
+                        < min(LAND_FRACTION * max(size[ka], size[kb]), LAND_MM)]
+                if len(near) == 1:
+                    lands[ka] = near[0]
+            for cycle in _cycles(lands):
+                ids_c = [int(mi[k]) for k in cycle]
+                relabel = {int(mi[k]): int(mi[lands[k]]) for k in cycle}
+                found_all.append((tk, relabel))
+                found.append({"markers": [rec.markers[m] for m in ids_c], "role": role,
+                              "t_s": tk, "jump_mm": float(max(size[k] for k in cycle)),
+                              "reason": "the ids jump in one frame, each to where another "
+                                        "of them was heading: their samples from t_s on "
+                                        "are given back to the markers they follow"})
     if not found:
         return rec, []
     # the faulty ids are the exchanges applied in time order, so they come undone in the
     # reverse order (exchanges that share a marker do not commute)
-    for tk, a, b in sorted(found_all, key=lambda f: -f[0]):
+    for tk, relabel in sorted(found_all, key=lambda f: -f[0]):
         tail = rec.t >= tk
-        in_a, in_b = tail & (mi_all == a), tail & (mi_all == b)
-        mi_all[in_a], mi_all[in_b] = b, a
+        masks = {a: tail & (mi_all == a) for a in relabel}
+        for a, b in relabel.items():
+            mi_all[masks[a]] = b
     found.sort(key=lambda f: f["t_s"])
     order = np.lexsort((rec.t, mi_all))
     changes = {name: getattr(rec, name)[order]
