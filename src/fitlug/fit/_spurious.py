@@ -36,11 +36,13 @@ MOVED_MIN_MM = 0.2
 LOOP_MM = 4.0
 ON_LOOP = 0.5
 MAX_TRACKS = 500  # tracks of one role beyond which nothing is judged
+PER_TRACK = 2000  # samples of a track judged at most (evenly thinned beyond)
 MIN_JUDGED = 3  # samples of a lug track within the body reference's span
 
 
 def _tracks(rec, ids):
-    """{marker: (t, x, y) of its valid samples}, in one pass (no mask per marker)."""
+    """{marker: (t, x, y) of its valid samples}, in one pass (no mask per marker); a
+    track longer than PER_TRACK samples is thinned evenly to about that many."""
     sel = rec.valid & np.isin(rec.marker_index, ids)
     mi, t, x, y = rec.marker_index[sel], rec.t[sel], rec.x[sel], rec.y[sel]
     order = np.lexsort((t, mi))
@@ -49,7 +51,8 @@ def _tracks(rec, ids):
     out = {int(m): (np.empty(0), np.empty(0), np.empty(0)) for m in np.asarray(ids).tolist()}
     for a, b in zip(np.r_[0, cuts], np.r_[cuts, mi.size]):
         if b > a:
-            out[int(mi[a])] = (t[a:b], x[a:b], y[a:b])
+            step = max(1, (b - a) // PER_TRACK)  # long recordings: every step-th sample
+            out[int(mi[a])] = (t[a:b:step], x[a:b:step], y[a:b:step])
     return out
 
 
@@ -131,7 +134,7 @@ def _lug_outliers(tracks: dict, ref) -> list:
     tb, X, Y = ref
     if len(tracks) < 3 or tb.size < 2:
         return []
-    ids, us, ws, vs = [], [], [], []
+    ids, us, ws, vs, sps = [], [], [], [], []
     for m, (t, x, y) in tracks.items():
         inside = (t >= tb[0]) & (t <= tb[-1])
         t, x, y = t[inside], x[inside], y[inside]
@@ -140,15 +143,17 @@ def _lug_outliers(tracks: dict, ref) -> list:
         us.append(u)
         ws.append(w)
         vs.append(_velocity(t, u, w))
-    mi, u, w, vel = (np.concatenate(ids), np.concatenate(us), np.concatenate(ws),
-                     np.concatenate(vs))
+        gap = np.hypot(np.diff(u), np.diff(w))  # the sampling's spacing along the path
+        sps.append(np.r_[gap[:1], gap] if gap.size else np.zeros(u.size))
+    mi, u, w, vel, sp = (np.concatenate(ids), np.concatenate(us), np.concatenate(ws),
+                         np.concatenate(vs), np.concatenate(sps))
     if mi.size < 10:
         return []
     speed = np.hypot(*vel.T)
     # samples where the belt is (nearly) at rest say nothing about the direction, and pile
     # up in one place: only the moving ones are judged
     moving = speed > 0.05 * np.nanpercentile(speed, 90)
-    mi, pts, vel = mi[moving], np.stack([u, w], axis=1)[moving], vel[moving]
+    mi, pts, vel, sp = mi[moving], np.stack([u, w], axis=1)[moving], vel[moving], sp[moving]
     if mi.size < 10:
         return []
     rows = np.arange(mi.size)
@@ -165,7 +170,8 @@ def _lug_outliers(tracks: dict, ref) -> list:
             dd, jj = cKDTree(pts[rest]).query(pts[mine])
             d[mine] = dd
             nn[mine] = np.flatnonzero(rest)[jj]
-    on = (d < LOOP_MM) & (np.sum(vel * vel[nn], axis=1) > 0)
+    # within LOOP_MM of the loop, widened by half the samples' spacing (thinned tracks)
+    on = (d < LOOP_MM + 0.5 * np.maximum(sp, sp[nn])) & (np.sum(vel * vel[nn], axis=1) > 0)
     counts = np.bincount(mi)
     shares = np.bincount(mi, weights=on.astype(float)) / np.maximum(counts, 1)
     share = {m: float(shares[m]) for m in np.flatnonzero(counts >= MIN_JUDGED).tolist()}
