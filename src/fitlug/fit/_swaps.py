@@ -22,6 +22,8 @@ swap (a glitch, a marker knocked loose) is left to the glitch rule and the expla
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 JUMP_SIGMAS = 30.0
@@ -47,8 +49,8 @@ def _jumps(t, x, y, mi, dt):
     pad = np.full((2, 2), np.nan)
     dp = np.vstack([pad, d, pad])
     neigh = np.stack([dp[0:-4], dp[1:-3], dp[3:-1], dp[4:]], axis=0)  # (4, n-1, 2)
-    with np.errstate(all="ignore"), __import__("warnings").catch_warnings():
-        __import__("warnings").simplefilter("ignore", RuntimeWarning)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN neighbours at a gap
         local = np.nanmedian(neigh, axis=0)
     dev = np.hypot(*(d - local).T)
     size[1:] = dev
