@@ -61,10 +61,12 @@ def _add(rec, name, role, t, x, y):
 RIG_MISPLACED = [
     ("lugs_in_contact = 6\nload_bearing_length_mm = 100\n", 1,
      "top level.*'lugs_in_contact' belongs under \\[track\\]"),
-    ("[vehicle]\nlugs_in_contact = 6\n", 2, "\\[vehicle\\].*'lugs_in_contact' belongs under \\[track\\]"),
+    ("[vehicle]\nlugs_in_contact = 6\n", 2,
+     "\\[vehicle\\].*'lugs_in_contact' belongs under \\[track\\]"),
     ("[vehicle]\nmass = 10\n", 2, "\\[vehicle\\].*'mass'.*did you mean 'mass_kg'"),
     ("mass = 10\n", 1, "'mass'.*did you mean 'mass_kg' under \\[vehicle\\]"),
-    ("L = 100\n[track]\nlugs_in_contact = 6\n", 1, "'L'.*'load_bearing_length_mm' under \\[track\\]"),
+    ("L = 100\n[track]\nlugs_in_contact = 6\n", 1,
+     "'L'.*'load_bearing_length_mm' under \\[track\\]"),
     ("[track]\nlugs_in_contacts = 9\n", 2, "did you mean 'lugs_in_contact'"),
     ("[robot]\nmass_kg = 3\n", 2, "\\[robot\\].*'mass_kg' belongs under \\[vehicle\\]"),
     ("[camera]\nlug_pitch_mm = 18.36\n", 2, "belongs under \\[track\\]"),
@@ -130,8 +132,8 @@ def test_units_header_not_honoured_is_refused_naming_the_line(tmp_path, ref, uni
 def test_two_runs_in_one_file_are_refused_naming_the_line(tmp_path, ref):
     T = float(ref.t.max()) + 0.01
     n = ref.n_samples
-    two = ref.with_(t=np.r_[ref.t, ref.t + T], marker_index=np.r_[ref.marker_index] .repeat(1)
-                    .tolist() + ref.marker_index.tolist(),
+    two = ref.with_(t=np.r_[ref.t, ref.t + T],
+                    marker_index=np.r_[ref.marker_index, ref.marker_index],
                     x=np.r_[ref.x, ref.x], y=np.r_[ref.y, ref.y],
                     frame=np.r_[ref.frame, ref.frame + 650])
     two = _sorted(two, two.marker_index)
