@@ -387,10 +387,10 @@ def test_rig_round_trip_keeps_extra_tables_and_writes_only_set_keys(tmp_path):
 
 
 def test_rig_unknown_key_in_known_table_warns(tmp_path):
-    path = _write(tmp_path, "[track]\nlugs_in_contacts = 9\n", "rig.toml")
-    with pytest.warns(UserWarning, match=r"rig\.toml:2: \[track\] unknown key .lugs_in_contacts.*did you mean .lugs_in_contact."):
+    path = _write(tmp_path, "[track]\ncolour = \"red\"\n", "rig.toml")
+    with pytest.warns(UserWarning, match=r"rig\.toml:2: \[track\] unknown key .colour."):
         rig = read_rig(path)
-    assert rig.lugs_in_contact == 8 and rig.extra == {"track": {"lugs_in_contacts": 9}}
+    assert rig.lugs_in_contact == 8 and rig.extra == {"track": {"colour": "red"}}
 
 
 RIG_BAD = [

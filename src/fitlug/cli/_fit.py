@@ -6,6 +6,7 @@ import argparse
 import os
 import time
 
+from . import _outdir
 from ._common import check_out_folder, progress_enabled, recording_name, say, stage
 
 
@@ -27,7 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from ..io import find_rig, read_rig, write_json
+    from ..io import find_rig, read_rig
 
     t_start = time.perf_counter()
     stage(args, "reading", args.csv)
@@ -35,8 +36,16 @@ def run(args) -> int:
     from ._import import recording_from_args
 
     rec = recording_from_args(args.csv, args, rig)
-    out = args.out or os.path.join("fits", recording_name(args.csv))
+    out = args.out or _outdir.default_folder(args.csv, recording_name(args.csv))
     check_out_folder(out, "--out" if args.out else "output folder")
+    run_id = _outdir.new_run_id()
+    with _outdir.locked(out, run_id, "--out" if args.out else "output folder"):
+        return _run(args, rec, rig, out, run_id, t_start)
+
+
+def _run(args, rec, rig, out, run_id, t_start) -> int:
+    from ..io import write_json
+
     prog = progress_enabled(args)
 
     stage(args, "fitting", f"{len(rec.markers)} markers; the first run compiles the model "
@@ -87,18 +96,20 @@ def run(args) -> int:
     if args.no_explain:
         doc["discrepancy_skipped"] = "--no-explain"
     _display_keys(doc, args)
-    os.makedirs(out, exist_ok=True)
+    doc["run_id"] = run_id
+    doc["input_abs"] = os.path.abspath(args.csv)
+    _outdir.clear_outputs(out)  # the folder holds this run's set only
     write_json(os.path.join(out, "fit.json"), doc)
     report = None
     if preload:
         _preload.wait()
     if post is not None:
-        post.save(os.path.join(out, "posterior.nc"))
+        post.save(os.path.join(out, "posterior.nc"), run_id=run_id)
     if not args.no_report:
         stage(args, "report", os.path.join(out, "report.html"))
         from ..report import save_state, write_report
 
-        save_state(out, final, posterior=post, explanation=expl)
+        save_state(out, final, posterior=post, explanation=expl, run_id=run_id)
         report = write_report(out)
     _summary(args, doc, out, report, time.perf_counter() - t_start)
     return 0
@@ -161,6 +172,15 @@ def _summary(args, doc, out, report, seconds):
         f"  chi2/dof           {doc['chi2_per_dof']:.3f}   (noise: body "
         f"{1000 * doc['noise_mm']['body']:.2f} µm, lug {1000 * doc['noise_mm']['lug']:.2f} µm)",
     ]
+    applied = (doc.get("orientation") or {}).get("applied") or []
+    if applied:
+        lines.append("  axes               " + "; ".join(applied))
+    for sw in doc.get("swaps") or []:
+        lines.append(f"  identity swap      {' and '.join(sw['markers'])} from "
+                     f"{sw['t_s']:g} s: repaired")
+    for ex in doc.get("excluded") or []:
+        lines.append(f"  kept out           {ex['marker']} ({ex['role']}, {ex['n_samples']} "
+                     f"samples): {ex['reason']}")
     d = doc.get("discrepancy")
     if d:
         eff = d.get("effects") or []

@@ -13,7 +13,7 @@ from ..model._knots import top_run_tracks
 from ..model._model import BASE_SCALARS, default_params
 from ..model.effects import CATALOG
 from . import _fragments, _init
-from ._checks import check_recording
+from ._prepare import prepare
 from ._noise import estimate_noise
 
 MIN_FRAMES = 20
@@ -72,7 +72,7 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
     Raises InputError (naming the file) for: no body or no lug markers, too few frames,
     fewer valid samples than parameters.
     """
-    rec = check_recording(rec, rig)  # plausibility: empty markers, no motion, units (_checks)
+    rec, found = prepare(rec, rig)  # frame, plausibility, swaps, spurious tracks (_prepare)
     path = rec.path
     body_ids, lug_ids = _ids(rec)
     if not body_ids:
@@ -195,7 +195,7 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
         raise InputError(path, f"fewer valid samples ({valid_count} coordinates) than "
                                f"parameters ({n_par})")
     info = {"fps": fps, "n_belt": N, "breaks": breaks, "geometry0": geom, "slip0": s,
-            "joined": joined, "markers": _fragments.coverage(rec, joined)}
+            "joined": joined, "markers": _fragments.coverage(rec, joined), **found}
     return Problem(rec=rec, rig=rig, lay=lay, obs=obs, lug_ids=lug_ids, body_ids=body_ids,
                    lug_rows=lug_rows, body_rows=body_rows, noise=noise, noise_source=src,
                    p0=p0, init_info=info)

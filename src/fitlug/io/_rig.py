@@ -3,17 +3,16 @@
 from __future__ import annotations
 
 import datetime
-import difflib
 import json
 import math
 import os
 import re
 import tomllib
-import warnings
 from dataclasses import dataclass, field
 
 from .._errors import InputError
 from ._atomic import write_text_atomic
+from ._rig_check import check_keys
 
 
 class _Bad(Exception):
@@ -167,11 +166,13 @@ def read_rig(path: str | os.PathLike) -> Rig:
     """Read rig.toml. Missing keys keep their defaults; unknown tables go to `Rig.extra`.
 
     Unknown keys inside the known tables are kept in `extra` too ({table: {key: value}}),
-    with a warning when they look like a misspelt known key.
+    with a warning; a known key outside its table, or one that looks like a misspelt
+    known key, is refused (fitlug.io._rig_check).
 
     Raises:
         InputError: unreadable file, TOML syntax error (with its line), or a bad value
-            (naming the table, key and line).
+            (naming the table, key and line), a known key outside its table or a
+            near-miss of one (`mass = 10` for mass_kg).
     """
     path = os.fspath(path)
     try:
@@ -195,6 +196,7 @@ def read_rig(path: str | os.PathLike) -> Rig:
         raise InputError(path, f"invalid TOML: {problem}", line=line) from None
 
     known = {(table, key): (attr, check) for table, key, attr, check in _FIELDS}
+    check_keys(path, data, known, _TABLES, lambda table, key: _key_line(text, table, key))
     values: dict = {}
     extra: dict = {}
     for table, content in data.items():
@@ -205,22 +207,15 @@ def read_rig(path: str | os.PathLike) -> Rig:
             raise InputError(path, f"[{table}] must be a table, got {content!r}",
                              line=_key_line(text, None, table))
         for key, value in content.items():
-            line = _key_line(text, table, key)
             if (table, key) not in known:
-                extra.setdefault(table, {})[key] = value
-                # other keys are welcome ([camera] model = ...), but a near-miss of a known
-                # key is most likely a typo that would silently leave a default in place
-                close = difflib.get_close_matches(key, [k for t, k in known if t == table],
-                                                  n=1, cutoff=0.8)
-                if close:
-                    warnings.warn(f"{path}:{line}: [{table}] unknown key {key!r} (kept in "
-                                  f"Rig.extra): did you mean {close[0]!r}?", stacklevel=2)
+                extra.setdefault(table, {})[key] = value  # warned by check_keys
                 continue
             attr, check = known[(table, key)]
             try:
                 values[attr] = check(value)
             except _Bad as exc:
-                raise InputError(path, f"[{table}] {key} {exc}", line=line) from None
+                raise InputError(path, f"[{table}] {key} {exc}",
+                                 line=_key_line(text, table, key)) from None
     try:
         return Rig(**values, extra=extra, path=path)
     except InputError as exc:  # a rule across keys (a marker in both lists)

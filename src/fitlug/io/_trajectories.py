@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .._errors import InputError
+from . import _declared, _runs
 from ._atomic import atomic_path
 from ._recording import OPTIONAL_COLUMNS, ROLES, Recording
 
@@ -489,7 +490,9 @@ def read_trajectories(path: str | os.PathLike, rig: "Rig | None" = None) -> Reco
         InputError: naming the file, the line and the problem: missing or unreadable file,
             no header, missing column, text in a number field, empty/NaN time, infinite
             value, bad role, a marker changing role, time not increasing per marker, an x
-            column without its y partner, no data rows.
+            column without its y partner, no data rows, a `# units:` line that is not
+            a length in mm, cm, m, in or um (positions are converted to mm), a marker
+            whose role contradicts the rig's [markers] lists.
     """
     path = os.fspath(path)
     table = _read_table(path)
@@ -512,7 +515,22 @@ def read_trajectories(path: str | os.PathLike, rig: "Rig | None" = None) -> Reco
     if not table.rows:
         raise table.error("no samples: nothing below the header", line=table.header_line)
     _check_row_lengths(table)
-    return _read_long(table, cols, rig) if is_long else _read_wide(table, cols, rig)
+    if "units" in table.meta:  # refused before the numbers are read (pixels, ms, unknown)
+        _declared.length_scale(table.meta["units"], path, table.meta_lines.get("units"))
+    if is_long:
+        rec = _read_long(table, cols, rig)
+        _declared.check_rig_roles(rec, rig, _declared.first_lines(table, cols["marker"]))
+    else:
+        rec = _read_wide(table, cols, rig)
+    restart = _runs.find_restart(rec)
+    if restart is not None:  # two runs in one file: name the first row of the second
+        j, jm = cols["time_s"], cols.get("marker")
+        names = set(restart["markers"])
+        row = next((i for i, r in enumerate(table.rows)
+                    if r[j].strip() and float(r[j]) == restart["t"]
+                    and (jm is None or r[jm].strip() in names)), None)
+        raise table.error(_runs.restart_problem(restart), row=row)
+    return _declared.apply_units(rec, table.meta, table.meta_lines)
 
 
 # -- writing --------------------------------------------------------------------------------

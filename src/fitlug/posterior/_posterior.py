@@ -158,8 +158,9 @@ class Posterior:
             "seconds_by_stage": {k: _num(v) for k, v in self.timings.items()},
         }
 
-    def save(self, path) -> None:
-        """Write the samples as an ArviZ InferenceData netCDF file (atomically).
+    def save(self, path, run_id=None) -> None:
+        """Write the samples as an ArviZ InferenceData netCDF file (atomically); `run_id`
+        (the fit-lug run that writes the folder) goes into its attrs.
 
         posterior group: every sampled and derived quantity, dims (chain=walker, draw);
         sample_stats: lp. Read back with arviz.from_netcdf(path).
@@ -177,7 +178,8 @@ class Posterior:
                 posterior=post, sample_stats={"lp": c.log_prob.T},
                 attrs={"inference_library": "emcee", "fitlug_method": self.method,
                        "converged": int(c.converged), "burn_in": int(c.discard),
-                       "seed": int(self.seed)})
+                       "seed": int(self.seed),
+                       **({"run_id": str(run_id)} if run_id is not None else {})})
             with atomic_path(path, suffix=".nc") as tmp:
                 idata.to_netcdf(tmp, engine="h5netcdf")
 

@@ -94,6 +94,14 @@ def fit_json(res, *, input_path: str | None = None, mcmc=None, discrepancy=None,
                            for g in info["glitches"]]
         out["glitch_rule"] = info.get("glitch_rule")
         out["glitch_threshold_sigma"] = _num(info.get("glitch_threshold_sigma"))
+    # what the data said was not as it should be (fitlug.fit._prepare): the transform to
+    # the contract's frame, identity swaps repaired, tracks kept out, sigma_mm handled
+    if "orientation" in info:
+        out["orientation"] = dict(info["orientation"])
+        out["direction"] = info["orientation"]["direction"]
+    for key in ("swaps", "excluded", "sigma_notes"):
+        if key in info:
+            out[key] = list(info[key])
     if mcmc is not None:
         out["mcmc"] = mcmc
     else:

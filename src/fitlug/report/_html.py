@@ -553,6 +553,7 @@ def _markers(st, fj) -> str:
         out += "<p>Tracker fragments fitted as one marker: " + "; ".join(
             f"{_e(j.get('marker'))} ← {_e(', '.join(str(i) for i in j.get('ids', [])))} "
             f"({_e(j.get('reason', ''))})" for j in joined) + ".</p>"
+    out += _found(fj)
     gl = fj.get("glitches") or []
     if gl:
         rule = f" ({_e(fj['glitch_rule'])})" if fj.get("glitch_rule") else ""
@@ -560,6 +561,30 @@ def _markers(st, fj) -> str:
                 + "; ".join(f"{_e(g.get('marker'))} at {F.sig(g.get('time_s'), 4)} s "
                             f"({F.sig(g.get('size_sigma'), 3)} σ)" for g in gl[:12])
                 + (" …" if len(gl) > 12 else "") + ".</p>")
+    return out
+
+
+def _found(fj) -> str:
+    """The frame transform, identity swaps, tracks kept out and sigma_mm notes (fit.json
+    `orientation`, `swaps`, `excluded`, `sigma_notes`)."""
+    out = ""
+    applied = (fj.get("orientation") or {}).get("applied") or []
+    if applied:
+        out += ("<p>The file's axes were brought to x along travel, y up: "
+                + "; ".join(_e(a) for a in applied) + ". Positions here are in that frame.</p>")
+    sw = fj.get("swaps") or []
+    if sw:
+        out += ("<p>Identity swaps repaired: " + "; ".join(
+            f"{_e(' and '.join(s.get('markers', [])))} from {F.sig(s.get('t_s'), 4)} s"
+            for s in sw[:12]) + (" …" if len(sw) > 12 else "")
+            + f" ({_e(sw[0].get('reason', ''))}).</p>")
+    ex = fj.get("excluded") or []
+    if ex:
+        out += ("<p>Tracks kept out of the fit (not markers): " + "; ".join(
+            f"{_e(x.get('marker'))} ({_e(x.get('role'))}, {x.get('n_samples')} samples: "
+            f"{_e(x.get('reason', ''))})" for x in ex) + ".</p>")
+    for note in fj.get("sigma_notes") or []:
+        out += f"<p>{_e(note)}.</p>"
     return out
 
 
@@ -750,6 +775,11 @@ def write_report(out_dir) -> str:
         raise InputError(fj_path, "no fit.json in the fit folder")
     fj = read_json(fj_path)
     st = load_state(out_dir)
+    a, b = fj.get("run_id"), st["meta"].get("run_id")
+    if a != b:  # a folder mixing two runs' files (fitlug.cli._outdir)
+        raise InputError(out_dir, f"fit.json (run {a or 'without an id'}) and state.npz "
+                                  f"(run {b or 'without an id'}) come from different runs: "
+                                  "rerun fit-lug to rebuild the folder")
     name = recording_label(fj, out_dir)
     s = fj.get("slip") or {}
     verdict = (fj.get("discrepancy") or {}).get("verdict")
@@ -795,6 +825,8 @@ def _page(fj, st, out_dir, name, title) -> str:
             f"<title>{html.escape(title)}</title><style>{_CSS}</style></head><body>"
             f"<h1>Track slip of {html.escape(name)}</h1>{_meta_line(fj)}{summary}{nav}"
             f"{''.join(body)}"
-            f'<p class="small">Written by fitlug from fit.json and state.npz in this folder; '
+            f'<p class="small">Written by fitlug'
+            + (f" (run {_e(fj['run_id'])})" if fj.get("run_id") else "")
+            + ' from fit.json and state.npz in this folder; '
             f"<code>fit-lug report DIR</code> rebuilds it.</p></body></html>")
     return page

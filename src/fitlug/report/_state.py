@@ -200,8 +200,11 @@ def _scalar_correlation(res):
     return names, C / np.outer(d, d)
 
 
-def save_state(out_dir, res, posterior=None, explanation=None) -> str:
+def save_state(out_dir, res, posterior=None, explanation=None, run_id=None) -> str:
     """Write DIR/state.npz for the report (atomically); returns its path.
+
+    run_id: the id of the run that writes the folder (fit.json `run_id`), kept in the
+    meta so that `write_report` refuses a fit.json and state.npz of different runs.
 
     res: the final FitResult; posterior: a fitlug.posterior.Posterior or None; explanation: an
     object with `.base` (the FitResult before any effects) or None.
@@ -209,6 +212,8 @@ def save_state(out_dir, res, posterior=None, explanation=None) -> str:
     from ..io import write_bytes_atomic
 
     arrays, meta = state_arrays(res, posterior, explanation)
+    if run_id is not None:
+        meta["run_id"] = str(run_id)
     buf = io.BytesIO()
     np.savez_compressed(buf, meta=np.array(json.dumps(meta)), **arrays)
     path = os.path.join(os.fspath(out_dir), STATE_FILE)

@@ -37,10 +37,31 @@ def _pooled(devs):
     return float(np.sqrt(ss / dof)) if dof > 0 else float("nan")
 
 
+#: a marker whose spread about its mean exceeds this many times its frame-to-frame noise
+#: (from second differences, which cancel a steady motion) is moving, not noisy
+MOVING_RATIO = 10.0
+
+
+def _check_still(marker, pts: np.ndarray) -> None:
+    """Refuse a marker that moves: its spread would be reported as noise (a moving robot
+    gave 13.5 mm "noise")."""
+    if pts.shape[0] < 5:
+        return
+    spread = float(np.sqrt(np.mean((pts - pts.mean(axis=0)) ** 2)))
+    d2 = np.diff(pts, n=2, axis=0)
+    noise = float(np.sqrt(np.mean(d2 ** 2) / 6.0))  # white noise: var(d2) = 6 sigma^2
+    if spread > MOVING_RATIO * max(noise, 1e-3) and spread > 0.5:
+        raise InputError(None, f"marker {marker} moves during the recording: its positions "
+                               f"spread {spread:.3g} px about their mean against a "
+                               f"frame-to-frame noise of {noise:.3g} px; `fit-lug noise` "
+                               "needs a recording of a stationary robot")
+
+
 def noise_from_tracks(result: TrackResult, calibration: Calibration | None = None,
                       min_samples: int = 10) -> NoiseResult:
     """Noise of tracked stationary markers (see `NoiseResult`); markers with fewer than
-    `min_samples` samples are left out. Raises InputError when no marker has enough."""
+    `min_samples` samples are left out. Raises InputError when no marker has enough, and
+    when a marker moves (its spread is then motion, not noise)."""
     per_marker, by_role = [], {}
     mm = None
     if calibration is not None:
@@ -51,6 +72,7 @@ def noise_from_tracks(result: TrackResult, calibration: Calibration | None = Non
         n = int(ok.sum())
         if n < min_samples:
             continue
+        _check_still(marker, result.xy_px[ok, k])
         row = {"marker": marker, "role": result.roles[k], "kind": result.kinds[k], "n": n}
         units = [("px", result.xy_px[ok, k])] + ([("mm", mm[ok, k])] if mm is not None else [])
         devs = {}
