@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import os
 
-from ._common import progress_enabled, say
+from ._common import positive_seconds, progress_enabled, say, seed_arg
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -17,7 +17,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=int, default=None,
                    help="local Dask worker processes (default: CPU cores, at most 4); "
                         "0: fit in this process without Dask")
-    p.add_argument("--seed", type=int, default=0, help="seed of every random step (default 0)")
+    p.add_argument("--seed", type=seed_arg, default=0,
+                   help="seed of every random step, 0 .. 2**32-1 (default 0)")
     p.add_argument("--no-mcmc", action="store_true",
                    help="no per-recording posterior (least-squares errors)")
     p.add_argument("--no-explain", action="store_true",
@@ -25,7 +26,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-report", action="store_true", help="no per-recording report.html")
     p.add_argument("--no-resume", action="store_true",
                    help="refit every recording even when its inputs are unchanged")
-    p.add_argument("--mcmc-budget", type=float, default=60.0, metavar="S",
+    p.add_argument("--mcmc-budget", type=positive_seconds, default=60.0, metavar="S",
                    help="time budget of each recording's sampler in seconds (default 60)")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
 

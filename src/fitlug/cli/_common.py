@@ -58,3 +58,50 @@ def check_out_folder(folder: str, option: str = "--out") -> None:
         raise InputError(option, f"{folder} cannot be created: {parent} is a file")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise InputError(option, f"{folder} cannot be written: {parent} is not writable")
+
+
+SEED_MAX = 2 ** 32 - 1  # numpy's default_rng takes more, emcee's legacy RandomState not
+
+
+def seed_arg(text: str) -> int:
+    """argparse type of --seed: an integer 0 .. 2**32-1, refused at parsing (before any
+    fit) with a one-line error otherwise."""
+    import argparse
+
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if not 0 <= value <= SEED_MAX:
+        raise argparse.ArgumentTypeError(f"{text} is out of range: a seed is 0 .. {SEED_MAX}")
+    return value
+
+
+def positive_seconds(text: str) -> float:
+    """argparse type of a time budget: a finite number of seconds > 0."""
+    import argparse
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text} must be a finite number of seconds > 0")
+    return value
+
+
+def positive_int(minimum: int = 1, what: str = "a count"):
+    """argparse type: an integer >= minimum."""
+    import argparse
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"{text}: {what} must be at least {minimum}")
+        return value
+
+    return parse

@@ -7,19 +7,21 @@ import os
 import time
 
 from . import _outdir
-from ._common import check_out_folder, progress_enabled, recording_name, say, stage
+from ._common import (check_out_folder, positive_seconds, progress_enabled, recording_name, say,
+                      seed_arg, stage)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("csv", metavar="TRAJECTORIES.csv", help="marker trajectories (DATA.md)")
     p.add_argument("--rig", help="rig.toml (default: one beside the CSV, else the reference rig)")
     p.add_argument("--out", help="output folder (default: fits/<recording name>/)")
-    p.add_argument("--seed", type=int, default=0, help="seed of every random step (default 0)")
+    p.add_argument("--seed", type=seed_arg, default=0,
+                   help="seed of every random step, 0 .. 2**32-1 (default 0)")
     p.add_argument("--no-mcmc", action="store_true", help="least squares only: no posterior")
     p.add_argument("--no-explain", action="store_true",
                    help="do not look for left-out physics (base model only)")
     p.add_argument("--no-report", action="store_true", help="write fit.json but no report.html")
-    p.add_argument("--mcmc-budget", type=float, default=60.0, metavar="S",
+    p.add_argument("--mcmc-budget", type=positive_seconds, default=60.0, metavar="S",
                    help="time budget of the sampler in seconds (default 60)")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
     from ._import import add_source_options

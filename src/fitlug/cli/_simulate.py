@@ -6,7 +6,7 @@ import argparse
 import math
 import os
 
-from ._common import progress_enabled, say
+from ._common import progress_enabled, say, seed_arg
 
 
 # fit.json's name of an effect parameter -> (model parameter, value -> model value), for the
@@ -87,7 +87,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--grounds", default="concrete,sand",
                    help="with --campaign: comma-separated ground names (default "
                         "concrete,sand; C_rr 0.06 / 0.15 / 0.10..., F_max 50 / 45 / 55 N)")
-    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    p.add_argument("--seed", type=seed_arg, default=0, help="noise seed, 0 .. 2**32-1 (default 0)")
     p.add_argument("--effect", action="append", default=[], metavar="ID:P=V[,P=V...]",
                    help="add a catalog effect with its parameters, e.g. "
                         "wheel_runout:runout_a=0.002 (repeatable; the effects are listed below)")
