@@ -60,3 +60,34 @@ def test_largest_seed_accepted():
 
     np.random.default_rng(SEED_MAX)  # the range documented is one numpy takes
     np.random.RandomState(SEED_MAX)  # and emcee's legacy generator
+
+
+def _state_bytes() -> bytes:
+    import io
+    import json
+
+    import numpy as np
+
+    buf = io.BytesIO()
+    rng = np.random.default_rng(1)
+    np.savez_compressed(buf, meta=np.array(json.dumps({"run_id": "x"})),
+                        t=rng.normal(size=20000), y=rng.normal(size=20000))
+    return buf.getvalue()
+
+
+@pytest.mark.parametrize("damage", ["truncated", "cut_short", "bit_flips", "empty", "text"])
+def test_report_on_a_damaged_state_file_is_one_line(damage, tmp_path, capsys):
+    good = _state_bytes()
+    data = {"truncated": good[: len(good) // 2], "cut_short": good[:-30], "empty": b"",
+            "text": b"not a zip file\n"}.get(damage)
+    if damage == "bit_flips":
+        b = bytearray(good)
+        for i in range(200, len(b) - 200, 997):
+            b[i] ^= 0xFF
+        data = bytes(b)
+    (tmp_path / "fit.json").write_text('{"run_id": "x"}')
+    (tmp_path / "state.npz").write_bytes(data)
+    assert main(["report", str(tmp_path)]) == 2
+    line = _one_error_line(capsys)
+    assert "state.npz" in line and "truncated or damaged" in line, line
+    assert not (tmp_path / "report.html").exists()

@@ -226,6 +226,9 @@ def load_state(out_dir) -> dict:
 
     Raises InputError when the file is missing or unreadable.
     """
+    import zipfile
+    import zlib
+
     from .._errors import InputError
 
     path = os.path.join(os.fspath(out_dir), STATE_FILE)
@@ -236,6 +239,8 @@ def load_state(out_dir) -> dict:
         with np.load(path, allow_pickle=False) as z:
             out = {k: z[k] for k in z.files}
         out["meta"] = json.loads(str(out["meta"]))
-    except (OSError, ValueError, KeyError) as exc:
-        raise InputError(path, f"unreadable state file: {exc}") from None
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+        # a truncated or damaged file (an interrupted copy, a full disk): one line, no traceback
+        raise InputError(path, f"unreadable state file, truncated or damaged ({exc}); rerun "
+                               "`fit-lug` on the recording to rewrite the folder") from None
     return out
