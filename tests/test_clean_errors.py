@@ -91,3 +91,74 @@ def test_report_on_a_damaged_state_file_is_one_line(damage, tmp_path, capsys):
     line = _one_error_line(capsys)
     assert "state.npz" in line and "truncated or damaged" in line, line
     assert not (tmp_path / "report.html").exists()
+
+
+def _reference_rows():
+    with open(REF) as fh:
+        lines = fh.read().splitlines()
+    head = [ln for ln in lines if ln.startswith("#")]
+    rows = [ln for ln in lines if not ln.startswith("#")]
+    return head, rows[0], rows[1:]
+
+
+def _write(path, head, columns, rows):
+    path.write_text("\n".join(head + [columns] + rows) + "\n")
+    return str(path)
+
+
+def test_a_new_marker_id_every_frame_is_refused_as_unlinked(tmp_path, capsys):
+    head, columns, rows = _reference_rows()
+    new = []
+    for r in rows:  # B01 at frame 7 becomes B01_7: 7800 ids in 650 frames
+        f = r.split(",")
+        f[1] = f"{f[1]}_{f[5]}"
+        new.append(",".join(f))
+    path = _write(tmp_path / "trajectories.csv", head, columns, new)
+    assert main([path, "--no-mcmc", "--no-explain", "--no-report",
+                 "--out", str(tmp_path / "fit")]) == 2
+    line = _one_error_line(capsys)
+    assert "trajectories.csv" in line and "7800 marker ids in 650 frames" in line, line
+    assert "link the tracks first" in line and "never moves" not in line, line
+
+
+def test_many_distinct_ids_are_judged_in_linear_time(tmp_path):
+    """2*10^5 ids, one sample each: refused in well under a second by the library (the
+    per-marker loops were markers x samples: a hang at 10^6)."""
+    import time
+
+    import numpy as np
+
+    from fitlug.fit._checks import _per_marker, check_marker_ids
+    from fitlug.io import read_trajectories
+
+    n = 200_000
+    t = np.arange(n) / 1000.0
+    body = np.arange(n) % 2 == 1
+    lines = ["time_s,marker,role,x_mm,y_mm"] + [
+        f"{t[i]:.3f},M{i},{'body' if body[i] else 'lug'},{10 * t[i]:.4f},{40 * body[i]}"
+        for i in range(n)]
+    (tmp_path / "ids.csv").write_text("\n".join(lines) + "\n")
+    rec = read_trajectories(tmp_path / "ids.csv")
+    t0 = time.perf_counter()
+    with pytest.raises(ValueError, match="a new marker id on nearly every frame"):
+        check_marker_ids(rec)
+    per = _per_marker(rec, "body")
+    assert time.perf_counter() - t0 < 5.0
+    assert len(per) == n // 2 and all(p[0].size == 1 for p in per[:100])
+
+
+def test_per_marker_keeps_each_markers_samples_in_order():
+    import numpy as np
+
+    from fitlug.fit._checks import _per_marker
+    from fitlug.io import read_trajectories
+
+    rec = read_trajectories(REF)
+    for role in ("body", "lug"):
+        got = _per_marker(rec, role)
+        ids = [m for m, r in enumerate(rec.roles) if r == role]
+        assert len(got) == len(ids)
+        for m, (t, x, y) in zip(ids, got):  # the masks the linear version replaced
+            sel = rec.valid & (rec.marker_index == m)
+            assert np.array_equal(t, rec.t[sel]) and np.array_equal(x, rec.x[sel])
+            assert np.array_equal(y, rec.y[sel])

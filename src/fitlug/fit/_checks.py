@@ -4,6 +4,9 @@
 what the fit could only turn into a misleading "did not converge" or a silently wrong
 number, and drops markers that hold no sample at all (with a warning line):
 
+- marker ids that are not tracks: a new id on nearly every frame (at least 50 ids, with a
+  median of fewer than 3 samples each or more ids than frames): refused, with "link the
+  tracks first" (`check_marker_ids`, called first by fitlug.fit._prepare).
 - a marker with no valid sample (x_mm, y_mm empty in every row): dropped, with a warning
   naming it. A tracker may list a marker it never found, and the other markers still
   measure everything; refusing would block a good recording for an empty column. When
@@ -40,6 +43,8 @@ FRAME_INTERVAL_MAX_S = 1.0
 # a robot "moves" when its body travels more than this many noise sigmas (and > 1 µm)
 MOVE_SIGMAS = 50.0
 MOVE_MIN_MM = 1e-3
+# this many marker ids or more are judged for "a new id on nearly every frame"
+ID_FLOOD_MIN = 50
 
 
 def _unit_hint(value: float, lo: float, hi: float) -> str:
@@ -54,19 +59,20 @@ def _unit_hint(value: float, lo: float, hi: float) -> str:
 def _drop_empty(rec):
     valid = rec.valid
     counts = np.bincount(rec.marker_index[valid], minlength=rec.n_markers)
-    empty = [m for m in range(rec.n_markers) if counts[m] == 0]
+    is_empty = counts == 0
+    empty = np.flatnonzero(is_empty).tolist()
     if not empty:
         return rec
     for role in ("body", "lug"):
         ids = [m for m, r in enumerate(rec.roles) if r == role]
-        if ids and all(m in empty for m in ids):
+        if ids and all(is_empty[m] for m in ids):
             names = ", ".join(rec.markers[m] for m in ids)
             raise InputError(rec.path, f"every {role} marker ({names}) is empty: x_mm and y_mm "
                                        "are missing in all their rows")
     names = ", ".join(rec.markers[m] for m in empty)
     warnings.warn(f"{rec.path or '<recording>'}: marker(s) {names} have no valid sample "
                   "(x_mm, y_mm empty in all their rows): left out of the fit", stacklevel=3)
-    keep = np.array([m not in empty for m in range(rec.n_markers)])
+    keep = ~is_empty
     new_index = np.cumsum(keep) - 1
     rows = keep[rec.marker_index]
     changes = {name: getattr(rec, name)[rows]
@@ -78,14 +84,39 @@ def _drop_empty(rec):
 
 
 def _per_marker(rec, role):
-    """(t, x, y) of the valid samples of each marker with `role`."""
-    valid = rec.valid
+    """(t, x, y) of the valid samples of each marker with `role`, in the file's order per
+    marker: one stable sort, linear in the samples (not markers x samples)."""
+    valid = np.flatnonzero(rec.valid)
+    order = valid[np.argsort(rec.marker_index[valid], kind="stable")]
+    mi = rec.marker_index[order]
+    edges = np.searchsorted(mi, np.arange(rec.n_markers + 1))
     out = []
     for m, r in enumerate(rec.roles):
         if r == role:
-            sel = valid & (rec.marker_index == m)
+            sel = order[edges[m]:edges[m + 1]]
             out.append((rec.t[sel], rec.x[sel], rec.y[sel]))
     return out
+
+
+def check_marker_ids(rec) -> None:
+    """Refuse a recording whose marker ids are not tracks: a new id on nearly every frame
+    (a tracker's unlinked detections), which no per-marker step can use. Judged in linear
+    time, before anything loops over the markers: at least ID_FLOOD_MIN ids with a median of
+    fewer than 3 samples each, or more ids than frames."""
+    if rec.n_markers < ID_FLOOD_MIN:
+        return
+    valid = rec.valid
+    counts = np.bincount(rec.marker_index[valid], minlength=rec.n_markers)
+    counts = counts[counts > 0]
+    if counts.size < ID_FLOOD_MIN:
+        return
+    n_frames = np.unique(rec.t[valid]).size
+    median = float(np.median(counts))
+    if median < 3 or counts.size > n_frames:
+        raise InputError(rec.path, f"{counts.size} marker ids in {n_frames} frames, "
+                                   f"{median:g} sample(s) per id at the median: a new marker "
+                                   "id on nearly every frame, not tracks; link the tracks "
+                                   "first (one id per physical marker over the recording)")
 
 
 def _noise(tracks) -> float:
