@@ -162,3 +162,43 @@ def test_per_marker_keeps_each_markers_samples_in_order():
             sel = rec.valid & (rec.marker_index == m)
             assert np.array_equal(t, rec.t[sel]) and np.array_equal(x, rec.x[sel])
             assert np.array_equal(y, rec.y[sel])
+
+
+def _changed_reference(tmp_path, change, name="trajectories.csv"):
+    """The reference recording with change(fields) applied to each data row (a list of
+    strings: time_s, marker, role, x_mm, y_mm, frame)."""
+    head, columns, rows = _reference_rows()
+    new = []
+    for i, r in enumerate(rows):
+        f = r.split(",")
+        change(i, f)
+        new.append(",".join(f))
+    return _write(tmp_path / name, head, columns, new)
+
+
+@pytest.mark.parametrize("value", ["1e300", "-1e300", "2e7"])
+def test_one_absurd_coordinate_is_one_line_with_its_line(value, tmp_path, capsys):
+    def change(i, f):
+        if i == 3000:
+            f[3] = value
+    path = _changed_reference(tmp_path, change)
+    with __import__("warnings").catch_warnings():
+        __import__("warnings").simplefilter("error")  # no numpy warning on the way
+        assert main([path, "--no-mcmc", "--no-explain", "--no-report",
+                     "--out", str(tmp_path / "fit")]) == 2
+    line = _one_error_line(capsys)
+    # the header is 4 lines (3 comments + columns): data row 3000 is line 3005
+    assert "trajectories.csv:3005" in line and "x_mm" in line and value in line, line
+
+
+def test_absurd_coordinate_in_memory_is_refused_by_the_fit():
+    import numpy as np
+
+    from fitlug.fit import fit
+    from fitlug.io import read_trajectories
+
+    rec = read_trajectories(REF)
+    y = rec.y.copy()
+    y[123] = np.inf
+    with pytest.raises(ValueError, match=r"absurd y_mm inf of marker \w+ at time_s"):
+        fit(rec.with_(y=y), None)

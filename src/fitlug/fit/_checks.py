@@ -98,6 +98,24 @@ def _per_marker(rec, role):
     return out
 
 
+def check_coordinates(rec) -> None:
+    """Refuse a position beyond COORD_LIMIT_MM (fitlug.io names its line when it reads a
+    file; this guards recordings built in memory, where a 1e300 overflowed into warnings
+    and a traceback), naming the marker and the time."""
+    from ..io._trajectories import COORD_LIMIT_MM
+
+    for name in ("x", "y"):
+        v = getattr(rec, name)
+        with np.errstate(invalid="ignore"):
+            bad = np.flatnonzero(~(np.abs(v) <= COORD_LIMIT_MM) & ~np.isnan(v))
+        if bad.size:
+            i = int(bad[0])
+            raise InputError(rec.path, f"absurd {name}_mm {float(v[i])!r} of marker "
+                                       f"{rec.markers[rec.marker_index[i]]} at time_s "
+                                       f"{float(rec.t[i])!r} (beyond {COORD_LIMIT_MM:g} in "
+                                       "magnitude: a corrupt or mistyped number, or not mm?)")
+
+
 def check_marker_ids(rec) -> None:
     """Refuse a recording whose marker ids are not tracks: a new id on nearly every frame
     (a tracker's unlinked detections), which no per-marker step can use. Judged in linear

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from .._errors import InputError
 from . import _orient, _sigma, _spurious, _swaps
-from ._checks import check_marker_ids, check_recording
+from ._checks import check_coordinates, check_marker_ids, check_recording
 
 
 def prepare(rec, rig) -> tuple:
@@ -26,7 +26,8 @@ def prepare(rec, rig) -> tuple:
     """
     from ..io._runs import find_restart, restart_problem
 
-    check_marker_ids(rec)  # first: the steps below loop over the markers
+    check_coordinates(rec)  # first: an overflowing coordinate upsets every step below
+    check_marker_ids(rec)  # and the steps below loop over the markers
     restart = find_restart(rec)
     if restart is not None:
         raise InputError(rec.path, restart_problem(restart))

@@ -160,8 +160,10 @@ def _check_row_lengths(table: _Table) -> None:
             raise table.error(f"row has {len(row)} fields, the header has {width}", row=i)
 
 
-def _floats(table: _Table, j: int, name: str, *, missing_ok: bool) -> np.ndarray:
-    """Column j as float64; empty -> NaN when `missing_ok`; text, NaN (if not ok), inf raise."""
+def _floats(table: _Table, j: int, name: str, *, missing_ok: bool,
+            limit: float | None = None) -> np.ndarray:
+    """Column j as float64; empty -> NaN when `missing_ok`; text, NaN (if not ok), inf and
+    (with `limit`) a magnitude above `limit` raise, naming the line."""
     rows = table.rows
     try:  # fast path; blank-but-not-empty fields fall through to the careful one
         values = np.fromiter(map(float, [row[j] or "nan" for row in rows]), dtype=np.float64,
@@ -184,9 +186,22 @@ def _floats(table: _Table, j: int, name: str, *, missing_ok: bool) -> np.ndarray
     if bad.size:
         i = int(bad[0])
         raise table.error(f"infinite value in column {name}: {rows[i][j].strip()!r}", row=i)
+    if limit is not None:
+        with np.errstate(invalid="ignore"):
+            bad = np.flatnonzero(np.abs(values) > limit)
+        if bad.size:
+            i = int(bad[0])
+            raise table.error(f"absurd value in column {name}: {rows[i][j].strip()!r} (beyond "
+                              f"{limit:g} in magnitude: a corrupt or mistyped number, or "
+                              "not mm?)",
+                              row=i)
     return values
 
 
+# a coordinate beyond 10 km is no position on a test bed (micrometres of a 5 m field, which
+# the fit's unit check names, are 5e6): a corrupt or mistyped number, refused with its line
+# (a 1e300 overflowed the fit's arithmetic into warnings and a traceback)
+COORD_LIMIT_MM = 1e7
 # frame numbers beyond 2**53 cannot be told apart as float64 (and 2**63 overflows int64)
 _FRAME_LIMIT = 2 ** 53
 # a gap of more than this many frame intervals with no sample of any marker is not a
@@ -367,8 +382,8 @@ def _check_frame_rate(table: _Table, t: np.ndarray, frame: np.ndarray | None,
 def _read_long(table: _Table, cols: dict[str, int], rig: "Rig | None") -> Recording:
     n = len(table.rows)
     t = _floats(table, cols["time_s"], "time_s", missing_ok=False)
-    x = _floats(table, cols["x_mm"], "x_mm", missing_ok=True)
-    y = _floats(table, cols["y_mm"], "y_mm", missing_ok=True)
+    x = _floats(table, cols["x_mm"], "x_mm", missing_ok=True, limit=COORD_LIMIT_MM)
+    y = _floats(table, cols["y_mm"], "y_mm", missing_ok=True, limit=COORD_LIMIT_MM)
     j_marker, j_role = cols["marker"], cols["role"]
     ids: dict[str, int] = {}
     roles: list[str] = []
@@ -451,9 +466,11 @@ def _read_wide(table: _Table, cols: dict[str, int], rig: "Rig | None") -> Record
     roles = _wide_roles(table, markers, rig)
     n_rows, n_markers = len(table.rows), len(markers)
     time = _floats(table, cols["time_s"], "time_s", missing_ok=False)
-    xs = [_floats(table, pairs[m]["x"], table.header[pairs[m]["x"]], missing_ok=True)
+    xs = [_floats(table, pairs[m]["x"], table.header[pairs[m]["x"]], missing_ok=True,
+                   limit=COORD_LIMIT_MM)
           for m in markers]
-    ys = [_floats(table, pairs[m]["y"], table.header[pairs[m]["y"]], missing_ok=True)
+    ys = [_floats(table, pairs[m]["y"], table.header[pairs[m]["y"]], missing_ok=True,
+                   limit=COORD_LIMIT_MM)
           for m in markers]
     frame = _ints(table, cols["frame"], "frame") if "frame" in cols else None
     _check_frame_rate(table, time, frame, rig)
