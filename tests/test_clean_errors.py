@@ -202,3 +202,31 @@ def test_absurd_coordinate_in_memory_is_refused_by_the_fit():
     y[123] = np.inf
     with pytest.raises(ValueError, match=r"absurd y_mm inf of marker \w+ at time_s"):
         fit(rec.with_(y=y), None)
+
+
+def test_time_jitter_is_named_not_a_missing_sigma_column(tmp_path, capsys):
+    import numpy as np
+
+    rng = np.random.default_rng(3)
+    jitter = rng.uniform(-0.002, 0.002, size=1000)  # +-2 ms per frame, at 100 fps
+
+    def change(i, f):
+        f[0] = f"{float(f[0]) + jitter[int(f[5])]:.6f}"
+    path = _changed_reference(tmp_path, change)
+    assert main([path, "--no-mcmc", "--no-explain", "--no-report",
+                 "--out", str(tmp_path / "fit")]) == 2
+    line = _one_error_line(capsys)
+    assert "time stamps are irregular" in line and "ms apart around" in line, line
+    lo, hi = (float(v) for v in line.split("frames are ")[1].split(" ms apart")[0].split(" to "))
+    assert 6.0 <= lo < 8.0 and 12.0 < hi <= 14.0, line  # steps of 10 +- 4 ms
+
+
+def test_irregular_time_stamps_phrase():
+    import numpy as np
+
+    from fitlug.fit._noise import irregular_time_stamps
+
+    t = np.arange(500) / 100.0
+    assert irregular_time_stamps(t) is None
+    assert irregular_time_stamps(np.r_[t[:100], t[150:]]) is None  # a gap is no jitter
+    assert irregular_time_stamps(t + np.random.default_rng(0).uniform(-2e-3, 2e-3, 500))

@@ -57,3 +57,26 @@ def estimate_noise(rec) -> dict[str, float]:
                 diffs.append(fourth_differences(t, v))
         out[role] = noise_from_differences(diffs)[0]
     return out
+
+
+def irregular_time_stamps(t: np.ndarray) -> str | None:
+    """A phrase naming the spread of the frame intervals when the distinct time stamps `t`
+    (s) are too irregular for the 4th differences (which need runs of five samples evenly
+    spaced to 1 %: most steps off by more), else None. Explains "cannot estimate the noise"
+    for time stamps with jitter (a camera's or a logger's clock)."""
+    times = np.unique(t[np.isfinite(t)])
+    if times.size < 6:
+        return None
+    d = np.diff(times)
+    med = float(np.median(d))
+    if not med > 0:
+        return None
+    k = np.maximum(np.rint(d / med), 1.0)
+    single = d[k == 1]
+    off = np.abs(d / k - med) > 0.01 * med
+    if single.size < 5 or off.mean() < 0.5:
+        return None
+    lo, hi = np.percentile(single, [1, 99])
+    return (f"the time stamps are irregular: consecutive frames are {1e3 * lo:.3g} to "
+            f"{1e3 * hi:.3g} ms apart around {1e3 * med:.3g} ms, {100 * off.mean():.0f} % of "
+            "the steps off by more than 1 %")

@@ -172,6 +172,13 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
         noise = dict(noise or estimate_noise(rec))
         for role in ("body", "lug"):
             if not np.isfinite(noise.get(role, np.nan)) or noise[role] <= 0:
+                from ._noise import irregular_time_stamps
+
+                jitter = irregular_time_stamps(rec.t[valid])
+                if jitter:  # the 4th differences need evenly spaced samples
+                    raise InputError(path, f"cannot estimate the {role}-marker noise: "
+                                           f"{jitter}; give the frames' regular time stamps "
+                                           "(frame / fps) or a sigma_mm column")
                 raise InputError(path, f"cannot estimate the {role}-marker noise (too few "
                                        "consecutive samples); add a sigma_mm column")
         w_l = np.full(len(lug_rows), 1.0 / noise["lug"])
