@@ -230,3 +230,32 @@ def test_irregular_time_stamps_phrase():
     assert irregular_time_stamps(t) is None
     assert irregular_time_stamps(np.r_[t[:100], t[150:]]) is None  # a gap is no jitter
     assert irregular_time_stamps(t + np.random.default_rng(0).uniform(-2e-3, 2e-3, 500))
+
+
+@pytest.mark.parametrize("extra,where,words", [
+    ("Total rows: 7800", "end", ("not a data row", "'Total rows: 7800'", "after the data")),
+    ("camera restarted here", 100, ("not a data row", "among the data")),
+])
+def test_a_line_that_is_not_data_is_named_as_such(extra, where, words, tmp_path, capsys):
+    from fitlug.io import read_trajectories
+
+    head, columns, rows = _reference_rows()
+    at = len(rows) if where == "end" else where
+    path = _write(tmp_path / "t.csv", head, columns, rows[:at] + [extra] + rows[at:])
+    with pytest.raises(ValueError) as e:
+        read_trajectories(path)
+    msg = str(e.value)
+    assert f"t.csv:{len(head) + 2 + at}:" in msg, msg
+    for w in words:
+        assert w in msg, msg
+    assert "separator" not in msg
+
+
+def test_a_row_with_another_separator_still_says_separator(tmp_path):
+    from fitlug.io import read_trajectories
+
+    head, columns, rows = _reference_rows()
+    rows[10] = rows[10].replace(",", ";")
+    path = _write(tmp_path / "t.csv", head, columns, rows)
+    with pytest.raises(ValueError, match=r"t.csv:15: the separator looks wrong: ';'"):
+        read_trajectories(path)

@@ -154,10 +154,40 @@ def _check_row_lengths(table: _Table) -> None:
     for i, row in enumerate(table.rows):
         # trailing empty fields (a trailing comma) are harmless
         if len(row) < width or (len(row) > width and any(f.strip() for f in row[width:])):
-            sep = _separator(",".join(row)) if len(row) < width else None
-            if sep:
+            text = ",".join(row)
+            sep = _separator(text) if len(row) < width else None
+            if sep and _split_count(text, sep) >= width:
                 raise _separator_error(table, sep, table.lines[i])
+            if len(row) < width and not _looks_numeric(row):
+                where = "after the data" if i == len(table.rows) - 1 else "among the data"
+                raise table.error(f"not a data row: {_clip(text)!r} ({len(row)} field"
+                                  f"{'s' if len(row) != 1 else ''}, the header has {width}), "
+                                  f"a note or trailer {where}? remove it or start it with #",
+                                  row=i)
             raise table.error(f"row has {len(row)} fields, the header has {width}", row=i)
+
+
+def _split_count(text: str, sep: str) -> int:
+    """Fields of `text` split by a separator as `_separator` names it."""
+    text = text.strip()
+    if sep == "spaces":
+        return len(text.split())
+    return text.count({"tab": "\t", "';'": ";", "'|'": "|"}[sep]) + 1
+
+
+def _looks_numeric(row: list[str]) -> bool:
+    """Whether the row's first field is a number (a time stamp): data, not a note."""
+    first = (row[0] if row else "").strip()
+    try:
+        float(first.replace(";", " ").replace("\t", " ").replace("|", " ").split()[0])
+    except (ValueError, IndexError):
+        return False
+    return True
+
+
+def _clip(text: str, n: int = 60) -> str:
+    text = text.strip()
+    return text if len(text) <= n else text[: n - 1] + "…"
 
 
 def _floats(table: _Table, j: int, name: str, *, missing_ok: bool,
