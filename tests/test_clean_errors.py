@@ -259,3 +259,20 @@ def test_a_row_with_another_separator_still_says_separator(tmp_path):
     path = _write(tmp_path / "t.csv", head, columns, rows)
     with pytest.raises(ValueError, match=r"t.csv:15: the separator looks wrong: ';'"):
         read_trajectories(path)
+
+
+def test_rig_toml_with_a_bom_is_read(tmp_path):
+    from fitlug.io import read_rig
+
+    src = os.path.join(ROOT, "data", "reference", "rig.toml")
+    with open(src, "rb") as fh:
+        raw = fh.read()
+    (tmp_path / "rig.toml").write_bytes(b"\xef\xbb\xbf" + raw)  # as Notepad saves it
+    assert read_rig(tmp_path / "rig.toml") == read_rig(src)
+
+
+def test_json_with_a_bom_is_read(tmp_path):
+    from fitlug.io import read_json
+
+    (tmp_path / "a.json").write_bytes(b"\xef\xbb\xbf" + b'{"a": 1}')
+    assert read_json(tmp_path / "a.json") == {"a": 1}

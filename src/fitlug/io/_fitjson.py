@@ -61,7 +61,7 @@ def read_json(path: str | os.PathLike) -> Any:
     """
     path = os.fspath(path)
     try:
-        with open(path, encoding="utf-8") as fh:
+        with open(path, encoding="utf-8-sig") as fh:
             text = fh.read()
     except FileNotFoundError:
         raise InputError(path, "file not found") from None

@@ -177,7 +177,7 @@ def read_rig(path: str | os.PathLike) -> Rig:
     path = os.fspath(path)
     try:
         with open(path, "rb") as fh:
-            text = fh.read().decode("utf-8")
+            text = fh.read().decode("utf-8-sig")  # a BOM (Windows editors) as the CSV reader
     except FileNotFoundError:
         raise InputError(path, "file not found") from None
     except IsADirectoryError:

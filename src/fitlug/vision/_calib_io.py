@@ -213,7 +213,7 @@ def load_calibration(path: str | os.PathLike) -> Calibration:
     except OSError as exc:
         raise InputError(path, f"cannot read: {exc.strerror or exc}") from None
     try:
-        text = raw.decode("utf-8")
+        text = raw.decode("utf-8-sig")  # a BOM taken, as in the CSV reader
     except UnicodeDecodeError as exc:
         raise InputError(path, f"not UTF-8 text ({exc.reason})",
                          line=raw.count(b"\n", 0, exc.start) + 1) from None
