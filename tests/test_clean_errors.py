@@ -276,3 +276,34 @@ def test_json_with_a_bom_is_read(tmp_path):
 
     (tmp_path / "a.json").write_bytes(b"\xef\xbb\xbf" + b'{"a": 1}')
     assert read_json(tmp_path / "a.json") == {"a": 1}
+
+
+def test_gzip_trajectories_are_read_transparently(tmp_path):
+    import gzip
+
+    import numpy as np
+
+    from fitlug.io import read_any, read_trajectories
+
+    with open(REF, "rb") as fh:
+        raw = fh.read()
+    (tmp_path / "t.csv.gz").write_bytes(gzip.compress(raw))
+    a, b = read_trajectories(REF), read_any(tmp_path / "t.csv.gz")
+    assert a.markers == b.markers and np.array_equal(a.x, b.x, equal_nan=True)
+
+
+@pytest.mark.parametrize("kind", ["cut", "twice"])
+def test_damaged_or_double_gzip_is_named(kind, tmp_path):
+    import gzip
+
+    from fitlug.io import read_any
+
+    with open(REF, "rb") as fh:
+        z = gzip.compress(fh.read())
+    data = z[:20000] if kind == "cut" else gzip.compress(z)
+    (tmp_path / "t.csv").write_bytes(data)
+    with pytest.raises(ValueError) as e:
+        read_any(tmp_path / "t.csv")
+    msg = str(e.value)
+    assert "t.csv" in msg and "gzip-compressed" in msg and "UTF-8" not in msg, msg
+    assert ("truncated or damaged" if kind == "cut" else "compressed twice") in msg

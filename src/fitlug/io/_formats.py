@@ -87,6 +87,12 @@ def sniff(path: str | os.PathLike) -> tuple[str, bool]:
         raise InputError(path, f"cannot read file: {exc.strerror or exc}") from None
     if not head.strip():
         return "fitlug", False
+    if head.startswith(b"\x1f\x8b"):  # gzip: read_trajectories decompresses a trajectories.csv
+        fmt, sure = _sniff_gzip(path)
+        if fmt == "fitlug":
+            return fmt, sure
+        what = "file compressed twice" if fmt == "gzip" else f"{fmt} file"
+        raise _unknown(path, f"a gzip-compressed {what}: decompress it first (gunzip)")
     if head.startswith(_HDF5):
         return "deeplabcut-h5", True
     if head.startswith(b"PK\x03\x04"):
@@ -190,6 +196,29 @@ def read_any(path: str | os.PathLike, *, format: str | None = None, rig: "Rig | 
                          likelihood=likelihood, fps=fps)
     return tracks_to_recording(tracks, pixels_to_mm=pixels_to_mm, image_height=image_height,
                                fps=fps, rig=rig, body=body, lug=lug)
+
+
+def _sniff_gzip(path: str) -> tuple[str, bool]:
+    """sniff() of a gzip file's content (its first 64 kB, through a temporary file)."""
+    import gzip
+    import tempfile
+    import zlib
+
+    try:
+        with gzip.open(path, "rb") as fh:
+            head = fh.read(65536)
+    except (OSError, EOFError, zlib.error):
+        return "fitlug", False  # read_trajectories names the damage
+    if head.startswith(b"\x1f\x8b"):
+        return "gzip", True
+    with tempfile.TemporaryDirectory() as tmp:
+        inner = os.path.join(tmp, "head")
+        with open(inner, "wb") as fh:
+            fh.write(head)
+        try:
+            return sniff(inner)
+        except InputError:
+            return "fitlug", False
 
 
 def read_canonical(path: str, rig: "Rig | None") -> "Recording":

@@ -85,6 +85,7 @@ def _read_table(path: str) -> _Table:
         raise InputError(path, "cannot read file (permission denied)") from None
     except OSError as exc:
         raise InputError(path, f"cannot read file: {exc.strerror or exc}") from None
+    data = _gunzip(path, data)
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
@@ -107,6 +108,24 @@ def _read_table(path: str) -> _Table:
     if not table.header:
         raise InputError(path, "empty file: no header line")
     return table
+
+
+GZIP_MAGIC = b"\x1f\x8b"
+
+
+def _gunzip(path: str, data: bytes) -> bytes:
+    """A gzip-compressed file's content (read transparently, as `gzip -c` would give it);
+    other bytes unchanged. A damaged or cut-short gzip file is one line, naming it."""
+    if not data.startswith(GZIP_MAGIC):
+        return data
+    import gzip
+    import zlib
+
+    try:
+        return gzip.decompress(data)
+    except (OSError, EOFError, zlib.error) as exc:
+        raise InputError(path, f"a gzip-compressed file that cannot be decompressed, "
+                               f"truncated or damaged ({exc})") from None
 
 
 def _separator(text: str) -> str | None:
