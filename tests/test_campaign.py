@@ -203,6 +203,11 @@ def test_failing_recording_does_not_stop_campaign(tiny_campaign, tmp_path):
     assert [r.status for r in res.recordings[:3]] == ["unchanged"] * 3
     doc = json.loads((out / "campaign.json").read_text())
     assert doc["failed"][0]["name"] == "zz_bad"
+    # the command exits 1 and names it (resumed: nothing is refitted)
+    from fitlug.cli import main
+
+    assert main(["campaign", str(src), str(bad), "--out", str(out), "--workers", "0",
+                 "--no-explain", "--no-mcmc", "--no-report", "-q"]) == 1
 
 
 # -- bad inputs: one-line errors -----------------------------------------------------------

@@ -307,3 +307,25 @@ def test_damaged_or_double_gzip_is_named(kind, tmp_path):
     msg = str(e.value)
     assert "t.csv" in msg and "gzip-compressed" in msg and "UTF-8" not in msg, msg
     assert ("truncated or damaged" if kind == "cut" else "compressed twice") in msg
+
+
+def test_campaign_exits_non_zero_naming_the_failed_recordings(monkeypatch, tmp_path, capsys):
+    """The CLI's exit status from a campaign result with a failure (the campaign itself
+    records failures: tests/test_campaign.py test_failing_recording_does_not_stop_campaign
+    runs the whole path)."""
+    from types import SimpleNamespace
+
+    import fitlug.campaign
+
+    ok = SimpleNamespace(name="a_0N", status="fitted", error=None)
+    bad = SimpleNamespace(name="zz_bad", status="failed",
+                          error="zz_bad/trajectories.csv:2: text in number column x_mm: 'x'")
+    res = SimpleNamespace(recordings=[ok, bad], law="linear", delta_bic=1.0,
+                          stiffness={"value": 0.25, "std": 0.01, "ci95": [0.23, 0.27]},
+                          rolling_resistance={}, F_max=None, flagged=[], failed=[bad])
+    monkeypatch.setattr(fitlug.campaign, "campaign", lambda *a, **k: res)
+    assert main(["campaign", "x", "--out", str(tmp_path), "--workers", "0", "-q"]) == 1
+    line = _one_error_line(capsys)
+    assert "1 of 2 recording(s) failed (zz_bad)" in line and "campaign.json" in line, line
+    res.recordings, res.failed = [ok], []
+    assert main(["campaign", "x", "--out", str(tmp_path), "--workers", "0", "-q"]) == 0

@@ -71,4 +71,13 @@ def run(args) -> int:
     lines.append(f"  wrote {os.path.join(out, 'campaign.json')} and "
                  f"{os.path.join(out, 'campaign.html')}")
     say(args, *lines)
+    if res.failed:  # the law stands on the others, but a failure is never an exit 0
+        import sys
+
+        names = ", ".join(r.name for r in res.failed)
+        print(f"fit-lug: error: campaign: {len(res.failed)} of {len(res.recordings)} "
+              f"recording(s) failed ({names}): the law is from the others; see "
+              f"{os.path.join(out, 'campaign.json')} (failed) for each error",
+              file=sys.stderr)
+        return 1
     return 0
