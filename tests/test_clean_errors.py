@@ -329,3 +329,16 @@ def test_campaign_exits_non_zero_naming_the_failed_recordings(monkeypatch, tmp_p
     assert "1 of 2 recording(s) failed (zz_bad)" in line and "campaign.json" in line, line
     res.recordings, res.failed = [ok], []
     assert main(["campaign", "x", "--out", str(tmp_path), "--workers", "0", "-q"]) == 0
+
+
+def test_noise_with_too_few_frames_says_so(tmp_path, capsys):
+    line = _refused_at_parsing(["noise", str(tmp_path), "--frames", "2"], capsys)
+    assert "--frames" in line and "too few frames" in line and "at least 10" in line, line
+    import numpy as np
+    from PIL import Image
+
+    for i in range(4):  # a folder of 4 frames: refused before the tracker runs
+        Image.fromarray(np.zeros((40, 60), np.uint8)).save(tmp_path / f"f{i:03d}.png")
+    assert main(["noise", str(tmp_path)]) == 2
+    line = _one_error_line(capsys)
+    assert str(tmp_path) in line and "too few frames: 4" in line and "no marker" not in line

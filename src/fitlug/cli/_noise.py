@@ -8,6 +8,21 @@ import os
 from ._common import progress_enabled
 
 
+MIN_FRAMES = 10  # fitlug.vision.noise_from_tracks: samples a marker needs
+
+
+def _frames_arg(text: str) -> int:
+    """--frames: 0 (all) or at least MIN_FRAMES, refused at parsing otherwise."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if n != 0 and n < MIN_FRAMES:
+        raise argparse.ArgumentTypeError(f"{text}: too few frames, the noise needs at least "
+                                         f"{MIN_FRAMES} (0: all)")
+    return n
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = (
         "Track the markers of a recording of a stationary robot and print the standard "
@@ -15,8 +30,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "scale, in mm. The reference rig used 100 frames.")
     parser.add_argument("source", metavar="SOURCE", help="video file, folder of frames or .cine")
     parser.add_argument("--fps", type=float, help="frame rate, Hz (not needed for the noise)")
-    parser.add_argument("--frames", type=int, default=100, metavar="N",
-                        help="use the first N frames (default 100; 0: all)")
+    parser.add_argument("--frames", type=_frames_arg, default=100, metavar="N",
+                        help=f"use the first N frames, at least {MIN_FRAMES} "
+                             "(default 100; 0: all)")
     scale = parser.add_mutually_exclusive_group()
     scale.add_argument("--calib", metavar="CALIB_JSON", help="camera calibration, for mm")
     scale.add_argument("--mm-per-px", type=float, metavar="S", help="scale, for mm")
@@ -42,6 +58,11 @@ def run(args) -> int:
     if fps is None:
         fps = 1.0 if os.path.isdir(args.source) else None  # time plays no part in the noise
     with open_source(args.source, fps=fps, frames=frames) as src:
+        if len(src) < MIN_FRAMES:  # before the tracker: "no marker found" would mislead
+            from .._errors import InputError
+
+            raise InputError(args.source, f"too few frames: {len(src)}, the noise needs at "
+                                          f"least {MIN_FRAMES}")
         h, w = src.shape
         cal = None
         if args.calib or args.mm_per_px is not None or args.scale_points:

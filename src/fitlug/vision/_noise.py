@@ -62,6 +62,10 @@ def noise_from_tracks(result: TrackResult, calibration: Calibration | None = Non
     """Noise of tracked stationary markers (see `NoiseResult`); markers with fewer than
     `min_samples` samples are left out. Raises InputError when no marker has enough, and
     when a marker moves (its spread is then motion, not noise)."""
+    n_frames = int(result.xy_px.shape[0])
+    if n_frames < min_samples:
+        raise InputError(None, f"too few frames: {n_frames} tracked, the noise needs at "
+                               f"least {min_samples}")
     per_marker, by_role = [], {}
     mm = None
     if calibration is not None:
