@@ -342,3 +342,22 @@ def test_noise_with_too_few_frames_says_so(tmp_path, capsys):
     assert main(["noise", str(tmp_path)]) == 2
     line = _one_error_line(capsys)
     assert str(tmp_path) in line and "too few frames: 4" in line and "no marker" not in line
+
+
+def test_calibrate_without_a_board_reports_each_image_and_stops_early(tmp_path, capsys):
+    import numpy as np
+    from PIL import Image
+
+    rng = np.random.default_rng(0)
+    for i in range(14):  # textured frames with no board in them
+        Image.fromarray(rng.integers(0, 255, (120, 160), dtype=np.uint8)).save(
+            tmp_path / f"f{i:02d}.png")
+    assert main(["calibrate", str(tmp_path), "--board", "chessboard:9x6", "--square", "10",
+                 "-o", str(tmp_path / "calib.json")]) == 2
+    cap = capsys.readouterr()
+    progress = [ln for ln in cap.out.splitlines() if ln.startswith("[calibrate] ")]
+    assert len(progress) == 1 + 10, progress  # the start, then one line per image searched
+    assert progress[-1].startswith("[calibrate] 10/14 f09.png: no 9x6 chessboard found")
+    err = [ln for ln in cap.err.splitlines() if ln.strip()]
+    assert len(err) == 1 and "no board" in err[0] and "first 10 of 14 images" in err[0], err
+    assert str(tmp_path) in err[0] and not (tmp_path / "calib.json").exists()

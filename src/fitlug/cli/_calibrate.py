@@ -9,6 +9,7 @@ import os
 import numpy as np
 
 from .._errors import InputError
+from ._common import stage
 
 _GLOB_CHARS = set("*?[")
 
@@ -120,8 +121,15 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--board", str(exc)) from None
     images = expand_images(args.images)
     flags = cv2.CALIB_FIX_ASPECT_RATIO if args.fix_aspect else 0
+    stage(args, "calibrate", f"{len(images)} images; looking for the board "
+                             f"({board.describe()}) in each (seconds an image)")
+
+    def on_image(k, n, name, reason):
+        stage(args, "calibrate", f"{k + 1}/{n} {os.path.basename(name)}: "
+                                 + ("board found" if reason is None else reason))
+
     cal = calibrate(images, board, square_mm=args.square, flags=flags,
-                    subpix_window=args.subpix_window, progress=not args.quiet)
+                    subpix_window=args.subpix_window, progress=False, on_image=on_image)
     if args.scale_points:
         p1, p2, mm = _parse_scale_points(args.scale_points)
         try:
