@@ -33,7 +33,7 @@ def run(args) -> int:
     from ..io import find_rig, read_rig
 
     t_start = time.perf_counter()
-    stage(args, "reading", args.csv)
+    stage(args, "reading", args.csv + _size_note(args.csv))
     rig = read_rig(args.rig) if args.rig else find_rig(args.csv)
     from ._import import recording_from_args
 
@@ -43,6 +43,18 @@ def run(args) -> int:
     run_id = _outdir.new_run_id()
     with _outdir.locked(out, run_id, "--out" if args.out else "output folder"):
         return _run(args, rec, rig, out, run_id, t_start)
+
+
+def _size_note(path: str) -> str:
+    """' (210 MB: about a minute)' for a large file, so a long read is not silence."""
+    try:
+        size = os.path.getsize(path)
+    except OSError:
+        return ""  # the reader names the problem
+    if size < 10e6:
+        return ""
+    seconds = size / 1e7  # ~0.1 s a MB (csv module, one core)
+    return f" ({size / 1e6:.0f} MB: about {seconds:.0f} s to read)"
 
 
 def _run(args, rec, rig, out, run_id, t_start) -> int:
