@@ -2,7 +2,9 @@
 
 The cases are those of tests/test_fuzz.py (seeded mutations of the bundled recording in
 long and wide form, of rig.toml, of a calib.json and of real .cine files; parse only,
-nothing is fitted), so any uncaught case is rebuilt there by `case(kind, seed)`.
+nothing is fitted), so any uncaught case is rebuilt there by `case(kind, seed)`. The
+mutations include issue 30's faults: a trailer or note line, one absurd value (1e300),
+time-stamp jitter, a UTF-8 BOM and a gzip-compressed file.
 
     PYTHONPATH=src python3 benchmarks/bench_fuzz.py                 # 10 000 cases per parser
     PYTHONPATH=src python3 benchmarks/bench_fuzz.py --quick         # 500 per parser

@@ -104,7 +104,9 @@ def _text_ops(rng: random.Random, text: str, sep: str = ",") -> tuple[str, str]:
                      "shuffle_lines", "field", "field", "field", "swap_fields", "delete_field",
                      "duplicate_field", "delete_column", "duplicate_column", "swap_columns",
                      "garbage", "flip_bytes", "separator", "line_endings", "blank_lines",
-                     "header", "scale"])
+                     "header", "scale",
+                     # issue 30 item 5: a trailer line, one absurd value, time jitter
+                     "trailer", "absurd", "jitter"])
     fields = lines[i].split(sep)
     j = rng.randrange(len(fields))
     if op == "truncate":
@@ -202,10 +204,35 @@ def _text_ops(rng: random.Random, text: str, sep: str = ",") -> tuple[str, str]:
                 pass
             out.append(sep.join(f))
         text = "\n".join(out)
+    elif op == "trailer":  # a line that is no data, at the end or among the rows
+        lines.insert(rng.choice([len(lines), i]),
+                     rng.choice(["Total rows: 7800", "end of data", "---", "Σ 12 markers"]))
+        text = "\n".join(lines)
+    elif op == "absurd":  # one number far out of range
+        fields[j] = rng.choice(["1e300", "-1e300", "1e308", "4e7", "1e-320"])
+        lines[i] = sep.join(fields)
+        text = "\n".join(lines)
+    elif op == "jitter":  # a clock's jitter on the first column (time_s)
+        out = []
+        for line in lines:
+            f = line.split(sep)
+            try:
+                f[0] = repr(float(f[0]) + rng.uniform(-0.002, 0.002))
+            except ValueError:
+                pass
+            out.append(sep.join(f))
+        text = "\n".join(out)
     return text, op
 
 
 def _encode(rng: random.Random, text: str) -> tuple[bytes, str]:
+    r = rng.random()
+    if r < 0.02:  # a BOM (Windows editors), or the file gzip-compressed
+        import gzip
+
+        raw = text.encode("utf-8", errors="surrogatepass")
+        return ((b"\xef\xbb\xbf" + raw, "bom") if r < 0.01
+                else (gzip.compress(raw, mtime=0), "gzip"))
     if rng.random() < 0.06:
         encoding = rng.choice(ENCODINGS)
         return text.encode(encoding, errors="replace"), f"encode:{encoding}"
