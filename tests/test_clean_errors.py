@@ -361,3 +361,19 @@ def test_calibrate_without_a_board_reports_each_image_and_stops_early(tmp_path, 
     err = [ln for ln in cap.err.splitlines() if ln.strip()]
     assert len(err) == 1 and "no board" in err[0] and "first 10 of 14 images" in err[0], err
     assert str(tmp_path) in err[0] and not (tmp_path / "calib.json").exists()
+
+
+@pytest.mark.parametrize("ending", ["\r\n", "\r"])
+def test_line_endings_read_as_before(ending, tmp_path):
+    """The reader splits the text line by line itself now (no io.StringIO copy): CRLF and
+    old-Mac CR files still read as the LF original."""
+    import numpy as np
+
+    from fitlug.io import read_trajectories
+
+    with open(REF, newline="") as fh:
+        text = fh.read()
+    (tmp_path / "t.csv").write_bytes(text.replace("\n", ending).encode())
+    a, b = read_trajectories(REF), read_trajectories(tmp_path / "t.csv")
+    assert a.markers == b.markers and np.array_equal(a.t, b.t)
+    assert np.array_equal(a.x, b.x, equal_nan=True) and np.array_equal(a.y, b.y, equal_nan=True)
