@@ -9,6 +9,8 @@ from __future__ import annotations
 import csv
 import os
 import re
+import sys
+from array import array
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -43,7 +45,7 @@ class _Table:
         self.header_line = 0
         self.header_text = ""
         self.rows: list[list[str]] = []
-        self.lines: list[int] = []
+        self.lines = array("q")  # physical line of each row (8 bytes a row, not 36)
 
     def error(self, problem: str, row: int | None = None, line: int | None = None) -> InputError:
         if row is not None:
@@ -95,12 +97,17 @@ def _read_table(path: str) -> _Table:
         # lines split as open(..., newline="") does (\n, \r\n or \r, kept), as the csv
         # module wants, one at a time: io.StringIO copied the whole text (4 bytes a char)
         reader = csv.reader(lines(m.group() for m in _LINE.finditer(text)))
+        shared: list[int] = []  # columns of few distinct values (marker, role): one str each
         for row in reader:
             if not table.header:
                 table.header = [c.strip() for c in row]
                 table.header_line = lineno
                 table.header_text = last[0]
+                shared = [j for j, c in enumerate(table.header) if c.lower() in ("marker", "role")]
             else:
+                for j in shared:
+                    if j < len(row):
+                        row[j] = sys.intern(row[j])
                 table.rows.append(row)
                 table.lines.append(lineno)
     except csv.Error as exc:
