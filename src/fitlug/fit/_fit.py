@@ -35,6 +35,20 @@ def free_parameters(lay) -> list[str]:
 DECREMENT_TOL = 0.5
 
 
+#: fit from the data-derived start with beta held at 0 first (see fit_problem)
+HOLD_BETA_FIRST = True
+
+
+def _long(prob: Problem, p0: dict, free) -> bool:
+    """Whether the fit takes the long-recording (chunked) path, which needs beta free: the
+    held stage would fall back to a dense Jacobian there (a 5000-frame recording's peak
+    went 0.70 -> 1.56 GB), so long recordings start with every parameter free."""
+    from ._lsq import LARGE_ENTRIES, Packing
+
+    n_res = 2 * (prob.lay.lug_t.shape[0] + prob.lay.body_t.shape[0])
+    return n_res * sum(Packing.of(p0, free).sizes) > LARGE_ENTRIES
+
+
 def fit_problem(prob: Problem, p_start: dict | None = None, *, free=None, max_steps: int = 300,
                 require_convergence: bool = True) -> FitResult:
     """Fit `prob` from `p_start` (default: the data-derived start) by Levenberg-Marquardt.
@@ -45,7 +59,8 @@ def fit_problem(prob: Problem, p_start: dict | None = None, *, free=None, max_st
     p0 = dict(prob.p0 if p_start is None else p_start)
     free = free_parameters(prob.lay) if free is None else list(free)
     held_steps = 0
-    if p_start is None and "beta" in free and len(free) > 1:
+    if p_start is None and "beta" in free and len(free) > 1 and HOLD_BETA_FIRST \
+            and not _long(prob, p0, free):
         # from the data-derived start, first with the slip slope beta held at 0: where the
         # picture shows little or no speed change (the robot drives through it in the
         # cruise, or enters during a ramp) beta is nearly free, and from a start whose
