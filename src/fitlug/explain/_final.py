@@ -68,12 +68,9 @@ def _polish(prob, p: dict, free: list) -> FitResult:
                      converged=bool(converged), steps=steps, quantities=q)
 
 
-def final_fit(res, eng, accepted, theta) -> FitResult:
-    """FitResult of `res`'s model plus the `accepted` effects, from engine vector `theta`.
-
-    The noise per role is then re-estimated from the final residuals (as fit() does for the
-    base model) and the fit polished again when it moved by more than 0.5 %.
-    """
+def _extended(res, eng, accepted, theta):
+    """(problem, parameters, free names) of `res`'s model plus the `accepted` effects at
+    engine vector `theta`."""
     prob = res.problem
     effects = tuple(res.effects) + tuple(accepted)
     p_all = eng.params(theta)
@@ -82,6 +79,17 @@ def final_fit(res, eng, accepted, theta) -> FitResult:
     free = free_parameters(prob_f.lay)
     if "body_bounce" in effects and prob.lay.n_body < 2:
         free = [k for k in free if k != "bounce_B"]  # MODEL.md §3: B = 0, one body marker
+    return prob_f, p, free
+
+
+def final_fit(res, eng, accepted, theta) -> FitResult:
+    """FitResult of `res`'s model plus the `accepted` effects, from engine vector `theta`.
+
+    The noise per role is then re-estimated from the final residuals (as fit() does for the
+    base model) and the fit polished again when it moved by more than 0.5 %.
+    """
+    prob = res.problem
+    prob_f, p, free = _extended(res, eng, accepted, theta)
     final = _polish(prob_f, p, free)
     if prob.noise_source in ("differences", "residual differences"):
         new = residual_noise(final)
@@ -102,14 +110,7 @@ def polished_theta(res, eng, accepted, theta) -> np.ndarray:
     would take for another effect. Undamped Gauss-Newton (:func:`_polish`) does not serve
     there: from F0/F_max = 0.76 with mu 20 % short, no fraction of its first step lowers
     chi^2."""
-    prob = res.problem
-    effects = tuple(res.effects) + tuple(accepted)
-    p_all = eng.params(theta)
-    prob_f, p = prob.with_effects(effects, p_all)
-    p = {k: np.asarray(p_all[k]) if k in p_all else np.asarray(v) for k, v in p.items()}
-    free = free_parameters(prob_f.lay)
-    if "body_bounce" in effects and prob.lay.n_body < 2:
-        free = [k for k in free if k != "bounce_B"]
+    prob_f, p, free = _extended(res, eng, accepted, theta)
     from ..fit import fit_problem
 
     out = fit_problem(prob_f, p, free=free, require_convergence=False)
