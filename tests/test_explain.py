@@ -188,7 +188,7 @@ def test_the_discrepancy_block_follows_data_md(frame_drop_explained):
 
 
 def test_the_report_section_shows_before_and_after(frame_drop_explained):
-    from fitlug.report._discrepancy import discrepancy_section
+    from fitlug.report._section_discrepancy import discrepancy_section
 
     ex, _ = frame_drop_explained
     html = discrepancy_section({"discrepancy": ex.to_json()}, None)

@@ -145,7 +145,7 @@ def test_glitches_of_the_reference_recording_are_listed_and_kept_out(reference):
     assert res.problem.noise["lug"] == pytest.approx(clean.problem.noise["lug"], rel=0.01)
     # fit.json and the report list them
     from fitlug.report import fit_json
-    from fitlug.report._html import _glitches
+    from fitlug.report._section_estimates import _glitches
 
     fj = fit_json(res)
     assert [(d["marker"], round(d["time_s"], 6)) for d in fj["glitches"]] == truth

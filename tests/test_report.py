@@ -14,7 +14,16 @@ from fitlug.fit import fit
 from fitlug.posterior import sample_posterior
 from fitlug.io import write_json
 from fitlug.report import fit_json, load_state, save_state, write_report
-from fitlug.report import _format as fmt, _plots
+from fitlug.report import _format as fmt
+from fitlug.report._section_convergence import plot_trace
+from fitlug.report._section_kinematics import plot_displacement, plot_velocity
+from fitlug.report._section_least_squares import plot_correlation
+from fitlug.report._section_posterior import plot_corner, plot_slip_posterior
+from fitlug.report._section_residuals import (plot_residuals_path, plot_residuals_time,
+                                              plot_segment_rms)
+from fitlug.report._section_slip import (creep, plot_slip_force, plot_slip_time, plot_stall,
+                                         slip_from_lugs, stall_window)
+from fitlug.report._section_trajectories import plot_trajectories
 from fitlug.sim import REFERENCE_SLIP, Scenario, rig_of, simulate
 
 # the reference rig (n = 8, L = 127 mm), a short recording
@@ -193,19 +202,19 @@ def test_plot_functions_take_an_ax(folder):
     st = load_state(folder)
     names = st["meta"]["post_names"]
     calls = [
-        lambda ax: _plots.plot_trajectories(st, ax=ax),
-        lambda ax: _plots.plot_stall(st, ax=ax) and ax,
-        lambda ax: _plots.plot_slip_time(st, ax=ax),
-        lambda ax: _plots.plot_slip_force(st, ax=ax),
-        lambda ax: _plots.plot_correlation(st["lsq_corr"], st["meta"]["corr_names"], ax=ax),
-        lambda ax: _plots.plot_displacement(st, ax=ax),
-        lambda ax: _plots.plot_velocity(st, ax=ax),
-        lambda ax: _plots.plot_residuals_time(st, "y", ax=ax),
-        lambda ax: _plots.plot_residuals_path(st, "x", ax=ax),
-        lambda ax: _plots.plot_segment_rms(st, ax=ax),
-        lambda ax: _plots.plot_slip_posterior(st["post_samples"][:, names.index("slip")],
+        lambda ax: plot_trajectories(st, ax=ax),
+        lambda ax: plot_stall(st, ax=ax) and ax,
+        lambda ax: plot_slip_time(st, ax=ax),
+        lambda ax: plot_slip_force(st, ax=ax),
+        lambda ax: plot_correlation(st["lsq_corr"], st["meta"]["corr_names"], ax=ax),
+        lambda ax: plot_displacement(st, ax=ax),
+        lambda ax: plot_velocity(st, ax=ax),
+        lambda ax: plot_residuals_time(st, "y", ax=ax),
+        lambda ax: plot_residuals_path(st, "x", ax=ax),
+        lambda ax: plot_segment_rms(st, ax=ax),
+        lambda ax: plot_slip_posterior(st["post_samples"][:, names.index("slip")],
                                               ax=ax, reference=REFERENCE_SLIP),
-        lambda ax: _plots.plot_trace(st["post_chain"], ax=ax),
+        lambda ax: plot_trace(st["post_chain"], ax=ax),
     ]
     for call in calls:
         fig, ax = plt.subplots()
@@ -213,17 +222,17 @@ def test_plot_functions_take_an_ax(folder):
         assert ax.has_data()
         plt.close(fig)
     fig = plt.figure()
-    assert _plots.plot_corner(st["post_samples"][:, :2], ["a", "b"], fig=fig) is fig
+    assert plot_corner(st["post_samples"][:, :2], ["a", "b"], fig=fig) is fig
     plt.close(fig)
     # without an ax, each makes its own figure
-    ax = _plots.plot_displacement(st)
+    ax = plot_displacement(st)
     assert ax.figure is not None
     plt.close(ax.figure)
 
 
 def test_stall_window_is_a_bottom_run_contact(folder):
     st = load_state(folder)
-    m, t0, t1 = _plots.stall_window(st)
+    m, t0, t1 = stall_window(st)
     sel = (st["lug_i"] == m) & (st["lug_t"] >= t0) & (st["lug_t"] <= t1)
     assert np.all(st["lug_seg"][sel] == 0)
     # on the ground the marker stalls: it drifts rearward at s v_t, far slower than the body
@@ -238,7 +247,7 @@ def test_stall_creep_is_the_slip_times_the_run(folder, fitted):
     moves at -s v_t for D / v_t); the simulator's truth, not the fit, sets s."""
     _, _, truth = fitted
     st = load_state(folder)
-    cr = _plots.creep(st)
+    cr = creep(st)
     assert cr is not None and cr["measured_mm"] > 0
     D = st["meta"]["least_squares"]["D_mm"]["value"]
     s_true = truth["slip"] if isinstance(truth, dict) else truth.slip
@@ -251,7 +260,7 @@ def test_slip_from_the_lugs_matches_the_truth(folder, fitted):
     agrees with the simulated steady slip: the point cloud of the slip-force plot is data."""
     _, _, truth = fitted
     st = load_state(folder)
-    t, s = _plots.slip_from_lugs(st)
+    t, s = slip_from_lugs(st)
     a = np.interp(t, st["fine_t"], np.gradient(st["fine_v"], st["fine_t"]))
     cruise = np.abs(a) < 0.05 * np.max(np.abs(a))
     s_true = truth["slip"] if isinstance(truth, dict) else truth.slip

@@ -9,7 +9,8 @@ import numpy as np
 
 from ..io._atomic import write_text_atomic
 from ..report import _format as F
-from ..report._html import _CSS, _fig, _table, figure_html
+from ..report._figure import _fig, figure_html
+from ..report._markup import _CSS, _table
 
 
 def _fmt(x, digits=5):

@@ -211,7 +211,7 @@ def _summary(args, doc, out, report, seconds):
                          f"{sig(100 * (b['value'] - s['value']) / s['value'], 2)} %, "
                          f"{sigma_apart(b['value'], s.get('std'), s['value'])} the final value")
         if d.get("verdict") == "unexplained":
-            from ..report._discrepancy import handling_sentence, located_sentence
+            from ..report._section_discrepancy import handling_sentence, located_sentence
 
             import html
 

@@ -1,0 +1,165 @@
+"""The plots of the report's "What the model left out" section
+(:mod:`fitlug.report._section_discrepancy`): residuals before and after the named effects,
+the binned residual maps, the misfit breakdown and the spectrum with its peaks named."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import _format as F
+
+SHARED_SCALE_MAX_RATIO = 30.0  # before/after maps share a colour scale below this ratio
+
+
+def _new(w, h, rows=1, cols=1, **kw):
+    from ._figure import new_figure
+
+    return new_figure(w, h, rows, cols, **kw)
+
+
+def _map_array(m):
+    return np.array([[np.nan if v is None else v for v in row]
+                     for row in m["mean_residual_sigma"]], float)
+
+
+def plot_maps(maps: dict):
+    """Residual maps (series x time, mean residual in σ per bin) before and after.
+
+    One colour scale for both unless the after map is SHARED_SCALE_MAX_RATIO times
+    weaker; returns (fig, shared).
+    """
+    from ._figure import CBAR
+
+    keys = [k for k in ("before", "after") if maps.get(k)]
+    arrs = {k: _map_array(maps[k]) for k in keys}
+    vmax = {k: max(float(np.nanpercentile(np.abs(a), 99)) if np.isfinite(a).any() else 1.0,
+                   1.0) for k, a in arrs.items()}
+    shared = len(keys) < 2 or vmax[keys[0]] / vmax[keys[-1]] < SHARED_SCALE_MAX_RATIO
+    if shared:
+        top = max(vmax.values())
+        vmax = {k: top for k in keys}
+    nser = max(len(maps[k]["series"]) for k in keys)
+    fig, axes = _new(9.0, min(2.0 + 0.14 * nser, 9.0), 1, len(keys))
+    for ax_, k in zip(axes[0], keys):
+        m = maps[k]
+        t = m["t_edges_s"]
+        im = ax_.imshow(arrs[k], aspect="auto", cmap="RdBu_r", vmin=-vmax[k], vmax=vmax[k],
+                        extent=[t[0], t[-1], len(m["series"]) - 0.5, -0.5],
+                        interpolation="nearest")
+        step = max(1, len(m["series"]) // 30)
+        ax_.set_yticks(range(0, len(m["series"]), step))
+        ax_.set_yticklabels(m["series"][::step], fontsize=7)
+        ax_.set_xlabel("t (s)")
+        ax_.set_title(f"{k}: mean residual per bin (σ)"
+                      + ("" if shared else f", own scale ±{F.sig(vmax[k], 2)}"), fontsize=9)
+        if not shared or k == keys[-1]:
+            fig.colorbar(im, ax=ax_, shrink=0.8, label="σ", **CBAR)
+    return fig, shared
+
+
+def spectral_peaks(f, p, lug_hz=None, wheel_hz=None, n=4, factor=8.0):
+    """The n strongest local maxima above `factor` × the median power, each named by its
+    relation to the lug-passing and wheel-revolution frequencies: [(f, p, name)]."""
+    f, p = np.asarray(f, float), np.asarray(p, float)
+    if len(p) < 3:
+        return []
+    med = np.median(p)
+    idx = [i for i in range(1, len(p) - 1)
+           if p[i] >= p[i - 1] and p[i] >= p[i + 1] and p[i] > factor * med]
+    idx = sorted(idx, key=lambda i: -p[i])[:n]
+    out = []
+    for i in sorted(idx, key=lambda i: f[i]):
+        name = ""
+        df = (f[1] - f[0]) * 1.01
+        for base, what in ((lug_hz, "lug passing"), (wheel_hz, "wheel revolution")):
+            if base:
+                h = round(f[i] / base)
+                if 1 <= h <= 2 and abs(f[i] - h * base) <= df:
+                    name = what if h == 1 else f"{h}× {what}"
+                    break
+        if not name:
+            name = ("below 1 Hz: the motion profile" if f[i] < 1.0
+                    else "not a rig frequency: a disturbance outside the catalog?")
+        out.append((float(f[i]), float(p[i]), name))
+    return out
+
+
+def plot_spectra(spectra: dict):
+    fig, axes = _new(9.0, 3.6)
+    ax = axes[0, 0]
+    s0 = spectra.get("before") or spectra.get("after") or {}
+    for k, col in (("before", "#d95f02"), ("after", "#1b9e77")):
+        s = spectra.get(k)
+        if s and s.get("f_hz"):
+            ax.semilogy(s["f_hz"], s["power"], "-", lw=1, color=col, label=k)
+    for key, lab, c in (("lug_passing_hz", "lug passing", "C3"),
+                        ("wheel_revolution_hz", "wheel revolution", "C2")):
+        f = s0.get(key)
+        if f:
+            ax.axvline(f, color=c, ls="--", lw=0.8, label=f"{lab} {f:.2f} Hz")
+    peaks = []
+    for k in ("before", "after"):
+        s = spectra.get(k)
+        if s and s.get("f_hz"):
+            for fpk, ppk, name in spectral_peaks(s["f_hz"], s["power"], s0.get("lug_passing_hz"),
+                                                 s0.get("wheel_revolution_hz")):
+                ax.annotate(f"{fpk:.2f} Hz", (fpk, ppk), textcoords="offset points",
+                            xytext=(3, 4), fontsize=8)
+                peaks.append((k, fpk, ppk, name))
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("residual power (σ²)")
+    ax.set_xlim(0, min(50.0, max(s0.get("f_hz") or [50.0])))
+    ax.legend(frameon=False, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    return fig, peaks
+
+
+def plot_breakdown(before: dict, after: dict | None):
+    """Structured misfit (χ²) per dimension before and after, on a log axis so that a
+    misfit hundreds of times smaller stays visible; values ≤ 1 are drawn at 1."""
+    dims = [d for d in ("segment", "phase", "axis", "role") if (before or {}).get(d)]
+    fig, axes = _new(9.0, 3.4, 1, max(len(dims), 1), sharey=True)
+    for ax, dim in zip(axes[0], dims):
+        b = (before or {}).get(dim, {})
+        a = (after or {}).get(dim, {}) if after else {}
+        names = list(b)
+        x = np.arange(len(names))
+        clip = lambda v: max(float(v or 0.0), 1.0)  # noqa: E731
+        ax.bar(x - 0.2, [clip(b[n]["misfit_chi2"]) for n in names], 0.4, label="before",
+               color="#d95f02")
+        if a:
+            ax.bar(x + 0.2, [clip(a.get(n, {}).get("misfit_chi2")) for n in names], 0.4,
+                   label="after", color="#1b9e77")
+        ax.set_yscale("log")
+        ax.set_xticks(x, [str(n).replace("_", " ") for n in names], rotation=35, ha="right",
+                      fontsize=8)
+        ax.set_title(f"by {dim}", fontsize=9)
+    axes[0, 0].set_ylabel("structured misfit (χ², log)")
+    axes[0, 0].legend(frameon=False, fontsize=8)
+    return fig
+
+
+def plot_before_after(st: dict):
+    """Lug and body residuals before (base model) and after (named effects): over time
+    and along the belt coordinate, both axes, on shared y scales per row."""
+    from ._section_residuals import plot_residuals_path, plot_residuals_time
+
+    fig, axes = _new(9.0, 9.5, 4, 2)
+    P = st.get("meta", {}).get("belt_length_mm")
+    for j, (prefix, name) in enumerate((("base_", "before"), ("", "after"))):
+        for k, axis in enumerate(("x", "y")):
+            plot_residuals_time(st, axis, ax=axes[k, j], prefix=prefix)
+            plot_residuals_path(st, axis, ax=axes[2 + k, j], prefix=prefix, P=P)
+            for row in (k, 2 + k):
+                axes[row, j].set_title(f"{name}: {axis} residual", fontsize=9, loc="left")
+                axes[row, j].xaxis.label.set_fontsize(8)
+                if (row, j) == (0, 0):
+                    handles, labels = axes[row, j].get_legend_handles_labels()
+                axes[row, j].get_legend().remove()
+    fig.legend(handles, labels, loc="upper center", ncol=5, frameon=False,
+               markerscale=6)
+    for row in range(4):  # one scale per row: before and after compare directly
+        lo = min(axes[row, 0].get_ylim()[0], axes[row, 1].get_ylim()[0])
+        hi = max(axes[row, 0].get_ylim()[1], axes[row, 1].get_ylim()[1])
+        for j in range(2):
+            axes[row, j].set_ylim(lo, hi)
+    return fig
