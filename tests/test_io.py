@@ -14,7 +14,7 @@ import pytest
 from fitlug._errors import InputError
 from fitlug.io import (Recording, Rig, atomic_path, check_enough_samples, find_rig, read_json,
                        read_rig, read_trajectories, write_json, write_rig, write_trajectories)
-from fitlug.io import _trajectories
+from fitlug.io import _write_trajectories
 
 # The example of DATA.md, verbatim.
 DATA_MD_CSV = """\
@@ -331,7 +331,7 @@ def test_failed_write_leaves_no_file_and_keeps_the_old_one(tmp_path, monkeypatch
                     raise OSError("disk full")
                 self.writerow(row)
 
-    monkeypatch.setattr(_trajectories.csv, "writer", Failing)
+    monkeypatch.setattr(_write_trajectories.csv, "writer", Failing)
     with pytest.raises(OSError, match="disk full"):
         write_trajectories(path, rec)
     assert os.listdir(tmp_path) == []  # neither the file nor a temporary left behind

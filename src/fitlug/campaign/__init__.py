@@ -8,14 +8,14 @@ campaign.html.
 
 from ._job import fit_recording as fit_recording, point_of_fit as point_of_fit
 from ._model import Point as Point, fit_law as fit_law
-from ._run import (
+from ._law import fit_points as fit_points
+from ._result import (
     CampaignResult as CampaignResult,
     RecordingOutcome as RecordingOutcome,
-    campaign as campaign,
-    fit_points as fit_points,
-    resolve_sources as resolve_sources,
     write_campaign as write_campaign,
 )
+from ._run import campaign as campaign
+from ._sources import resolve_sources as resolve_sources
 
 from .._callable import make_callable as _make_callable
 

@@ -14,15 +14,15 @@ from ._formats import detect_format as detect_format
 from ._formats import read_any as read_any
 from ._formats import read_tracks as read_tracks
 from ._imported import Tracks as Tracks
-from ._imported import tracks_to_recording as tracks_to_recording
 from ._recording import Recording as Recording
 from ._recording import check_enough_samples as check_enough_samples
+from ._recording import tracks_to_recording as tracks_to_recording
 from ._rig import Rig as Rig
 from ._rig import find_rig as find_rig
 from ._rig import read_rig as read_rig
 from ._rig import write_rig as write_rig
 from ._trajectories import read_trajectories as read_trajectories
-from ._trajectories import write_trajectories as write_trajectories
+from ._write_trajectories import write_trajectories as write_trajectories
 
 __all__ = [
     "Recording", "read_trajectories", "write_trajectories", "check_enough_samples",

@@ -5,8 +5,8 @@ the origin top-left, y down; a particle missing from a frame has no row. Users s
 with `DataFrame.to_csv` (often with the index as a first, unnamed column). Markers are
 named by their particle number. No time is written: fps is needed.
 
-Also `recording_from_dataframe`, behind `Recording.from_dataframe`: a canonical long table
-(time_s, marker, role, x_mm, y_mm), a trackpy table or a DeepLabCut table, for notebooks.
+Also `tracks_from_dataframe`, behind `Recording.from_dataframe`: a trackpy or a DeepLabCut
+DataFrame as `Tracks`, for notebooks.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import io
 import numpy as np
 
 from .._errors import InputError
-from ._imported import Tracks, number, read_text, tracks_to_recording
+from ._imported import Tracks, number, read_text
 
 TRACKPY_COLUMNS = ("mass", "size", "ecc", "signal", "raw_mass", "ep")
 
@@ -91,38 +91,3 @@ def tracks_from_dataframe(df, path: str = "<DataFrame>", likelihood: float = 0.6
                                "particle, x, y, or time_s, marker, role, x_mm, y_mm")
     get = {c: np.asarray(df[c].to_numpy(), dtype=np.float64) for c in ("frame", "particle", "x", "y")}
     return _tracks(path, get["frame"].astype(np.int64), get["particle"], get["x"], get["y"])
-
-
-def recording_from_dataframe(df, *, fps=None, mm_per_px=None, calibration=None, rig=None,
-                             body=None, lug=None, likelihood: float = 0.6):
-    """See `Recording.from_dataframe`."""
-    from ._recording import Recording
-
-    cols = set(map(str, df.columns)) if getattr(df.columns, "nlevels", 1) == 1 else set()
-    if {"time_s", "marker", "role", "x_mm", "y_mm"} <= cols:
-        markers = list(dict.fromkeys(map(str, df["marker"])))
-        roles = dict(zip(map(str, df["marker"]), map(str, df["role"])))
-        index = {m: k for k, m in enumerate(markers)}
-        mi = np.array([index[str(m)] for m in df["marker"]], dtype=np.int64)
-        t = np.asarray(df["time_s"], dtype=np.float64)
-        order = np.lexsort((t, mi))
-        return Recording(markers=tuple(markers), roles=tuple(roles[m] for m in markers),
-                         t=t[order], marker_index=mi[order],
-                         x=np.asarray(df["x_mm"], dtype=np.float64)[order],
-                         y=np.asarray(df["y_mm"], dtype=np.float64)[order],
-                         meta={"source": "DataFrame"})
-    tracks = tracks_from_dataframe(df, likelihood=likelihood)
-    to_mm = None
-    height = None
-    if calibration is None and mm_per_px is not None:
-        # the scale-only calibration of `fit-lug track` (x = S x_px, y = S (H - y_px))
-        from ..vision._calibration import Calibration
-
-        try:
-            calibration = Calibration.from_scale(float(mm_per_px), (0, 0))
-        except ValueError as exc:
-            raise InputError(None, f"mm_per_px: {exc}") from None
-    if calibration is not None:
-        to_mm, height = calibration.pixels_to_mm, calibration.image_size[1]
-    return tracks_to_recording(tracks, pixels_to_mm=to_mm, image_height=height, fps=fps,
-                               rig=rig, body=body, lug=lug)

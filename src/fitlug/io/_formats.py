@@ -15,7 +15,9 @@ import zipfile
 from typing import TYPE_CHECKING, Callable
 
 from .._errors import InputError
-from ._imported import Tracks, tracks_to_recording
+from ._files import read_bytes
+from ._imported import Tracks
+from ._recording import tracks_to_recording
 
 if TYPE_CHECKING:
     from ._recording import Recording
@@ -76,15 +78,7 @@ def sniff(path: str | os.PathLike) -> tuple[str, bool]:
     from ._fmt_trackpy import looks_like_trackpy
 
     path = os.fspath(path)
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(65536)
-    except FileNotFoundError:
-        raise InputError(path, "file not found") from None
-    except IsADirectoryError:
-        raise InputError(path, "is a directory, not a file") from None
-    except OSError as exc:
-        raise InputError(path, f"cannot read file: {exc.strerror or exc}") from None
+    head = read_bytes(path, size=65536)
     if not head.strip():
         return "fitlug", False
     if head.startswith(b"\x1f\x8b"):  # gzip: read_trajectories decompresses a trajectories.csv

@@ -3,22 +3,21 @@
 Each reader of a foreign format (Tracker, DLTdv, Kinovea, DeepLabCut, trackpy) returns a
 `Tracks`: one row per frame, one column per marker, positions either in the image's pixels
 or already in world millimetres (y up), time stamps when the file has them.
-`tracks_to_recording` turns it into a `Recording` in ground-frame mm: pixels through the
-caller's mapping (the vision calibration of `fit-lug track`), time from the file or from
-fps, roles from the rig, a body list or the marker names.
+`fitlug.io._recording.tracks_to_recording` turns it into a `Recording` in ground-frame mm,
+with the time (`_times`: from the file or from fps) and the roles (`_roles`: from the rig,
+a body list or the marker names) told here.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import os
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .._errors import InputError
-from ._recording import Recording
+from ._files import read_bytes
 
 if TYPE_CHECKING:
     from ._rig import Rig
@@ -125,26 +124,29 @@ def numbers_column(rows: list[list[str]], j: int, lines: list[int], path: str, n
 def read_text(path: str) -> str:
     """The file as text (UTF-8, else Latin-1 as some Windows programs write), with a clear
     InputError for a missing or unreadable file."""
-    try:
-        with open(path, "rb") as fh:
-            data = fh.read()
-    except FileNotFoundError:
-        raise InputError(path, "file not found") from None
-    except IsADirectoryError:
-        raise InputError(path, "is a directory, not a file") from None
-    except OSError as exc:
-        raise InputError(path, f"cannot read file: {exc.strerror or exc}") from None
+    data = read_bytes(path)
     try:
         return data.decode("utf-8-sig")
     except UnicodeDecodeError:
         return data.decode("latin-1")
 
 
-# -- Tracks -> Recording ------------------------------------------------------------------------
+# -- roles and times of Tracks ------------------------------------------------------------------
+
+# longest prefix first: 'COG' must win over 'C', 'body' over 'B'
+_NAME_ROLES = (("body", "body"), ("cog", "lug"), ("lug", "lug"), ("qs", "body"),
+               ("c", "body"), ("q", "body"), ("b", "lug"), ("l", "lug"))
+
+
+def _role_from_name(marker: str) -> str | None:
+    lower = marker.lower()
+    for prefix, role in _NAME_ROLES:
+        if lower.startswith(prefix):
+            return role
+    return None
+
 
 def _roles(tracks: Tracks, rig: "Rig | None", body, lug) -> list[str]:
-    from ._trajectories import _role_from_name
-
     body = set(body or ()) | set(rig.body_markers if rig is not None else ())
     lug = set(lug or ()) | set(rig.lug_markers if rig is not None else ())
     unknown = sorted((body | lug) - set(tracks.markers))
@@ -192,113 +194,6 @@ def _times(tracks: Tracks, fps: float | None) -> np.ndarray:
             raise InputError(tracks.path, f"the fps {fps:g} (--fps or [camera] fps) disagrees "
                              f"with the file's time stamps ({data_fps:.6g} frames/s)")
     return t
-
-
-def tracks_to_recording(tracks: Tracks, *, pixels_to_mm: Callable | None = None,
-                        image_height: float | None = None, fps: float | None = None,
-                        rig: "Rig | None" = None, body=None, lug=None) -> Recording:
-    """A `Recording` in ground-frame mm from what another tracker exported.
-
-    Args:
-        tracks: a reader's output.
-        pixels_to_mm: maps (..., 2) image points (px, origin top-left, y down) to ground mm
-            (y up), e.g. a vision `Calibration`'s `pixels_to_mm` (plus its origin); when
-            given, pixels are used even where the file also has world units (Tracker).
-        image_height: image height, px, to turn pixels measured up from the bottom edge
-            (DLTdv7) into the usual convention; for a scale alone any value gives the same
-            result (the fit does not depend on where the origin is).
-        fps: frame rate, 1/s: the time when the file has none; checked against the file's
-            time stamps when it has them (2 %).
-        rig: roles from its [markers] (and its [camera] fps when `fps` is not given).
-        body, lug: marker names by role; with only `body`, every other marker is a lug.
-
-    Raises:
-        InputError: pixels without a mapping, no time and no fps, an fps that disagrees
-            with the time stamps, a marker whose role cannot be told.
-    """
-    if fps is None and rig is not None:
-        fps = rig.fps  # the time where the file has none, else checked against its stamps
-    if pixels_to_mm is not None:
-        if tracks.xy_px is None:
-            raise InputError(tracks.path, f"the {tracks.format} file holds no pixel positions: "
-                             f"--mm-per-px and --calib do not apply to it")
-        px = tracks.xy_px.copy()
-        if tracks.px_y_up:
-            px[..., 1] = (image_height or 0.0) - px[..., 1]
-        mm = np.asarray(pixels_to_mm(px), dtype=np.float64)
-        units = "px mapped to mm"
-    elif tracks.xy_mm is not None:
-        mm, units = tracks.xy_mm, "mm"
-    else:
-        raise InputError(tracks.path, f"the {tracks.format} file holds positions in pixels: "
-                         f"give their scale (--mm-per-px S) or a camera calibration (--calib "
-                         f"calib.json)")
-    t = _times(tracks, fps)
-    roles = _roles(tracks, rig, body, lug)
-    f, m = mm.shape[:2]
-    rows = np.tile(np.arange(f), m)          # marker by marker, in time order
-    cols = np.repeat(np.arange(m), f)
-    optional = {}
-    if tracks.xy_px is not None:
-        optional["x_px"] = tracks.xy_px[rows, cols, 0]
-        optional["y_px"] = tracks.xy_px[rows, cols, 1]
-    if tracks.quality is not None:
-        optional["quality"] = tracks.quality[rows, cols]
-    meta = {"source": f"{tracks.format} {os.path.basename(tracks.path)}", "units": "mm"}
-    if t.size > 1:
-        step = float(np.median(np.diff(t) / np.maximum(np.diff(tracks.frame), 1)))
-        meta["fps"] = f"{1.0 / step:.10g}"
-    meta.update(tracks.meta)
-    meta["positions"] = units
-    rec = Recording(markers=tracks.markers, roles=tuple(roles), t=t[rows],
-                    marker_index=cols.astype(np.int64), x=mm[rows, cols, 0], y=mm[rows, cols, 1],
-                    frame=tracks.frame[rows], meta=meta, path=tracks.path, **optional)
-    _warn_if_upside_down(rec, tracks.format)
-    return rec
-
-
-def upside_down_score(rec: Recording) -> float | None:
-    """Correlation between a lug marker's height and its speed along the body's travel.
-
-    On a crawler track the lugs stall on the ground (bottom) and run forward at about
-    twice the body's speed over the top, so with y up the score is near +1; near -1 the
-    y axis points down (a flipped image convention). None without body and lug markers
-    or without travel."""
-    body, lug = rec.select("body"), rec.select("lug")
-    if body.size == 0 or lug.size == 0:
-        return None
-    ok = body[np.isfinite(rec.x[body])]
-    if ok.size < 2:
-        return None
-    first, last = ok[np.argmin(rec.t[ok])], ok[np.argmax(rec.t[ok])]
-    travel = rec.x[last] - rec.x[first]
-    if not np.isfinite(travel) or travel == 0:
-        return None
-    heights, speeds = [], []
-    for k in rec.markers_of("lug"):
-        i = np.flatnonzero((rec.marker_index == k) & rec.valid)
-        if i.size < 3:
-            continue
-        i = i[np.argsort(rec.t[i])]
-        heights.append(rec.y[i][1:])
-        speeds.append(np.sign(travel) * np.diff(rec.x[i]) / np.diff(rec.t[i]))
-    if not heights:
-        return None
-    h, v = np.concatenate(heights), np.concatenate(speeds)
-    if h.size < 10 or np.std(h) == 0 or np.std(v) == 0:
-        return None
-    return float(np.corrcoef(h, v)[0, 1])
-
-
-def _warn_if_upside_down(rec: Recording, fmt: str) -> None:
-    score = upside_down_score(rec)
-    if score is not None and score < -0.5:
-        import warnings
-
-        warnings.warn(f"{rec.path}: the lug markers run fastest at the bottom of their path "
-                      f"(height-speed correlation {score:.2f}): the y axis of this {fmt} file "
-                      f"looks upside down (fitlug wants y up; check --y-origin, the "
-                      f"format's pixel origin or --length-unit px)", stacklevel=3)
 
 
 def merge_by_time(path: str, fmt: str, series: list[tuple[str, np.ndarray, np.ndarray]],

@@ -1,13 +1,26 @@
-"""`Recording`: the samples of one trajectories.csv, as flat arrays (one entry per sample)."""
+"""`Recording`: the samples of one trajectories.csv, as flat arrays (one entry per sample).
+
+Also the ways to build one from what another tracker exported: `tracks_to_recording`
+(a reader's `Tracks`) and `recording_from_dataframe` (behind `Recording.from_dataframe`:
+a canonical long table, a trackpy or a DeepLabCut DataFrame). They live with the class
+because `Recording.from_dataframe` needs them and they need the class.
+"""
 
 from __future__ import annotations
 
 import dataclasses
+import os
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
 from .._errors import InputError
+from ._imported import Tracks, _roles, _times
+from ._pixels import scale_pixels_to_mm
+
+if TYPE_CHECKING:
+    from ._rig import Rig
 
 ROLES = ("body", "lug")
 
@@ -174,8 +187,6 @@ class Recording:
         Raises:
             InputError: missing columns, pixels without a scale, no fps, unknown roles.
         """
-        from ._fmt_trackpy import recording_from_dataframe
-
         return recording_from_dataframe(df, fps=fps, mm_per_px=mm_per_px,
                                         calibration=calibration, rig=rig, body=body, lug=lug,
                                         likelihood=likelihood)
@@ -199,3 +210,145 @@ def check_enough_samples(recording: Recording, n_params: int) -> None:
     if n_valid < n_params:
         raise InputError(recording.path,
                          f"fewer valid samples ({n_valid}) than parameters ({n_params})")
+
+
+# -- building a Recording from another tracker's Tracks or a DataFrame -------------------------
+
+def tracks_to_recording(tracks: Tracks, *, pixels_to_mm: Callable | None = None,
+                        image_height: float | None = None, fps: float | None = None,
+                        rig: "Rig | None" = None, body=None, lug=None) -> Recording:
+    """A `Recording` in ground-frame mm from what another tracker exported.
+
+    Args:
+        tracks: a reader's output.
+        pixels_to_mm: maps (..., 2) image points (px, origin top-left, y down) to ground mm
+            (y up), e.g. a vision `Calibration`'s `pixels_to_mm` (plus its origin); when
+            given, pixels are used even where the file also has world units (Tracker).
+        image_height: image height, px, to turn pixels measured up from the bottom edge
+            (DLTdv7) into the usual convention; for a scale alone any value gives the same
+            result (the fit does not depend on where the origin is).
+        fps: frame rate, 1/s: the time when the file has none; checked against the file's
+            time stamps when it has them (2 %).
+        rig: roles from its [markers] (and its [camera] fps when `fps` is not given).
+        body, lug: marker names by role; with only `body`, every other marker is a lug.
+
+    Raises:
+        InputError: pixels without a mapping, no time and no fps, an fps that disagrees
+            with the time stamps, a marker whose role cannot be told.
+    """
+    if fps is None and rig is not None:
+        fps = rig.fps  # the time where the file has none, else checked against its stamps
+    if pixels_to_mm is not None:
+        if tracks.xy_px is None:
+            raise InputError(tracks.path, f"the {tracks.format} file holds no pixel positions: "
+                             f"--mm-per-px and --calib do not apply to it")
+        px = tracks.xy_px.copy()
+        if tracks.px_y_up:
+            px[..., 1] = (image_height or 0.0) - px[..., 1]
+        mm = np.asarray(pixels_to_mm(px), dtype=np.float64)
+        units = "px mapped to mm"
+    elif tracks.xy_mm is not None:
+        mm, units = tracks.xy_mm, "mm"
+    else:
+        raise InputError(tracks.path, f"the {tracks.format} file holds positions in pixels: "
+                         f"give their scale (--mm-per-px S) or a camera calibration (--calib "
+                         f"calib.json)")
+    t = _times(tracks, fps)
+    roles = _roles(tracks, rig, body, lug)
+    f, m = mm.shape[:2]
+    rows = np.tile(np.arange(f), m)          # marker by marker, in time order
+    cols = np.repeat(np.arange(m), f)
+    optional = {}
+    if tracks.xy_px is not None:
+        optional["x_px"] = tracks.xy_px[rows, cols, 0]
+        optional["y_px"] = tracks.xy_px[rows, cols, 1]
+    if tracks.quality is not None:
+        optional["quality"] = tracks.quality[rows, cols]
+    meta = {"source": f"{tracks.format} {os.path.basename(tracks.path)}", "units": "mm"}
+    if t.size > 1:
+        step = float(np.median(np.diff(t) / np.maximum(np.diff(tracks.frame), 1)))
+        meta["fps"] = f"{1.0 / step:.10g}"
+    meta.update(tracks.meta)
+    meta["positions"] = units
+    rec = Recording(markers=tracks.markers, roles=tuple(roles), t=t[rows],
+                    marker_index=cols.astype(np.int64), x=mm[rows, cols, 0], y=mm[rows, cols, 1],
+                    frame=tracks.frame[rows], meta=meta, path=tracks.path, **optional)
+    _warn_if_upside_down(rec, tracks.format)
+    return rec
+
+
+def upside_down_score(rec: Recording) -> float | None:
+    """Correlation between a lug marker's height and its speed along the body's travel.
+
+    On a crawler track the lugs stall on the ground (bottom) and run forward at about
+    twice the body's speed over the top, so with y up the score is near +1; near -1 the
+    y axis points down (a flipped image convention). None without body and lug markers
+    or without travel."""
+    body, lug = rec.select("body"), rec.select("lug")
+    if body.size == 0 or lug.size == 0:
+        return None
+    ok = body[np.isfinite(rec.x[body])]
+    if ok.size < 2:
+        return None
+    first, last = ok[np.argmin(rec.t[ok])], ok[np.argmax(rec.t[ok])]
+    travel = rec.x[last] - rec.x[first]
+    if not np.isfinite(travel) or travel == 0:
+        return None
+    heights, speeds = [], []
+    for k in rec.markers_of("lug"):
+        i = np.flatnonzero((rec.marker_index == k) & rec.valid)
+        if i.size < 3:
+            continue
+        i = i[np.argsort(rec.t[i])]
+        heights.append(rec.y[i][1:])
+        speeds.append(np.sign(travel) * np.diff(rec.x[i]) / np.diff(rec.t[i]))
+    if not heights:
+        return None
+    h, v = np.concatenate(heights), np.concatenate(speeds)
+    if h.size < 10 or np.std(h) == 0 or np.std(v) == 0:
+        return None
+    return float(np.corrcoef(h, v)[0, 1])
+
+
+def _warn_if_upside_down(rec: Recording, fmt: str) -> None:
+    score = upside_down_score(rec)
+    if score is not None and score < -0.5:
+        import warnings
+
+        warnings.warn(f"{rec.path}: the lug markers run fastest at the bottom of their path "
+                      f"(height-speed correlation {score:.2f}): the y axis of this {fmt} file "
+                      f"looks upside down (fitlug wants y up; check --y-origin, the "
+                      f"format's pixel origin or --length-unit px)", stacklevel=3)
+
+
+def recording_from_dataframe(df, *, fps=None, mm_per_px=None, calibration=None, rig=None,
+                             body=None, lug=None, likelihood: float = 0.6):
+    """See `Recording.from_dataframe`."""
+    from ._fmt_trackpy import tracks_from_dataframe
+
+    cols = set(map(str, df.columns)) if getattr(df.columns, "nlevels", 1) == 1 else set()
+    if {"time_s", "marker", "role", "x_mm", "y_mm"} <= cols:
+        markers = list(dict.fromkeys(map(str, df["marker"])))
+        roles = dict(zip(map(str, df["marker"]), map(str, df["role"])))
+        index = {m: k for k, m in enumerate(markers)}
+        mi = np.array([index[str(m)] for m in df["marker"]], dtype=np.int64)
+        t = np.asarray(df["time_s"], dtype=np.float64)
+        order = np.lexsort((t, mi))
+        return Recording(markers=tuple(markers), roles=tuple(roles[m] for m in markers),
+                         t=t[order], marker_index=mi[order],
+                         x=np.asarray(df["x_mm"], dtype=np.float64)[order],
+                         y=np.asarray(df["y_mm"], dtype=np.float64)[order],
+                         meta={"source": "DataFrame"})
+    tracks = tracks_from_dataframe(df, likelihood=likelihood)
+    to_mm = None
+    height = None
+    if calibration is None and mm_per_px is not None:
+        # the scale-only calibration of `fit-lug track` (x = S x_px, y = S (H - y_px))
+        try:
+            to_mm, height = scale_pixels_to_mm(float(mm_per_px), 0), 0
+        except ValueError as exc:
+            raise InputError(None, f"mm_per_px: {exc}") from None
+    elif calibration is not None:
+        to_mm, height = calibration.pixels_to_mm, calibration.image_size[1]
+    return tracks_to_recording(tracks, pixels_to_mm=to_mm, image_height=height, fps=fps,
+                               rig=rig, body=body, lug=lug)

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 from .._errors import InputError
 from ._atomic import write_text_atomic
+from ._files import read_bytes
 from ._rig_check import check_keys
 
 
@@ -175,17 +176,11 @@ def read_rig(path: str | os.PathLike) -> Rig:
             near-miss of one (`mass = 10` for mass_kg).
     """
     path = os.fspath(path)
+    data = read_bytes(path, "TOML file")
     try:
-        with open(path, "rb") as fh:
-            text = fh.read().decode("utf-8-sig")  # a BOM (Windows editors) as the CSV reader
-    except FileNotFoundError:
-        raise InputError(path, "file not found") from None
-    except IsADirectoryError:
-        raise InputError(path, "is a directory, not a TOML file") from None
+        text = data.decode("utf-8-sig")  # a BOM (Windows editors) as the CSV reader
     except UnicodeDecodeError as exc:
         raise InputError(path, f"not UTF-8 text ({exc.reason})") from None
-    except OSError as exc:
-        raise InputError(path, f"cannot read file: {exc.strerror or exc}") from None
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
