@@ -32,9 +32,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._detect import COG, QS, Detections, detect_markers, estimate_noise
-from ._qs import _B, _SLOPES, N_PARAMS, refine_qs
-from ._refine import refine_cog
+from ..detect._detect import COG, QS, Detections, detect_markers, estimate_noise
+from ..detect._qs import _B, _SLOPES, N_PARAMS, refine_qs
+from ..detect._refine import refine_cog
 from ._pickup import PickUp
 from ._trackstate import ema, score, Track
 

@@ -25,8 +25,8 @@ import os
 
 import numpy as np
 
-from .._errors import InputError
-from ..io._atomic import write_text_atomic
+from ..._errors import InputError
+from ...io._atomic import write_text_atomic
 from ._calibration import Calibration
 
 _FLAG_NAMES = ("CALIB_USE_INTRINSIC_GUESS", "CALIB_FIX_ASPECT_RATIO",

@@ -15,7 +15,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .._errors import InputError
+from ..._errors import InputError
 from ._calib_board import Board, detect_corners, parse_board
 from ._calibration import Calibration
 
