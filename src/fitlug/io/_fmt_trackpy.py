@@ -116,7 +116,7 @@ def recording_from_dataframe(df, *, fps=None, mm_per_px=None, calibration=None, 
     height = None
     if calibration is None and mm_per_px is not None:
         # the scale-only calibration of `fit-lug track` (x = S x_px, y = S (H - y_px))
-        from ..vision.calibrate._calibration import Calibration
+        from ._calibration import Calibration
 
         try:
             calibration = Calibration.from_scale(float(mm_per_px), (0, 0))

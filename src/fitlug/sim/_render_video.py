@@ -19,7 +19,7 @@ import numpy as np
 
 from .._errors import InputError
 from ..io._atomic import atomic_path, write_text_atomic
-from ..vision.calibrate._calibration import Calibration
+from ..io._calibration import Calibration
 from ._render import (KINDS, RenderOptions, auto_origin, default_camera, gain_field,
                       ground_to_pixels, render_frame, subframe_positions)
 

@@ -24,7 +24,7 @@ from .calibrate._calib_io import save_calibration as save_calibration
 from .calibrate._calibrate import calibrate as calibrate
 from .calibrate._calibrate import scale_from_board as scale_from_board
 from .calibrate._calibrate import scale_from_points as scale_from_points
-from .calibrate._calibration import Calibration as Calibration
+from ..io._calibration import Calibration as Calibration
 from .detect._detect import Detections as Detections
 from .detect._detect import detect_markers as detect_markers
 from .detect._qs import QsFit as QsFit

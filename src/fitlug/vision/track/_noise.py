@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..._errors import InputError
-from ..calibrate._calibration import Calibration
+from ...io._calibration import Calibration
 from ._pipeline import track
 from ._track import TrackerConfig, TrackResult
 

@@ -14,7 +14,7 @@ from typing import Iterable
 import numpy as np
 
 from ..._errors import InputError
-from ..calibrate._calibration import Calibration
+from ...io._calibration import Calibration
 from ._track import TrackerConfig, TrackResult, track_frames
 
 

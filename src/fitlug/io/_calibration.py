@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..._errors import InputError
+from .._errors import InputError
 
 
 @dataclass
