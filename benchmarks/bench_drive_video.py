@@ -2,7 +2,7 @@
 
 Each video is a simulated recording of the reference model (`fitlug.sim`, its travel
 lengthened so that the robot is outside the picture for a while at the start and the end)
-rendered in memory (`fitlug.vision._render_video.recording_scene` + `render_frames`: the renderer behind
+rendered in memory (`fitlug.sim._render_video.recording_scene` + `render_frames`: the renderer behind
 `fit-lug simulate --video`) through a window 300-637 mm wide placed along the travel,
 at 100-250 frames/s, with and without lens distortion rendered in. The frames go through
 `fitlug.vision.track` (the library function behind `fit-lug track`); against the renderer's
@@ -79,8 +79,9 @@ def evaluate(res, truth, visible, kinds, tol=0.5):
 
 
 def one_video(i, window_mm, fps, k1, at, args, out_root):
-    from fitlug.vision import RenderOptions, render_frames, track
-    from fitlug.vision._render_video import recording_scene
+    from fitlug.sim import RenderOptions, render_frames
+    from fitlug.sim._render_video import recording_scene
+    from fitlug.vision import track
 
     seed = args.seed + i
     w = int(round(window_mm * args.px_per_mm / 8) * 8)

@@ -24,7 +24,7 @@ Rows (the transform is tests/realism.py):
   centre at the window's centre). With --twins, each recording's in-view twin (the same
   recording and faults, no window) is fitted too and the verdicts compared.
 - rendered (only when asked for: --rows ...,rendered): the noise-free recording rendered as
-  camera frames by fitlug.vision.render_video (637 mm x 117 mm picture at 0.39 mm/px: the
+  camera frames by fitlug.sim.render_video (637 mm x 117 mm picture at 0.39 mm/px: the
   robot crosses it; lens, motion blur, lighting gradient, vignetting, sensor noise),
   tracked by fitlug.vision.track (what `fit-lug track` runs) and mapped to mm with the
   calib.json the renderer wrote; about a minute per recording, so --n-rendered (default 4)
@@ -64,7 +64,8 @@ RENDER_SIZE = (1632, 300)  # px: 637 mm wide at 0.39 mm/px, 117 mm high (the mar
 
 def rendered(rec, seed: int):
     """`rec` (noise-free positions) rendered as frames, tracked and mapped back to mm."""
-    from fitlug.vision import load_calibration, render_video, to_recording, track
+    from fitlug.sim import render_video
+    from fitlug.vision import load_calibration, to_recording, track
 
     t = np.unique(rec.t)
     xy = np.full((t.size, rec.n_markers, 2), np.nan)

@@ -18,7 +18,7 @@ One run prints, side by side:
 `--hard` (issue 14): small markers (COG discs 9 px across, QS checkers 10 px a side; see
 --cog-px, --qs-px), noise sigma = 4, a strong lighting gradient and vignetting, motion blur
 from a 4 ms exposure, a dark bar sweeping across the picture (each marker hidden a few
-frames) and markers leaving it (`fitlug.vision._scene.hard_clip`), over --n recordings
+frames) and markers leaving it (`fitlug.sim._scene.hard_clip`), over --n recordings
 (--workers processes): detection rate over the frames where a marker is whole and clear,
 identity swaps, RMS per axis and 2-D against the Cramer-Rao bound, and speed (steady state
 of frames in memory, blocks of 25 frames after the first, and with the periodic whole-frame
@@ -44,10 +44,9 @@ import time
 
 import numpy as np
 
-from fitlug.vision import (RenderOptions, Tracker, TrackerConfig, default_camera, open_source,
-                           render_frames, track)
-from fitlug.vision import _render
-from fitlug.vision._scene import stadium_scene
+from fitlug.sim import RenderOptions, _render, default_camera, render_frames
+from fitlug.sim._scene import stadium_scene
+from fitlug.vision import Tracker, TrackerConfig, open_source, track
 
 S = 0.39
 SIZE = (1632, 1200)
@@ -392,7 +391,7 @@ class _Res:
 def _hard_one(job):
     """One hard recording: render, track with this tree (and `compare`), the bound."""
     seed, n_frames, size, cog_px, qs_px, compare, repeats, every = job
-    from fitlug.vision._scene import hard_clip
+    from fitlug.sim._scene import hard_clip
 
     clip = hard_clip(n_frames, size, seed=seed, cog_px=cog_px, qs_px=qs_px, keep_sub=True)
     out = {"frames": n_frames, "markers": len(clip.kinds), "kinds": clip.kinds}
@@ -506,7 +505,7 @@ print(n, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
 
 def _memory_frames():
     """Four noisy 1632x1200 frames of 10 still markers (8 COG, 2 QS), uint8."""
-    from fitlug.vision._render import RenderOptions, default_camera, render_frame
+    from fitlug.sim._render import RenderOptions, default_camera, render_frame
 
     w, h = 1632, 1200
     cam = default_camera(0.39, (w, h), dist_coeffs=None)
@@ -520,7 +519,7 @@ def write_cycling_cine(path: str, images: list, n: int, fps: int = 1000) -> None
     """An uncompressed 8-bit Phantom .cine of `n` frames whose table of image offsets cycles
     over `images` (stored once each): the reader seeks to and reads every one of the n
     frames as in any .cine (the format allows any offsets), while the file stays a few MB
-    instead of n x 2 MB. Layout as `fitlug.vision._cine` documents it: CINEFILEHEADER,
+    instead of n x 2 MB. Layout as `fitlug.vision.read._cine` documents it: CINEFILEHEADER,
     BITMAPINFOHEADER (positive height: rows stored bottom first), a 900-byte SETUP
     (FrameRate16, Length, FrameRate, CFA = 0, RealBPP = 8), no tagged blocks, the offsets
     table, then each image's 8-byte annotation (its size, then the image size) and pixels."""

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from fitlug._errors import InputError
-from fitlug.vision._calib_io import load_calibration, save_calibration
-from fitlug.vision._calibrate import calibrate, scale_from_board, scale_from_points
-from fitlug.vision._calibration import Calibration
+from fitlug.vision.calibrate._calib_io import load_calibration, save_calibration
+from fitlug.vision.calibrate._calibrate import calibrate, scale_from_board, scale_from_points
+from fitlug.io._calibration import Calibration
 
 cv2 = pytest.importorskip("cv2")
 

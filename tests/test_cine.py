@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 
 from fitlug._errors import InputError
-from fitlug.vision._cine import CineFile, _unpack_10, _unpack_12
-from fitlug.vision._source import open_source
+from fitlug.vision.read._cine import CineFile, _unpack_10, _unpack_12
+from fitlug.vision.read._source import open_source
 
 import shared_data  # noqa: E402 - tests/ is on sys.path (conftest)
 

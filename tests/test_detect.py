@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
-from fitlug.vision import RenderOptions, default_camera, detect_markers, refine_cog, refine_qs
-from fitlug.vision._render import render_frame
+from fitlug.sim import RenderOptions, default_camera
+from fitlug.sim._render import render_frame
+from fitlug.vision import detect_markers, refine_cog, refine_qs
 
 S = 0.39  # mm per px: 6 mm COG discs are 15.4 px across, 10 mm checkers 25.6 px
 R_COG = 0.5 * 6.0 / S
@@ -130,7 +131,7 @@ def test_half_size_search_finds_small_markers_and_no_squares():
     # checkers >= 9.5 px a side: on hard renders (noise 4, blur, a lighting gradient, a bar)
     # every whole marker found at full size is found so, and a small bright square is not a
     # disc there either
-    from fitlug.vision._scene import hard_clip
+    from fitlug.sim._scene import hard_clip
 
     clip = hard_clip(12, (480, 320), seed=5, cog_px=8.0, qs_px=10.0)
     sizes = dict(cog_radius=3.8, qs_half=5.0, noise=4.0)

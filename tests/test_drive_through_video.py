@@ -1,7 +1,7 @@
 """Tracking drive-through videos (issue 26): the camera is started before the robot
 arrives, the robot drives into the picture, crosses it and drives out.
 
-Truth from the renderer (`fitlug.vision._drive.drive_clip`): a marker is owed a sample in
+Truth from the renderer (`fitlug.sim._drive.drive_clip`): a marker is owed a sample in
 every frame where it is whole in the picture (its lug disc or its square's circumcircle
 inside the frame's edges) and clear of occluders and other markers. Every marker must be
 picked up within a few frames of coming into view - across the left or right edge, across
@@ -13,9 +13,9 @@ positions of a robot in view throughout (COG <= 0.02 px, QS <= 0.015 px RMS per 
 import numpy as np
 import pytest
 
+from fitlug.sim._drive import drive_clip
 from fitlug.vision import track
-from fitlug.vision._drive import drive_clip
-from fitlug.vision._scan import bright_spots
+from fitlug.vision.detect._scan import bright_spots
 
 W, H = 480, 360
 

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from fitlug.fit import fit
-from fitlug.sim import Scenario, simulate
-from fitlug.vision import default_camera, render_frames, to_recording, track
-from fitlug.vision._render import auto_origin
+from fitlug.sim import Scenario, default_camera, render_frames, simulate
+from fitlug.sim._render import auto_origin
+from fitlug.vision import to_recording, track
 
 SCENARIO = Scenario(duration_s=2.5, travel_mm=250.0, rest_s=0.25, ramp_s=0.7)
 

@@ -377,10 +377,10 @@ def parse(kind: str, path: str, extra: dict) -> None:
         from fitlug.io import read_rig
         read_rig(path)
     elif kind == "calib":
-        from fitlug.vision._calib_io import load_calibration
+        from fitlug.vision.calibrate._calib_io import load_calibration
         load_calibration(path)
     elif kind == "cine":
-        from fitlug.vision._cine import CineFile
+        from fitlug.vision.read._cine import CineFile
         with CineFile(path) as cine:
             if cine.n_frames:
                 cine.read(0)  # the first frame too: the header decides where it lies

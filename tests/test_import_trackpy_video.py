@@ -12,8 +12,7 @@ import pytest
 
 from fitlug.fit import fit
 from fitlug.io import Recording
-from fitlug.sim import Scenario, simulate
-from fitlug.vision import default_camera, render_frames
+from fitlug.sim import Scenario, default_camera, render_frames, simulate
 
 SCENARIO = Scenario(duration_s=2.5, travel_mm=250.0, rest_s=0.25, ramp_s=0.7, fps=50.0)
 

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from fitlug.vision import (RenderOptions, default_camera, load_calibration, render_frames,
-                           render_video)
-from fitlug.vision._coverage import disc_coverage, interval_overlap
-from fitlug.vision._render import render_frame
+from fitlug.sim import RenderOptions, default_camera, render_frames, render_video
+from fitlug.sim._coverage import disc_coverage, interval_overlap
+from fitlug.sim._render import render_frame
+from fitlug.vision import load_calibration
 
 QUIET = RenderOptions(noise_sigma=0.0, gradient=(0.0, 0.0), vignetting=0.0, exposure_s=0.0)
 

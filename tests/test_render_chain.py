@@ -28,9 +28,9 @@ import pytest
 from fitlug.explain import explain
 from fitlug.fit import fit
 from fitlug.fit._problem import build_problem
-from fitlug.sim import Scenario, simulate
+from fitlug.sim import Scenario, render_recording, simulate
 from fitlug.sim._simulate import rig_of
-from fitlug.vision import load_calibration, render_recording, scale_calibration, to_recording, track
+from fitlug.vision import load_calibration, scale_calibration, to_recording, track
 
 SCENARIO = Scenario(duration_s=3.5, travel_mm=400.0, rest_s=0.25, ramp_s=0.7)
 IMAGE = (770, 300)  # px at 0.39 mm/px: 300 mm x 117 mm

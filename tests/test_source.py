@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from fitlug._errors import InputError
-from fitlug.vision._source import open_source
+from fitlug.vision.read._source import open_source
 
 cv2 = pytest.importorskip("cv2")
 

@@ -5,9 +5,9 @@ import pytest
 
 from fitlug.cli import main
 from fitlug.io import read_trajectories
-from fitlug.vision import (RenderOptions, TrackerConfig, default_camera, measure_noise,
-                           render_frames, render_video, scale_calibration, to_recording, track)
-from fitlug.vision._scene import stadium_scene
+from fitlug.sim import RenderOptions, default_camera, render_frames, render_video
+from fitlug.sim._scene import stadium_scene
+from fitlug.vision import TrackerConfig, measure_noise, scale_calibration, to_recording, track
 
 S = 0.39
 W, H = 400, 300

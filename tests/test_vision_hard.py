@@ -10,8 +10,8 @@ positions reach the RMS targets (COG <= 0.02 px, QS <= 0.015 px per axis).
 import numpy as np
 import pytest
 
+from fitlug.sim._scene import hard_clip
 from fitlug.vision import track
-from fitlug.vision._scene import hard_clip
 
 
 @pytest.fixture(scope="module")

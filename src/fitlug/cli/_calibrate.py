@@ -47,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def expand_images(patterns: list[str]) -> list[str]:
     """Image files named by paths, glob patterns or folders, in order, without repeats."""
-    from ..vision._source import IMAGE_SUFFIXES, _natural_key
+    from ..vision.read._source import IMAGE_SUFFIXES, _natural_key
 
     files: list[str] = []
     for pattern in patterns:
@@ -111,9 +111,9 @@ def _summary(cal, n_images: int) -> str:
 def run(args: argparse.Namespace) -> int:
     import cv2
 
-    from ..vision._calib_board import parse_board
-    from ..vision._calib_io import save_calibration
-    from ..vision._calibrate import calibrate, scale_from_board, scale_from_points
+    from ..vision.calibrate._calib_board import parse_board
+    from ..vision.calibrate._calib_io import save_calibration
+    from ..vision.calibrate._calibrate import calibrate, scale_from_board, scale_from_points
 
     try:
         board = parse_board(args.board, args.square, args.marker, args.dictionary)

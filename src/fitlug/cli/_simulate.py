@@ -267,7 +267,7 @@ def run(args) -> int:
               f"rig.toml" + ("" if args.no_truth else ", truth.json")
         + f"; true slip {truth['slip']:.5f}")
     if args.video:
-        from ..vision import render_recording
+        from ..sim import render_recording
 
         render_recording(args.video, sc, seed=args.seed, frames=args.frames,
                          progress=progress_enabled(args), image_size=image_size(args.image_size),

@@ -123,8 +123,9 @@ def _frames(text):
 
 def run(args) -> int:
     from ..io import write_trajectories
-    from ..vision import open_source, overlay_png, overlay_video, to_recording, track
-    from ..vision._pipeline import iter_overlay_frames
+    from ..sim import overlay_png, overlay_video
+    from ..vision import open_source, to_recording, track
+    from ..vision.track._pipeline import iter_overlay_frames
 
     config = _config(args)
     selection = _frames(args.frames)

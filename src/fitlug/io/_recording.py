@@ -17,7 +17,6 @@ import numpy as np
 
 from .._errors import InputError
 from ._imported import Tracks, _roles, _times
-from ._pixels import scale_pixels_to_mm
 
 if TYPE_CHECKING:
     from ._rig import Rig
@@ -344,11 +343,13 @@ def recording_from_dataframe(df, *, fps=None, mm_per_px=None, calibration=None, 
     height = None
     if calibration is None and mm_per_px is not None:
         # the scale-only calibration of `fit-lug track` (x = S x_px, y = S (H - y_px))
+        from ._calibration import Calibration
+
         try:
-            to_mm, height = scale_pixels_to_mm(float(mm_per_px), 0), 0
+            calibration = Calibration.from_scale(float(mm_per_px), (0, 0))
         except ValueError as exc:
             raise InputError(None, f"mm_per_px: {exc}") from None
-    elif calibration is not None:
+    if calibration is not None:
         to_mm, height = calibration.pixels_to_mm, calibration.image_size[1]
     return tracks_to_recording(tracks, pixels_to_mm=to_mm, image_height=height, fps=fps,
                                rig=rig, body=body, lug=lug)

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._errors import InputError
-from ._calibration import Calibration
+from ..._errors import InputError
+from ...io._calibration import Calibration
 from ._pipeline import track
 from ._track import TrackerConfig, TrackResult
 

@@ -15,9 +15,9 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .._errors import InputError
+from ..._errors import InputError
+from ...io._calibration import Calibration
 from ._calib_board import Board, detect_corners, parse_board
-from ._calibration import Calibration
 
 OUTLIER_FACTOR = 3.0
 MIN_VIEWS = 3

@@ -1,4 +1,4 @@
-"""calib.json: writing and reading a Calibration (OpenCV conventions, see _calibration).
+"""calib.json: writing and reading a Calibration (OpenCV conventions: io/_calibration).
 
     {
       "format": "fitlug-calibration", "version": 1,
@@ -25,9 +25,9 @@ import os
 
 import numpy as np
 
-from .._errors import InputError
-from ..io._atomic import write_text_atomic
-from ._calibration import Calibration
+from ..._errors import InputError
+from ...io._atomic import write_text_atomic
+from ...io._calibration import Calibration
 
 _FLAG_NAMES = ("CALIB_USE_INTRINSIC_GUESS", "CALIB_FIX_ASPECT_RATIO",
                "CALIB_FIX_PRINCIPAL_POINT", "CALIB_ZERO_TANGENT_DIST", "CALIB_FIX_FOCAL_LENGTH",

@@ -1,8 +1,8 @@
 """A small self-contained track scene (MODEL.md §2 kinematics) to render for tests and benchmarks.
 
-Not the simulator of the project (that is `fitlug.sim`): just enough physics to move
-markers like the real rig does - body markers translating, lug markers going round the
-stadium path with a constant slip - without importing JAX.
+Not the simulator of the project (that is `fitlug.sim.simulate`): just enough physics to
+move markers like the real rig does - body markers translating, lug markers going round the
+stadium path with a constant slip - in NumPy, without JAX.
 """
 
 from __future__ import annotations

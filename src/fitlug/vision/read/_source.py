@@ -21,7 +21,7 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
-from .._errors import InputError
+from ..._errors import InputError
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
 FrameSelection = slice | range | Sequence[int] | tuple | None
@@ -125,7 +125,7 @@ def _to_grey(img: np.ndarray) -> np.ndarray:
 
 
 class CineSource(FrameSource):
-    """A Phantom .cine file (see `fitlug.vision._cine`); `cine` holds the header facts."""
+    """A Phantom .cine file (see `fitlug.vision.read._cine`); `cine` holds the header facts."""
 
     def __init__(self, path: str, fps: float | None, frames: FrameSelection):
         from ._cine import CineFile

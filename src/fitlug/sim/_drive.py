@@ -116,7 +116,7 @@ def drive_clip(image_size=(480, 360), *, window_mm=300.0, window_at=0.5, window_
     markers in mm (COG bright disc, its lug disc, QS square side). Everything random comes
     from `seed`. Raises ValueError for impossible settings.
     """
-    from ._calibration import Calibration
+    from ..io._calibration import Calibration
     from ._render import (KINDS, RenderOptions, gain_field, ground_to_pixels, render_frame,
                           subframe_positions)
     from ._render_video import _visible

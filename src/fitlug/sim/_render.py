@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._calibration import Calibration
+from ..io._calibration import Calibration
 from ._coverage import disc_coverage, interval_overlap
 
 KINDS = {"lug": "cog", "body": "qs"}

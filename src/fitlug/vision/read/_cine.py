@@ -35,7 +35,7 @@ import struct
 
 import numpy as np
 
-from .._errors import InputError
+from ..._errors import InputError
 from ._cine_lut import LUT_10_TO_12
 
 _FILE_HEADER = struct.Struct("<2sHHHiIiIIIIQ")

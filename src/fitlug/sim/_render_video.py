@@ -19,7 +19,7 @@ import numpy as np
 
 from .._errors import InputError
 from ..io._atomic import atomic_path, write_text_atomic
-from ._calibration import Calibration
+from ..io._calibration import Calibration
 from ._render import (KINDS, RenderOptions, auto_origin, default_camera, gain_field,
                       ground_to_pixels, render_frame, subframe_positions)
 
@@ -115,7 +115,7 @@ def render_video(out_dir: str | os.PathLike, t, markers: Sequence[str], roles: S
     """
     import cv2
 
-    from ._calib_io import save_calibration
+    from ..vision.calibrate._calib_io import save_calibration
 
     t, xy = _check_inputs(t, markers, roles, xy_mm)
     camera = default_camera(mm_per_px, image_size) if camera is None else camera
@@ -169,7 +169,7 @@ def recording_scene(scenario, *, seed: int = 0, image_size=(1632, 1200),
     frame, 1: at the last); lens_k1: radial distortion (focal length 1.225 x the width;
     0: none; None: `default_camera`'s). Raises ValueError for a window out of range.
     """
-    from ..sim import simulate
+    from ._simulate import simulate
 
     rec, _ = simulate(scenario.replace(noise_lug_mm=0.0, noise_body_mm=0.0), seed)
     t = np.unique(rec.t)

@@ -14,8 +14,8 @@ import math
 
 import numpy as np
 
-from ._detect import COG, QS, Detections
-from ._scan import bright_spots
+from ..detect._detect import COG, QS, Detections
+from ..detect._scan import bright_spots
 from ._trackstate import score
 
 

@@ -13,8 +13,8 @@ from typing import Iterable
 
 import numpy as np
 
-from .._errors import InputError
-from ._calibration import Calibration
+from ..._errors import InputError
+from ...io._calibration import Calibration
 from ._track import TrackerConfig, TrackResult, track_frames
 
 
@@ -37,7 +37,7 @@ def track(source, *, fps: float | None = None, config: TrackerConfig | None = No
     """
     name = "<frames>"
     if isinstance(source, (str, os.PathLike)):
-        from ._source import open_source
+        from ..read._source import open_source
 
         name = os.fspath(source)
         with open_source(source, fps=fps, frames=frames) as src:
@@ -88,7 +88,7 @@ def to_recording(result: TrackResult, calibration: Calibration, *, origin_mm=Non
     origin at the image's bottom-left corner), then shifted by origin_mm (default:
     `origin_of(calibration)`). Every (frame, marker) pair is a sample; gaps are NaN.
     """
-    from ..io import Recording
+    from ...io import Recording
 
     f, m = result.xy_px.shape[:2]
     origin = origin_of(calibration) if origin_mm is None else np.asarray(origin_mm, float)
@@ -110,7 +110,7 @@ def to_recording(result: TrackResult, calibration: Calibration, *, origin_mm=Non
 
 def iter_overlay_frames(source, result: TrackResult, *, fps=None) -> Iterable:
     """(frame number, image) of the tracked frames of `source`, for overlay videos."""
-    from ._source import open_source
+    from ..read._source import open_source
 
     wanted = set(int(v) for v in result.frames)
     with open_source(source, fps=fps) as src:
