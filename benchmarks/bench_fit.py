@@ -22,7 +22,8 @@ sys.path.insert(0, os.path.dirname(__file__))
 import _numpy_model  # noqa: E402
 
 from fitlug.fit import build_problem, fit_problem, free_parameters  # noqa: E402
-from fitlug.fit._lsq import Packing, _solve, residuals  # noqa: E402
+from fitlug.fit._lsq import _solve  # noqa: E402
+from fitlug.fit._residuals import Packing, residuals  # noqa: E402
 from fitlug.fit._result import derived  # noqa: E402
 from fitlug.io import read_rig, read_trajectories  # noqa: E402
 from fitlug.sim import Scenario, rig_of, simulate  # noqa: E402

@@ -11,7 +11,7 @@ def profile_chi2(res, names, theta, steps=20):
     """min over the nuisance parameters of chi^2 at theta: Gauss-Newton with the Jacobian
     of jax.jacfwd at every iterate, a column-scaled pseudo-inverse (a parameter that does
     not act stays put) and step halving (independent of the marginal's step model)."""
-    from fitlug.fit._lsq import residuals
+    from fitlug.fit._residuals import residuals
 
     prob, pk = res.problem, res.packing
     sl = pk.slices()

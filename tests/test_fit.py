@@ -231,7 +231,7 @@ def test_covariance_of_a_parameter_that_does_not_act():
     """A zero Jacobian column (an effect's parameter at a degenerate state, e.g. ground
     sinkage's sink_us with no sinkage) gets the pseudo-inverse's zero, and leaves the others'
     covariance as it is; it used to turn every entry into NaN (0 * inf)."""
-    from fitlug.fit._lsq import covariance, covariance_normal
+    from fitlug.fit._covariance import covariance, covariance_normal
 
     rng = np.random.default_rng(0)
     J = rng.normal(size=(200, 3)) * np.array([1.0, 1e-3, 1e4])

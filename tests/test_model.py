@@ -103,7 +103,7 @@ def test_gradients_match_finite_differences(effects):
 @pytest.mark.parametrize("effects", [(), tuple(CATALOG)])
 def test_structured_jacobian_equals_forward_mode(effects):
     """fitlug.fit's Jacobian (kinematic columns through the sampled X and psi) is exact."""
-    from fitlug.fit._lsq import Packing, jacobian, residuals
+    from fitlug.fit._residuals import Packing, jacobian, residuals
 
     lay, p = _small_layout(effects)
     n_l, n_b = lay.lug_t.shape[0], lay.body_t.shape[0]

@@ -93,9 +93,11 @@ def test_chunked_normal_equations_equal_the_dense_jacobians():
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from test_model import _small_layout
 
-    from fitlug.fit._lsq import (Packing, RowChunks, blocked_chi2, blocked_residuals,
-                                 chunk_plan, chunkable, normal_blocks, normal_equations,
-                                 residuals, time_blocks)
+    from fitlug.fit._chunks import (blocked_chi2, blocked_residuals, chunk_plan, chunkable,
+                                    time_blocks)
+    from fitlug.fit._normal import normal_blocks, normal_equations
+    from fitlug.fit._residuals import Packing, residuals
+    from fitlug.fit._rowchunks import RowChunks
     from fitlug.model.effects import CATALOG
 
     effects = tuple(e for e in CATALOG if e not in ("lug_ripple", "wheel_runout"))
@@ -123,7 +125,8 @@ def test_chunked_normal_equations_equal_the_dense_jacobians():
         assert np.max(np.abs(np.asarray(g) - g0)) < 1e-10 * np.max(np.abs(g0)), chunk
         assert abs(float(chi2) - r @ r) < 1e-10 * (r @ r)
     # J_a^T J_b of the Jacobians at two parameter vectors (the posterior's step model)
-    from fitlug.fit._lsq import _prepare_jit, contract_cross_jit
+    from fitlug.fit._chunk_prep import _prepare_jit
+    from fitlug.fit._normal import contract_cross_jit
 
     flat_b = flat + 1e-3 * jnp.asarray(rng.normal(size=flat.shape[0])) * jnp.abs(flat)
     Jb = np.asarray(jax.jacfwd(lambda f: residuals(packing.unpack(f, fixed), lay, obs))(flat_b))
@@ -188,7 +191,7 @@ def _both(monkeypatch, fn, block_rows=None):
     """fn() on the dense path, then on the chunked (long-recording) path, there in time
     blocks of `block_rows` residual rows when given."""
     from fitlug.explain import _engine
-    from fitlug.fit import _lsq
+    from fitlug.fit import _chunks as _lsq
 
     monkeypatch.setattr(_engine, "CHUNKED_ENTRIES", 10 ** 15)
     dense = fn()
@@ -334,7 +337,7 @@ def test_posterior_exact_chi2_in_bounded_batches_equals_the_dense_one(sag_fit, m
     assert dense._plan is None and chunked._plan is not None
     assert dense.batch == 16 and chunked.batch == 3  # 3 residual vectors per batch
     # and in time blocks of a quarter of the rows each (batches of 3 blocks' rows)
-    from fitlug.fit import _lsq
+    from fitlug.fit import _chunks as _lsq
 
     monkeypatch.setattr(_posterior, "LARGE_ENTRIES", n_res)
     monkeypatch.setattr(_lsq, "BLOCK_ROWS", n_res // 4)
@@ -394,7 +397,7 @@ def test_glitch_search_by_time_blocks_equals_the_whole_prediction(sag_fit, monke
     equal the whole recording's prediction, and so do its z statistics and flags."""
     import jax.numpy as jnp
 
-    from fitlug.fit import _glitches, _lsq
+    from fitlug.fit import _chunks as _lsq, _glitches
     from fitlug.model import predict
 
     prob = sag_fit.problem

@@ -35,8 +35,10 @@ import numpy as np
 
 from .. import _jaxconfig  # noqa: F401
 from ..fit import residuals
-from ..fit._lsq import (BLOCK_ENTRIES, LARGE_ENTRIES, Packing, RowChunks, chunkable,
-                        jacobian, nodes_batch, time_blocks, trim_heap)
+from ..fit._chunks import BLOCK_ENTRIES, chunkable, nodes_batch, time_blocks, trim_heap
+from ..fit._lsq import LARGE_ENTRIES
+from ..fit._residuals import Packing, jacobian
+from ..fit._rowchunks import RowChunks
 from ..model import CATALOG, param_names
 
 COUPLED = ("s0", "beta", "R", "D", "e", "x_off", "y_off")
@@ -244,7 +246,7 @@ def _res_batch(flats, packing, lay, obs):
 @partial(jax.jit, static_argnames=("packing",))
 def _res_from_nodes(flats, nodes, packing, lay, obs):
     """:func:`_res_batch` of the samples of `lay` (a time block) from the node values."""
-    from ..fit._lsq import _residuals_from_nodes
+    from ..fit._residuals import _residuals_from_nodes
 
     return jax.vmap(lambda f, *nd: _residuals_from_nodes(f, {}, lay, obs, packing, nd))(
         flats, *nodes)
@@ -745,7 +747,7 @@ def gauss_newton_step(flat, fixed, packing, lay, obs, r) -> tuple:
 
 def covariance_of(flat, fixed, packing, lay, obs) -> np.ndarray:
     """fitlug.fit.covariance of the problem's Jacobian (from J^T J on long recordings)."""
-    from ..fit._lsq import covariance, covariance_normal
+    from ..fit._covariance import covariance, covariance_normal
 
     J = jacobian_of(flat, fixed, packing, lay, obs)
     if isinstance(J, RowChunks):

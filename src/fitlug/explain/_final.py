@@ -17,7 +17,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..fit import FitResult, free_parameters, residual_noise, reweighted
-from ..fit._lsq import Packing, blocked_residuals, time_blocks
+from ..fit._chunks import blocked_residuals, time_blocks
+from ..fit._residuals import Packing
 from ..fit._result import compute_quantities
 from ._engine import covariance_of, gauss_newton_step
 

@@ -31,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import special
 
-from ..fit._lsq import RowChunks
+from ..fit._rowchunks import RowChunks
 from ._detect import detect
 from ._engine import normal_of, pinv_factor
 from ._locate import locate

@@ -37,7 +37,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..fit import covariance as _covariance_dense
-from ..fit._lsq import RowChunks, covariance_normal
+from ..fit._covariance import covariance_normal
+from ..fit._rowchunks import RowChunks
 from ..fit._result import compute_quantities
 from ._detect import ALPHA
 from ._engine import jacobian_of

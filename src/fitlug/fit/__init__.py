@@ -8,7 +8,9 @@ from ._fit import (
     residual_noise as residual_noise,
     reweighted as reweighted,
 )
-from ._lsq import covariance as covariance, least_squares as least_squares, residuals as residuals
+from ._covariance import covariance as covariance
+from ._lsq import least_squares as least_squares
+from ._residuals import residuals as residuals
 from ._noise import estimate_noise as estimate_noise
 from ._problem import Problem as Problem, build_problem as build_problem
 from ._result import Estimate as Estimate, FitResult as FitResult, derived as derived

@@ -35,6 +35,8 @@ import numpy as np
 from .._errors import InputError
 from ._noise import fourth_differences, noise_from_differences
 
+MIN_FRAMES = 20  # frames a recording needs to be fitted (build_problem) or judged here
+
 # plausible ranges (mm, mm/s, s); outside: most likely another unit
 SPREAD_MM = (2.0, 5000.0)
 NOISE_MAX_MM = 1.0
@@ -254,8 +256,6 @@ def check_recording(rec, rig):
     Raises:
         InputError: naming the file and what looks wrong (see the module docstring).
     """
-    from ._problem import MIN_FRAMES
-
     _check_gaps(rec)
     rec = _drop_empty(rec)
     _check_rig_fps(rec, rig)

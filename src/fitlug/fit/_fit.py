@@ -14,7 +14,8 @@ import numpy as np
 from .._errors import FitError
 from ..model import param_names
 from ..model.effects import CATALOG
-from ._lsq import covariance, covariance_normal, gauss_newton_polish, least_squares
+from ._covariance import covariance, covariance_normal, gauss_newton_polish
+from ._lsq import least_squares
 from . import _glitches
 from ._noise import fourth_differences, noise_from_differences
 from ._problem import Problem, build_problem
@@ -43,7 +44,8 @@ def _long(prob: Problem, p0: dict, free) -> bool:
     """Whether the fit takes the long-recording (chunked) path, which needs beta free: the
     held stage would fall back to a dense Jacobian there (a 5000-frame recording's peak
     went 0.70 -> 1.56 GB), so long recordings start with every parameter free."""
-    from ._lsq import LARGE_ENTRIES, Packing
+    from ._lsq import LARGE_ENTRIES
+    from ._residuals import Packing
 
     n_res = 2 * (prob.lay.lug_t.shape[0] + prob.lay.body_t.shape[0])
     return n_res * sum(Packing.of(p0, free).sizes) > LARGE_ENTRIES

@@ -96,10 +96,10 @@ _predict_from_nodes = jax.jit(predict_from_nodes)
 
 def _positions(p: dict, lay, obs) -> tuple:
     """The model's (lug_x, lug_y, body_x, body_y) at every sample (numpy); on a long
-    recording one time block's model evaluation at a time (:func:`fitlug.fit._lsq.
+    recording one time block's model evaluation at a time (:func:`fitlug.fit._chunks.
     time_blocks`: the model's per-sample temporaries of one block, the node values
     integrated once; the same values)."""
-    from ._lsq import time_blocks
+    from ._chunks import time_blocks
 
     blocks = time_blocks(lay, obs, plans=False)
     if blocks is None:

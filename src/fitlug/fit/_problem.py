@@ -13,10 +13,10 @@ from ..model._knots import top_run_tracks
 from ..model._model import BASE_SCALARS, default_params
 from ..model.effects import CATALOG
 from . import _fragments, _init
+from ._checks import MIN_FRAMES
 from ._prepare import prepare
 from ._noise import estimate_noise
 
-MIN_FRAMES = 20
 END_FRAMES = 4  # frames with data in each end interval of the speed spline
 
 

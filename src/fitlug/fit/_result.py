@@ -167,7 +167,7 @@ class FitResult:
         a parameter held by convention because the geometry makes it degenerate (B of
         body_bounce with one body marker) and a free one at a degenerate geometry.
         """
-        from ._lsq import Packing, jacobian
+        from ._residuals import Packing, jacobian
 
         eff = CATALOG[effect_id]
         p = {k: jnp.asarray(v, float) for k, v in self.params.items()}

@@ -60,11 +60,12 @@ from .. import _exported, _jaxconfig  # noqa: F401
 from .._errors import FitError
 from ..model._physics import C_RR_MIN, beta_max
 from ..model.effects import CATALOG
-from ..fit._lsq import (BLOCK_ENTRIES, LARGE_ENTRIES, _prepare_jit, _residuals_from_nodes,
-                        block_shared, chunk_plan, chunkable, contract, contract_cross_jit,
-                        inverse_norms,
-                        jacobian, nodes_batch, normal_blocks, normal_equations, residuals,
-                        time_blocks)
+from ..fit._chunk_prep import _prepare_jit, block_shared
+from ..fit._chunks import BLOCK_ENTRIES, chunk_plan, chunkable, nodes_batch, time_blocks
+from ..fit._covariance import inverse_norms
+from ..fit._lsq import LARGE_ENTRIES
+from ..fit._normal import contract, contract_cross_jit, normal_blocks, normal_equations
+from ..fit._residuals import _residuals_from_nodes, jacobian, residuals
 from ._identify import not_identifiable
 from ._mcmc import Chain, autocorr_time, run_ensemble
 from ..fit._result import Estimate, FitResult, derived
