@@ -191,13 +191,13 @@ def _both(monkeypatch, fn, block_rows=None):
     """fn() on the dense path, then on the chunked (long-recording) path, there in time
     blocks of `block_rows` residual rows when given."""
     from fitlug.explain import _engine
-    from fitlug.fit import _chunks as _lsq
+    from fitlug.fit import _chunks
 
     monkeypatch.setattr(_engine, "CHUNKED_ENTRIES", 10 ** 15)
     dense = fn()
     monkeypatch.setattr(_engine, "CHUNKED_ENTRIES", 0)
     if block_rows is not None:
-        monkeypatch.setattr(_lsq, "BLOCK_ROWS", block_rows)
+        monkeypatch.setattr(_chunks, "BLOCK_ROWS", block_rows)
     return dense, fn()
 
 
@@ -337,10 +337,10 @@ def test_posterior_exact_chi2_in_bounded_batches_equals_the_dense_one(sag_fit, m
     assert dense._plan is None and chunked._plan is not None
     assert dense.batch == 16 and chunked.batch == 3  # 3 residual vectors per batch
     # and in time blocks of a quarter of the rows each (batches of 3 blocks' rows)
-    from fitlug.fit import _chunks as _lsq
+    from fitlug.fit import _chunks
 
     monkeypatch.setattr(_posterior, "LARGE_ENTRIES", n_res)
-    monkeypatch.setattr(_lsq, "BLOCK_ROWS", n_res // 4)
+    monkeypatch.setattr(_chunks, "BLOCK_ROWS", n_res // 4)
     blocked = _Marginal(res, names, batch=16)
     assert blocked._blocks is not None and len(blocked._blocks.lays) >= 4
     assert blocked.batch >= 3
@@ -397,16 +397,16 @@ def test_glitch_search_by_time_blocks_equals_the_whole_prediction(sag_fit, monke
     equal the whole recording's prediction, and so do its z statistics and flags."""
     import jax.numpy as jnp
 
-    from fitlug.fit import _chunks as _lsq, _glitches
+    from fitlug.fit import _chunks, _glitches
     from fitlug.model import predict
 
     prob = sag_fit.problem
     p = {k: jnp.asarray(v, float) for k, v in sag_fit.params.items()}
     whole = [np.asarray(a) for a in predict(p, prob.lay)]
     found = _glitches.find(sag_fit)
-    assert _lsq.time_blocks(prob.lay, prob.obs) is None
-    monkeypatch.setattr(_lsq, "BLOCK_ROWS", len(sag_fit.residuals) // 4)
-    assert len(_lsq.time_blocks(prob.lay, prob.obs).lays) >= 4
+    assert _chunks.time_blocks(prob.lay, prob.obs) is None
+    monkeypatch.setattr(_chunks, "BLOCK_ROWS", len(sag_fit.residuals) // 4)
+    assert len(_chunks.time_blocks(prob.lay, prob.obs).lays) >= 4
     for a, b in zip(_glitches._positions(p, prob.lay, prob.obs), whole):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
     got = _glitches.find(sag_fit)
