@@ -321,8 +321,8 @@ def test_posterior_exact_chi2_in_bounded_batches_equals_the_dense_one(sag_fit, m
     a batch holds at most LARGE_ENTRIES residuals, equals the dense path's (one batch of
     16 with the dense Jacobian) at the linearity check's points, and the chunked normal
     matrix gives the same Gaussian limit."""
-    from fitlug.posterior import _posterior
-    from fitlug.posterior._posterior import _Marginal, slip_law_parameters
+    from fitlug.posterior import _marginal as _posterior
+    from fitlug.posterior._marginal import _Marginal, slip_law_parameters
 
     res = sag_fit
     names = slip_law_parameters(res)
