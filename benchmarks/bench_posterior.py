@@ -27,7 +27,7 @@ import numpy as np
 
 from fitlug.fit import covariance, fit, reweighted
 from fitlug.posterior import sample_posterior
-from fitlug.posterior._posterior import _jacobian
+from fitlug.posterior._projections import _jacobian
 from fitlug.io import read_rig, read_trajectories, write_json
 from fitlug.model._spline import design
 from fitlug.report import fit_json, save_state, write_report

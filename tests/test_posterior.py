@@ -20,7 +20,7 @@ from fitlug import FitError
 from fitlug.fit import fit
 from fitlug.posterior import Posterior, sample_posterior
 from fitlug.posterior._mcmc import run_ensemble
-from fitlug.posterior._posterior import slip_law_parameters
+from fitlug.posterior._marginal import slip_law_parameters
 from fitlug.sim import Scenario, rig_of, simulate
 
 # short recordings (300 frames, 6 lug + 2 body markers): ~4 s per fit on 2 cores
@@ -267,7 +267,7 @@ def test_exact_marginal_is_the_profile_over_the_nuisance_on_a_cruise():
     with a false interval (bench_coverage's cruise row, seed 37078); the linear prediction
     gave the Gaussian, 65 at beta_max for a profile of 2.3."""
     from fitlug.model._physics import beta_max
-    from fitlug.posterior._posterior import _Marginal
+    from fitlug.posterior._marginal import _Marginal
 
     from cruise import cruise_recording
     from nuisance_profile import profile_chi2

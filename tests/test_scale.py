@@ -324,22 +324,22 @@ def test_posterior_exact_chi2_in_bounded_batches_equals_the_dense_one(sag_fit, m
     a batch holds at most LARGE_ENTRIES residuals, equals the dense path's (one batch of
     16 with the dense Jacobian) at the linearity check's points, and the chunked normal
     matrix gives the same Gaussian limit."""
-    from fitlug.posterior import _posterior
-    from fitlug.posterior._posterior import _Marginal, slip_law_parameters
+    from fitlug.posterior import _marginal
+    from fitlug.posterior._marginal import _Marginal, slip_law_parameters
 
     res = sag_fit
     names = slip_law_parameters(res)
     n_res = len(res.residuals)
-    monkeypatch.setattr(_posterior, "LARGE_ENTRIES", 10 ** 15)
+    monkeypatch.setattr(_marginal, "LARGE_ENTRIES", 10 ** 15)
     dense = _Marginal(res, names, batch=16)
-    monkeypatch.setattr(_posterior, "LARGE_ENTRIES", 3 * n_res)
+    monkeypatch.setattr(_marginal, "LARGE_ENTRIES", 3 * n_res)
     chunked = _Marginal(res, names, batch=16)
     assert dense._plan is None and chunked._plan is not None
     assert dense.batch == 16 and chunked.batch == 3  # 3 residual vectors per batch
     # and in time blocks of a quarter of the rows each (batches of 3 blocks' rows)
     from fitlug.fit import _chunks
 
-    monkeypatch.setattr(_posterior, "LARGE_ENTRIES", n_res)
+    monkeypatch.setattr(_marginal, "LARGE_ENTRIES", n_res)
     monkeypatch.setattr(_chunks, "BLOCK_ROWS", n_res // 4)
     blocked = _Marginal(res, names, batch=16)
     assert blocked._blocks is not None and len(blocked._blocks.lays) >= 4
@@ -349,7 +349,7 @@ def test_posterior_exact_chi2_in_bounded_batches_equals_the_dense_one(sag_fit, m
     cd = dense.exact_chi2(pts)
     for m in (chunked, blocked, "groups"):
         if m == "groups":  # the thetas' node values a batch at a time (long recordings)
-            monkeypatch.setattr(_posterior, "NODE_ENTRIES", 1)
+            monkeypatch.setattr(_marginal, "NODE_ENTRIES", 1)
             m = blocked
         cc = m.exact_chi2(pts)
         assert len(cc) == len(pts)

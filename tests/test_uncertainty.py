@@ -305,7 +305,7 @@ def test_tracker_systematics_are_carried_in_the_errors():
     geometry and the slip law: the verdict stays 'none' (not physics), but the slip's
     least-squares error alone put the truth 2.7 errors away (bench_coverage's
     systematics row, seed 36000). With the nuisance carried it is inside 1.96 errors."""
-    from fitlug.posterior._posterior import tempering
+    from fitlug.posterior._tempering import tempering
 
     rng = np.random.default_rng(36000)
     sc = SHORT.replace(slip=float(rng.uniform(0.04, 0.12)),
@@ -428,7 +428,8 @@ def test_exact_marginal_follows_the_profile_on_a_free_speed_headline(speed_mod):
     Gauss-Newton per point)."""
     from nuisance_profile import profile_chi2
 
-    from fitlug.posterior._posterior import slip_law_parameters, tempered_marginal
+    from fitlug.posterior._marginal import slip_law_parameters
+    from fitlug.posterior._tempering import tempered_marginal
 
     ex, post, doc, truth = speed_mod
     res = ex.final

@@ -23,6 +23,9 @@ steady slip and its slope ds/da of the current fit (what the data fixed) and put
 curvature in the law; each grid point is judged after one step of the engine's fit (the
 belt coordinates and the speed spline follow the law by millimetres, so the raw chi^2 of
 a grid point says little).
+
+A long recording's Jacobian is the engine's NormalJacobian: :func:`screen_normal` takes
+the same steps in normal form.
 """
 
 from __future__ import annotations
@@ -34,6 +37,8 @@ from typing import Callable
 import numpy as np
 
 from ..model import CATALOG
+from ._engine import _alternative_columns
+from ._normal import NormalJacobian, pinv_factor, tdot
 
 SINK_US_GRID = (3.0, 8.0, 20.0, 50.0, 120.0)
 
@@ -123,8 +128,6 @@ def screen(engine, theta, r, J, effects, extra_names, geo) -> dict:
     A long recording's J is the engine's NormalJacobian: screened in normal form.
     """
     if not isinstance(J, np.ndarray):
-        from ._engine import screen_normal
-
         return screen_normal(engine, theta, r, J, effects, extra_names, geo)
     U, s, Vt = _basis(J)
     r_perp = r - U @ (U.T @ r)
@@ -255,3 +258,74 @@ def physical(eid: str, p: dict) -> str | None:
 
 def n_free(eid: str, n_body: int) -> int:
     return CATALOG[eid].n_free(n_body)
+
+
+# ---------------------------------------------------------------------------------------
+# The screening of :mod:`._candidates` on a NormalJacobian (long recordings): the same
+# Gauss-Newton step per effect, with the projections orthogonal to J's columns written
+# through J^T J's pseudo-inverse M M^T (the `_basis` eigen-decomposition of the same
+# column-scaled normal matrix): x_perp . y_perp = x.y - (M^T J^T x).(M^T J^T y).
+# ---------------------------------------------------------------------------------------
+def screen_normal(engine, theta, r, NJ: NormalJacobian, effects, extra_names, geo) -> dict:
+    """:func:`fitlug.explain._candidates.screen` for a :class:`NormalJacobian`."""
+    M = pinv_factor(NJ.A, 1e-12)
+    qr = M.T @ NJ.g  # M^T J^T r
+    idx = np.r_[engine.cur_idx, [engine.index(k) for k in extra_names]].astype(int)
+
+    def gn_start(th, JtC, beta):
+        delta = -(M @ (qr + M.T @ (JtC @ beta)))  # -J^+ (r + C beta)
+        out = th.copy()
+        out[idx] += delta
+        return out
+
+    def project(C, JtC):
+        Q = M.T @ JtC
+        gram = tdot(C, C) - Q.T @ Q  # Cp^T Cp
+        rhs = tdot(C, r) - Q.T @ qr  # Cp^T r_perp
+        return gram, rhs
+
+    out = {}
+    for eid in effects:
+        if eid == "frame_drop":
+            out[eid] = _screen_frame_drop_normal(engine, theta, r, NJ, M, qr, geo, gn_start,
+                                                 project)
+            continue
+        best = None
+        for alt, th, C, JtC in _alternative_columns(engine, NJ, theta,
+                                                    alternatives(eid, engine, theta)):
+            gram, rhs = project(C, JtC)
+            norms = np.sqrt(np.maximum(np.diag(gram), 0.0))
+            ok = norms > 1e-9 * max(norms.max(), 1e-300)
+            if not ok.any():
+                continue
+            beta = np.zeros(C.shape[1])
+            beta[ok] = np.linalg.lstsq(gram[np.ix_(ok, ok)], -rhs[ok], rcond=None)[0]
+            d = float(beta @ gram @ beta)
+            if best is None or d > best[0]:
+                best = (d, alt, th, JtC, beta)
+        if best is None:
+            out[eid] = Screened(eid, 0.0, theta.copy(), theta.copy(), "no signature")
+            continue
+        d, alt, th, JtC, beta = best
+        start = gn_start(th, JtC, beta)
+        start = engine.with_values(start, alt.start(beta))
+        out[eid] = Screened(eid, d, start, th, alt.label)
+    # the screening is the normal Jacobian's last use in a round: its chunks and columns
+    # would otherwise stay resident through the round's candidate fits
+    NJ.release()
+    return out
+
+
+def _screen_frame_drop_normal(engine, theta, r, NJ, M, qr, geo, gn_start, project):
+    t_star, jump = frame_drop_tstar(
+        engine, theta, r, geo,
+        lambda d, order, suffix, tu: NJ.suffix_projections(d, geo.t, tu, M))  # |U^T d_k|^2
+    th = engine.with_values(theta, {"drop_tstar": t_star})
+    C = engine.fd_columns([({}, "drop_dt")], th)
+    JtC = NJ.Jt(C)
+    gram, rhs = project(C, JtC)
+    beta = np.linalg.lstsq(gram, -rhs, rcond=None)[0]
+    start = gn_start(th, JtC, beta)
+    start = engine.with_values(start, {"drop_dt": float(beta[0])})
+    return Screened("frame_drop", float(beta @ gram @ beta), start, th, f"t*={t_star:.4f} s",
+                    {"t_star_s": t_star, "jump_score": jump})

@@ -15,13 +15,17 @@ minimum it converges to is the same, since the residuals are exact. Each step tr
 several damping values at once (one batched model evaluation).
 
 Long recordings (the dense Jacobian above CHUNKED_ENTRIES entries, a base model the
-chunked normal equations take: :func:`fitlug.fit._lsq.chunkable`) never form the
+chunked normal equations take: :func:`fitlug.fit._chunks.chunkable`) never form the
 Jacobian: :meth:`Engine.jacobian` returns a :class:`NormalJacobian`, which holds J^T J
 and J^T r accumulated over time chunks of the base block's rows
-(:class:`fitlug.fit._lsq.RowChunks`) and the difference columns; the fit, the screening
+(:class:`fitlug.fit._rowchunks.RowChunks`) and the difference columns; the fit, the screening
 (:mod:`._candidates`), the final polish, the robust errors and the systematics check use
 it through J^T J and J^T v only. Same values as the dense path to rounding
 (tests/test_scale.py); memory linear in the samples.
+
+Longer than 400 lines because the Engine class alone is ~360 lines (one compiled model
+and the state its methods share), and the limits the tests patch (CHUNKED_ENTRIES, STORE,
+BATCH_ENTRIES, BLOCK_ENTRIES) must stay in the module of the code that reads them.
 """
 
 from __future__ import annotations
@@ -40,6 +44,7 @@ from ..fit._lsq import LARGE_ENTRIES
 from ..fit._residuals import Packing, jacobian
 from ..fit._rowchunks import RowChunks
 from ..model import CATALOG, param_names
+from ._normal import NormalJacobian
 
 COUPLED = ("s0", "beta", "R", "D", "e", "x_off", "y_off")
 CHUNK = 8  # model evaluations per batched call (fixed, so one compilation serves all)
@@ -72,130 +77,6 @@ def jacobian_of(flat, fixed, packing, lay, obs):
     return np.asarray(_jac_block(jnp.asarray(flat), fixed, packing, lay, obs))
 
 
-def normal_of(J, V=None):
-    """(J^T J, J^T V) of a dense Jacobian or of its :class:`RowChunks` (V (S,) or (S, m))."""
-    if isinstance(J, RowChunks):
-        if V is None:
-            return J.normal(np.zeros((J.n_rows, 0)))[0], None
-        A, g = J.normal(V if np.ndim(V) == 2 else np.asarray(V)[:, None])
-        return A, (g if np.ndim(V) == 2 else g[:, 0])
-    return J.T @ J, (None if V is None else J.T @ V)
-
-
-def pinv_factor(A, rcond: float) -> np.ndarray:
-    """M with M M^T the pseudo-inverse of A (column-scaled eigen-decomposition, eigenvalues
-    below rcond times the largest dropped): the normal-form twin of the `_basis` SVD."""
-    d = np.sqrt(np.maximum(np.diag(A), 0.0))
-    d = np.where(d > 0, d, 1.0)
-    w, V = np.linalg.eigh(A / np.outer(d, d))
-    keep = w > rcond * w.max()
-    w, V = w[keep][::-1], V[:, keep][:, ::-1]
-    return (V / np.sqrt(w)) / d[:, None]
-
-
-class NormalJacobian:
-    """The engine's Jacobian [base block | difference columns] of a long recording in
-    normal form: A = J^T J and J^T r, and J^T V of any residual-shaped columns V by a pass
-    over the time chunks (:meth:`Jt`). The base block's rows come from `chunks`; `F` holds
-    the difference columns (S, m) of the coupled parameters (they replace the base
-    columns at `coupled_pos`) and of the extra parameters (appended)."""
-
-    def __init__(self, chunks: RowChunks, F: np.ndarray, coupled_pos: list, r: np.ndarray):
-        self.chunks, self.F, self.r = chunks, F, r
-        n_cur = chunks.n_par
-        nc = len(coupled_pos)
-        self.n = n_cur + F.shape[1] - nc
-        keep = np.ones(n_cur, bool)
-        keep[coupled_pos] = False
-        self.base_cols = np.flatnonzero(keep)  # full column j = base column j there
-        # full column index of each F column
-        self.f_cols = np.r_[np.asarray(coupled_pos, int), n_cur + np.arange(F.shape[1] - nc)]
-        Ab, (JbF, Jbr) = chunks.normal([F, r[:, None]])
-        JbW = np.hstack([JbF, Jbr])
-        A = np.zeros((self.n, self.n))
-        b, f = self.base_cols, self.f_cols
-        A[np.ix_(b, b)] = Ab[np.ix_(b, b)]
-        A[np.ix_(b, f)] = JbW[b, :F.shape[1]]
-        A[np.ix_(f, b)] = JbW[b, :F.shape[1]].T
-        A[np.ix_(f, f)] = tdot(F, F)
-        self.A = A
-        self.g = self._assemble(JbW[:, F.shape[1]:], tdot(F, r[:, None]))[:, 0]  # J^T r
-        self.shape = (len(r), self.n)
-
-    def normal(self) -> tuple:
-        """(J^T J, J^T r)."""
-        return self.A, self.g
-
-    def release(self) -> None:
-        """Drop the time chunks and the difference columns (memory linear in the samples),
-        keeping J^T J and J^T r; :meth:`Jt` and :meth:`suffix_projections` are gone."""
-        self.chunks = self.F = None
-
-    def _assemble(self, JbV, FtV):
-        out = np.zeros((self.n, JbV.shape[1]))
-        out[self.base_cols] = JbV[self.base_cols]
-        out[self.f_cols] = FtV
-        return out
-
-    def Jt(self, V) -> np.ndarray:
-        """J^T V for V (S, m) (or (S,), or a list of (S, m_i): J^T of their columns side
-        by side, without stacking them into one more (S, sum m_i) array)."""
-        if isinstance(V, list):
-            Vs = [np.asarray(v).reshape(len(v), -1) for v in V]
-            _, JbVs = self.chunks.normal(Vs, with_A=False)
-            return np.hstack([self._assemble(JbV, tdot(self.F, v)) for JbV, v in zip(JbVs, Vs)])
-        V = np.asarray(V)  # chunks.normal and tdot cast block by block
-        one = V.ndim == 1
-        V2 = V[:, None] if one else V
-        _, JbV = self.chunks.normal(V2, with_A=False)
-        out = self._assemble(JbV, tdot(self.F, V2))
-        return out[:, 0] if one else out
-
-    def suffix_projections(self, d, t, tu, M) -> np.ndarray:
-        """|M^T J^T (d 1[t >= tu_k])|^2 for every time tu_k (sorted unique times of the
-        samples), streamed backwards over the time chunks (the chunks hold disjoint,
-        increasing time ranges); (len(tu),)."""
-        Mb, Mf = M[self.base_cols], M[self.f_cols]
-        fi = np.searchsorted(tu, t)
-        nf = len(tu)
-        # the difference columns' part: per-frame sums of F d (small), projected per chunk
-        # (a column at a time: F d and its sorted copy would be two more (S, m) arrays)
-        Zf = np.zeros((nf, self.F.shape[1]))
-        for j in range(self.F.shape[1]):
-            Zf[:, j] = np.bincount(fi, weights=self.F[:, j] * d, minlength=nf)
-        out = np.zeros(nf)
-        carry = np.zeros(M.shape[1])
-        ch = self.chunks
-        done = nf
-        # the base block's rows from the chunks' factors, J_c = U P^T (kinematic columns)
-        # + L (columns pos): per-frame sums of d U and d L, then through M's rows (a
-        # coupled column's rows zero: F holds it); R (2 + w) per chunk, not R p
-        Mfull = np.zeros((ch.n_par, M.shape[1]))
-        Mfull[self.base_cols] = Mb
-        Mkin = Mfull[ch._kin_pos]
-        for c in range(ch.n_chunks - 1, -1, -1):
-            got = ch.factors(c)
-            if got is None:
-                continue
-            rows, U, P, L, pos = got
-            f = fi[rows]
-            lo = int(f.min())
-            if f.max() >= done:
-                raise RuntimeError("time chunks out of order")
-            Zc = Zf[lo:done] @ Mf
-            dr = d[rows, None]
-            Zc += _frame_sums(f - lo, np.hstack([U * dr, L * dr]), done - lo) @ np.vstack(
-                [P.T @ Mkin, Mfull[pos]])
-            S = np.cumsum(Zc[::-1], 0)[::-1] + carry
-            out[lo:done] = np.sum(S * S, 1)
-            carry = S[0]
-            done = lo
-        if done > 0:  # frames before the first chunk's rows: the difference columns only
-            S = np.cumsum((Zf[:done] @ Mf)[::-1], 0)[::-1] + carry
-            out[:done] = np.sum(S * S, 1)
-        return out
-
-
 #: storage of the long recordings' difference columns (the engine's coupled and extra
 #: columns F, the screened alternatives' columns C): float32, which halves their memory,
 #: the largest share of an explanation's peak on 100 000 frames (9 columns of 2.8 M rows:
@@ -208,34 +89,6 @@ class NormalJacobian:
 #: rounds' screened delta chi^2 of every catalog effect within 7e-5 relative (1e-4 in
 #: chi^2), their starts within 4e-5, the sag's LM fit within 4e-6 in chi^2 of 8.4e5.
 STORE = np.float32
-#: rows per float64 block of :func:`tdot`
-TDOT_ROWS = 131_072
-
-
-def tdot(X, Y) -> np.ndarray:
-    """X^T Y in float64 for X (S, m) and Y (S,) or (S, k) of float32 or float64 storage:
-    summed over blocks of TDOT_ROWS rows, each cast to float64 (no float64 copy of a
-    whole float32 array)."""
-    X = np.asarray(X)
-    Y = np.asarray(Y)
-    if X.dtype == np.float64 and Y.dtype == np.float64:
-        return X.T @ Y
-    out = np.zeros((X.shape[1],) + Y.shape[1:])
-    for i in range(0, X.shape[0], TDOT_ROWS):
-        out += X[i:i + TDOT_ROWS].astype(np.float64).T @ Y[i:i + TDOT_ROWS].astype(np.float64)
-    return out
-
-
-def _frame_sums(fi, X, nf):
-    """Sums of the rows of X per frame index fi, (nf, X.shape[1])."""
-    out = np.zeros((nf, X.shape[1]))
-    if len(fi) == 0:
-        return out
-    order = np.argsort(fi, kind="stable")
-    fs = fi[order]
-    starts = np.flatnonzero(np.r_[True, fs[1:] != fs[:-1]])
-    out[fs[starts]] = np.add.reduceat(X[order], starts, axis=0)
-    return out
 
 
 @partial(jax.jit, static_argnames=("packing",))
@@ -624,64 +477,6 @@ class Engine:
         return LMResult(theta=theta, r=r, chi2=chi2, iterations=it, converged=converged)
 
 
-# ---------------------------------------------------------------------------------------
-# The screening of :mod:`._candidates` on a NormalJacobian (long recordings): the same
-# Gauss-Newton step per effect, with the projections orthogonal to J's columns written
-# through J^T J's pseudo-inverse M M^T (the `_basis` eigen-decomposition of the same
-# column-scaled normal matrix): x_perp . y_perp = x.y - (M^T J^T x).(M^T J^T y).
-# ---------------------------------------------------------------------------------------
-def screen_normal(engine, theta, r, NJ: NormalJacobian, effects, extra_names, geo) -> dict:
-    """:func:`fitlug.explain._candidates.screen` for a :class:`NormalJacobian`."""
-    from ._candidates import Screened, alternatives
-
-    M = pinv_factor(NJ.A, 1e-12)
-    qr = M.T @ NJ.g  # M^T J^T r
-    idx = np.r_[engine.cur_idx, [engine.index(k) for k in extra_names]].astype(int)
-
-    def gn_start(th, JtC, beta):
-        delta = -(M @ (qr + M.T @ (JtC @ beta)))  # -J^+ (r + C beta)
-        out = th.copy()
-        out[idx] += delta
-        return out
-
-    def project(C, JtC):
-        Q = M.T @ JtC
-        gram = tdot(C, C) - Q.T @ Q  # Cp^T Cp
-        rhs = tdot(C, r) - Q.T @ qr  # Cp^T r_perp
-        return gram, rhs
-
-    out = {}
-    for eid in effects:
-        if eid == "frame_drop":
-            out[eid] = _screen_frame_drop_normal(engine, theta, r, NJ, M, qr, geo, gn_start,
-                                                 project)
-            continue
-        best = None
-        for alt, th, C, JtC in _alternative_columns(engine, NJ, theta,
-                                                    alternatives(eid, engine, theta)):
-            gram, rhs = project(C, JtC)
-            norms = np.sqrt(np.maximum(np.diag(gram), 0.0))
-            ok = norms > 1e-9 * max(norms.max(), 1e-300)
-            if not ok.any():
-                continue
-            beta = np.zeros(C.shape[1])
-            beta[ok] = np.linalg.lstsq(gram[np.ix_(ok, ok)], -rhs[ok], rcond=None)[0]
-            d = float(beta @ gram @ beta)
-            if best is None or d > best[0]:
-                best = (d, alt, th, JtC, beta)
-        if best is None:
-            out[eid] = Screened(eid, 0.0, theta.copy(), theta.copy(), "no signature")
-            continue
-        d, alt, th, JtC, beta = best
-        start = gn_start(th, JtC, beta)
-        start = engine.with_values(start, alt.start(beta))
-        out[eid] = Screened(eid, d, start, th, alt.label)
-    # the screening is the normal Jacobian's last use in a round: its chunks and columns
-    # would otherwise stay resident through the round's candidate fits
-    NJ.release()
-    return out
-
-
 def _alternative_columns(engine, NJ, theta, alts, per_pass: int = 4):
     """(alternative, its settings vector, columns C, J^T C) for each alternative; J^T C of
     a few alternatives' columns per pass over the time chunks."""
@@ -702,54 +497,3 @@ def _alternative_columns(engine, NJ, theta, alts, per_pass: int = 4):
             group = []
     if group:
         yield from flush()
-
-
-def _screen_frame_drop_normal(engine, theta, r, NJ, M, qr, geo, gn_start, project):
-    from ._candidates import Screened, frame_drop_tstar
-
-    t_star, jump = frame_drop_tstar(
-        engine, theta, r, geo,
-        lambda d, order, suffix, tu: NJ.suffix_projections(d, geo.t, tu, M))  # |U^T d_k|^2
-    th = engine.with_values(theta, {"drop_tstar": t_star})
-    C = engine.fd_columns([({}, "drop_dt")], th)
-    JtC = NJ.Jt(C)
-    gram, rhs = project(C, JtC)
-    beta = np.linalg.lstsq(gram, -rhs, rcond=None)[0]
-    start = gn_start(th, JtC, beta)
-    start = engine.with_values(start, {"drop_dt": float(beta[0])})
-    return Screened("frame_drop", float(beta @ gram @ beta), start, th, f"t*={t_star:.4f} s",
-                    {"t_star_s": t_star, "jump_score": jump})
-
-
-# ---------------------------------------------------------------------------------------
-# Gauss-Newton steps and covariances of a fixed-effect-set problem (the final polish):
-# dense on short recordings, from the chunked normal equations on long ones.
-# ---------------------------------------------------------------------------------------
-def gauss_newton_step(flat, fixed, packing, lay, obs, r) -> tuple:
-    """(undamped Gauss-Newton step, its predicted chi^2 decrease) at `flat`, residuals r:
-    the minimum-norm step of the column-scaled Jacobian (singular values below 1e-12 of
-    the largest dropped), or of its chunked normal equations on a long recording."""
-    J = jacobian_of(flat, fixed, packing, lay, obs)
-    if isinstance(J, RowChunks):
-        A, g = normal_of(J, np.asarray(r))
-        M = pinv_factor(A, 1e-14)
-        q = M.T @ g
-        return -(M @ q), float(q @ q)
-    d = np.sqrt(np.sum(J * J, 0))
-    d = np.where(d > 0, d, 1.0)
-    Js = J / d
-    U, s, Vt = np.linalg.svd(Js, full_matrices=False)
-    keep = s > 1e-12 * s.max()
-    ur = U[:, keep].T @ r
-    step = -(Vt[keep].T @ (ur / s[keep])) / d
-    return step, float(ur @ ur)
-
-
-def covariance_of(flat, fixed, packing, lay, obs) -> np.ndarray:
-    """fitlug.fit.covariance of the problem's Jacobian (from J^T J on long recordings)."""
-    from ..fit._covariance import covariance, covariance_normal
-
-    J = jacobian_of(flat, fixed, packing, lay, obs)
-    if isinstance(J, RowChunks):
-        return covariance_normal(normal_of(J)[0])
-    return covariance(J)

@@ -8,7 +8,9 @@ minimum (quadratic convergence from that close), and the result is assembled exa
 fit_problem assembles it: same packing, covariance (fitlug.fit.covariance), derived
 quantities with delta-method errors (compute_quantities), dof and convergence flag.
 Convergence is declared when the last Gauss-Newton step lowers chi^2 by less than
-1e-6 and its predicted decrease is below 1e-6 too.
+1e-6 and its predicted decrease is below 1e-6 too. The steps and the covariance come
+from :func:`gauss_newton_step` and :func:`covariance_of` (dense, or from the chunked
+normal equations on long recordings).
 """
 
 from __future__ import annotations
@@ -19,8 +21,10 @@ import numpy as np
 from ..fit import FitResult, free_parameters, residual_noise, reweighted
 from ..fit._chunks import blocked_residuals, time_blocks
 from ..fit._residuals import Packing
+from ..fit._rowchunks import RowChunks
 from ..fit._result import compute_quantities
-from ._engine import covariance_of, gauss_newton_step
+from ._engine import jacobian_of
+from ._normal import normal_of, pinv_factor
 
 MAX_STEPS = 8
 TOL = 1e-6
@@ -117,3 +121,35 @@ def polished_theta(res, eng, accepted, theta) -> np.ndarray:
     out = fit_problem(prob_f, p, free=free, require_convergence=False)
     return eng.with_values(theta, {k: v for k, v in out.params.items() if k in eng.slices})
 
+
+# ---------------------------------------------------------------------------------------
+# Gauss-Newton steps and covariances of a fixed-effect-set problem (the final polish):
+# dense on short recordings, from the chunked normal equations on long ones.
+# ---------------------------------------------------------------------------------------
+def gauss_newton_step(flat, fixed, packing, lay, obs, r) -> tuple:
+    """(undamped Gauss-Newton step, its predicted chi^2 decrease) at `flat`, residuals r:
+    the minimum-norm step of the column-scaled Jacobian (singular values below 1e-12 of
+    the largest dropped), or of its chunked normal equations on a long recording."""
+    J = jacobian_of(flat, fixed, packing, lay, obs)
+    if isinstance(J, RowChunks):
+        A, g = normal_of(J, np.asarray(r))
+        M = pinv_factor(A, 1e-14)
+        q = M.T @ g
+        return -(M @ q), float(q @ q)
+    d = np.sqrt(np.sum(J * J, 0))
+    d = np.where(d > 0, d, 1.0)
+    Js = J / d
+    U, s, Vt = np.linalg.svd(Js, full_matrices=False)
+    keep = s > 1e-12 * s.max()
+    ur = U[:, keep].T @ r
+    step = -(Vt[keep].T @ (ur / s[keep])) / d
+    return step, float(ur @ ur)
+
+
+def covariance_of(flat, fixed, packing, lay, obs) -> np.ndarray:
+    """fitlug.fit.covariance of the problem's Jacobian (from J^T J on long recordings)."""
+    from ..fit._covariance import covariance, covariance_normal
+    J = jacobian_of(flat, fixed, packing, lay, obs)
+    if isinstance(J, RowChunks):
+        return covariance_normal(normal_of(J)[0])
+    return covariance(J)

@@ -33,7 +33,7 @@ from scipy import special
 
 from ..fit._rowchunks import RowChunks
 from ._detect import detect
-from ._engine import normal_of, pinv_factor
+from ._normal import normal_of, pinv_factor
 from ._locate import locate
 
 FALSE_ALARM = 1e-3  # family-wise, over the candidates a kind searched

@@ -51,7 +51,8 @@ import numpy as np
 from ..fit._result import derived
 from ._detect import detect
 from ..fit._rowchunks import RowChunks
-from ._engine import jacobian_of, pinv_factor
+from ._engine import jacobian_of
+from ._normal import pinv_factor
 from ._locate import locate
 from ._table import structured_misfit
 

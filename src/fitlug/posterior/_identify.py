@@ -28,6 +28,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..fit._result import FitResult
+from ._derived import _derived_samples
+from ._marginal import slip_law_parameters
+from ._tempering import tempered_marginal
+
 REL_STD_MAX = 0.25
 LINEAR_R2 = 0.99
 
@@ -93,3 +98,14 @@ def not_identifiable(samples: dict, names) -> dict:
 
 def _pct(x: float) -> str:
     return f"{100 * x:.0f} %" if np.isfinite(x) else "infinite"
+
+
+def least_squares_identifiability(res: FitResult, *, seed: int = 0, draws: int = 4000) -> dict:
+    """quantity -> reason for a least-squares-only run (no chain): the same decision as the
+    posterior's (fitlug.posterior._identify), on draws from the Gaussian limit of the
+    marginal of the slip law (tempered like the posterior when the misfit is unexplained)."""
+    names = slip_law_parameters(res)
+    marg, _ = tempered_marginal(res, names, batch=16)
+    rng = np.random.default_rng(seed)
+    th = marg.theta_hat + rng.standard_normal((draws, len(names))) @ marg.chol.T
+    return not_identifiable(_derived_samples(res, names, th), names)

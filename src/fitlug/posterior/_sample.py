@@ -1,0 +1,183 @@
+"""The posterior of the slippage: emcee over the slip-law parameters, the rest marginalised.
+
+What is sampled. The data pin the slip law, theta = (s0, beta) (plus the parameters of a
+replacing law, e.g. lug_sliding's slide_mu); k/m = 2 / (1000 beta n L), C_rr =
+s0 / (1000 g beta), dl' = s0 L / (n - 1) and the steady slip follow per sample. The ~70
+other parameters eta (speed spline, marker phases, offsets, geometry, effect params) are
+marginalised linearly: around the least-squares optimum r(theta, eta) ~ r(theta, eta_hat)
++ J_eta (eta - eta_hat), and with a flat prior on eta
+
+    -2 log L(theta) = |P r(theta, eta_hat)|^2 + const,   P = I - J_eta J_eta^+ .
+
+Its two evaluations, 'exact' and 'gaussian', are :mod:`._marginal`'s.
+method='auto' (default) evaluates the exact marginal at 2-sigma points around the
+optimum (principal axes and diagonals) and uses the Gaussian limit only when it agrees
+to `LINEARITY_TOL` in delta-chi^2 everywhere there; otherwise it samples the exact
+marginal under the time budget. The check's largest discrepancy is reported.
+
+When fitlug.explain leaves a misfit unexplained (res.robust set), the white-noise
+likelihood is orders of magnitude too confident: it is stretched to the cluster-robust
+covariance of the slip law (see `tempering`), so the posterior is never narrower than the
+robust least-squares errors. What the data cannot fix is found from the samples
+(`._identify`) and reported, not printed as a number (Posterior.not_identifiable).
+Priors: :mod:`._priors`; the walkers start inside them (`_start`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import _jaxconfig  # noqa: F401
+from .._errors import FitError
+from ..model._physics import C_RR_MIN, beta_max
+from ..fit._result import FitResult
+from ._derived import REPORTED, _derived_samples, _estimate
+from ._identify import not_identifiable
+from ._marginal import LINEARITY_TOL, _Marginal, slip_law_parameters
+from ._mcmc import run_ensemble
+from ._posterior import Posterior
+from ._priors import _log_prior
+from ._tempering import tempered_marginal
+
+
+def _gaussian_log_prob(marg: _Marginal):
+    th0, F, names = jnp.asarray(marg.theta_hat), jnp.asarray(marg.F), marg.names
+
+    def one(th):
+        z = th - th0
+        return -0.5 * z @ F @ z + _log_prior(th, names)
+
+    f = jax.jit(jax.vmap(one))
+    return lambda x: np.asarray(f(x))
+
+
+def _exact_log_prob(marg: _Marginal):
+    names = marg.names
+
+    def lp(x):
+        x = np.asarray(x)
+        prior = np.asarray(_log_prior(jnp.asarray(x), names))
+        out = np.full(len(x), -np.inf)
+        ok = np.isfinite(prior)
+        if ok.any():
+            out[ok] = -0.5 * (marg.exact_chi2(marg.map_theta(x[ok])) - marg.chi2_hat)
+        return out
+
+    return lp
+
+
+
+def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
+                     time_budget_s: float = 60.0, walkers: int = 32,
+                     min_tau_multiple: float = 50.0, target_ess: float = 1000.0,
+                     method: str = "auto") -> Posterior:
+    """Sample the posterior of the slip law of a least-squares fit; see the module docstring.
+
+    res: a converged FitResult. seed: everything random (walker starts, emcee moves).
+    progress: a tqdm bar on stderr (only on a terminal). time_budget_s: wall-clock limit of
+    the chain (then converged=False and the reason in mcmc_json()). method: 'auto',
+    'gaussian' or 'exact'.
+    Raises ValueError for bad arguments, FitError when the slip law is not identifiable.
+    """
+    import time
+
+    if method not in ("auto", "gaussian", "exact"):
+        raise ValueError(f"method must be 'auto', 'gaussian' or 'exact', not {method!r}")
+    if walkers < 4 or walkers % 2:
+        raise ValueError(f"walkers must be an even number >= 4, not {walkers}")
+    if not (time_budget_s > 0 and min_tau_multiple > 0 and target_ess > 0):
+        raise ValueError("time_budget_s, min_tau_multiple and target_ess must be positive")
+    t0 = time.perf_counter()
+    names = slip_law_parameters(res)
+    marg, temper = tempered_marginal(res, names, batch=walkers // 2)
+    check = marg.linearity_check()
+    use = method
+    if method == "auto":
+        use = "gaussian" if check["max_delta_chi2"] <= LINEARITY_TOL else "exact"
+    log_prob = _gaussian_log_prob(marg) if use == "gaussian" else _exact_log_prob(marg)
+    t1 = time.perf_counter()
+
+    rng = np.random.default_rng(seed)
+    p0 = _start(marg, walkers, rng)
+    # the chain keeps at least half the budget, however long the set-up took (compiles
+    # on a loaded machine): a chain starved to a few steps would report its start spread
+    budget = max(time_budget_s - (time.perf_counter() - t0), 0.5 * time_budget_s)
+    chain = run_ensemble(log_prob, p0, names=names, seed=int(rng.integers(2 ** 31)),
+                         time_budget_s=budget, min_tau_multiple=min_tau_multiple,
+                         target_ess=target_ess, progress=progress)
+    t2 = time.perf_counter()
+    samples = _derived_samples(res, names, chain.flat())
+    estimates = {k: _estimate(samples[k]) for k in REPORTED if k in samples}
+    unident = not_identifiable(samples, names)
+    t3 = time.perf_counter()
+    desc = {"gaussian": "emcee on the Gaussian limit of the linearly marginalised likelihood",
+            "exact": "emcee on the exact-model, linearly marginalised likelihood"}[use]
+    how = "posterior (emcee)"
+    headline = (getattr(res, "robust", None) or {}).get("headline")
+    if headline:  # a nuisance taken out, a free speed profile: the fit is another model's
+        how += "; " + res.robust["uncertainty_method"]
+        if temper["factor"] > 1.01:  # an error 0.5 % wider or more
+            how += (f"; likelihood stretched (slip error x {math.sqrt(temper['factor']):.3g}) "
+                    "to carry the nuisance's own uncertainty")
+    elif temper["factor"] > 1.0:
+        how += (f", likelihood tempered (stretched) to the {temper['method']} covariance "
+                f"({temper['note']}; slip error x {math.sqrt(temper['factor']):.3g} the "
+                "white-noise one): " + ("tracker systematics carried" if "nuisance" in
+                                        temper["method"] else "unexplained misfit"))
+    return Posterior(estimates=estimates, samples=samples, chain=chain,
+                     method=f"{use}: {desc}", check=check, seed=seed,
+                     not_identifiable=unident, uncertainty_method=how, temper=temper,
+                     seconds=time.perf_counter() - t0, n_marginalised=marg.n_marginalised,
+                     settings={"time_budget_s": time_budget_s, "min_tau_multiple":
+                               min_tau_multiple, "target_ess": target_ess,
+                               "requested_method": method},
+                     timings={"marginal_and_check": t1 - t0, "chain": t2 - t1,
+                              "derived": t3 - t2})
+
+
+def _start(marg: _Marginal, walkers: int, rng) -> np.ndarray:
+    """Walkers drawn from the least-squares solution's Gaussian, inside the prior.
+
+    When the prior holds only a sliver of that Gaussian (beta unfixed by the data: a
+    cruise), beta is drawn uniformly over its physical range (0, s0 / (1000 g C_RR_MIN)]
+    and the other parameters from the Gaussian conditional on it.
+    """
+    names = list(marg.names)
+    d = len(names)
+
+    def inside(th):
+        return np.isfinite(np.asarray(_log_prior(jnp.asarray(th), names)))
+
+    got = []
+    for _ in range(8):
+        th = marg.theta_hat + rng.standard_normal((4096, d)) @ marg.chol.T
+        got.append(th[inside(th)])
+        if sum(len(g) for g in got) >= walkers:
+            return np.vstack(got)[:walkers]
+    if "beta" in names and "s0" in names and d > 1:
+        ib, i0 = names.index("beta"), names.index("s0")
+        rest = [i for i in range(d) if i != ib]
+        C = 0.5 * (marg.cov + marg.cov.T)
+        c_bb = C[ib, ib]
+        gain = C[rest, ib] / c_bb
+        Cc = C[np.ix_(rest, rest)] - np.outer(gain, C[ib, rest])
+        w, V = np.linalg.eigh(0.5 * (Cc + Cc.T))
+        root = V * np.sqrt(np.clip(w, 0.0, None))
+        s0_top = max(float(marg.theta_hat[i0]) + 3.0 * math.sqrt(max(C[i0, i0], 0.0)), 1e-6)
+        cap = beta_max(s0_top)
+        for _ in range(8):
+            beta = rng.uniform(0.0, cap, 4096)
+            th = np.empty((4096, d))
+            th[:, ib] = beta
+            th[:, rest] = (marg.theta_hat[rest] + np.outer(beta - marg.theta_hat[ib], gain)
+                           + rng.standard_normal((4096, len(rest))) @ root.T)
+            got.append(th[inside(th)])
+            if sum(len(g) for g in got) >= walkers:
+                return np.vstack(got)[:walkers]
+    raise FitError("the least-squares solution lies outside the prior (beta > 0, s0 >= 0, "
+                   f"C_rr >= {C_RR_MIN:g}): no walker could be started")
+
