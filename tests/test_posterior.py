@@ -113,7 +113,7 @@ def test_chain_diagnostics(runs):
 def test_exact_marginal_agrees_with_its_gaussian_limit(runs):
     _, res, gauss = runs[0]
     exact = sample_posterior(res, seed=3, method="exact", target_ess=300,
-                             min_tau_multiple=30, time_budget_s=120)
+                             min_tau_multiple=30, time_budget_s=900)  # stops once converged; 120 s ran out on a loaded machine
     assert exact.method.startswith("exact")
     assert exact.converged
     for q in ("slip", "stiffness_N_per_mm"):
