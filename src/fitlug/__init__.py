@@ -28,7 +28,18 @@ _LAZY = {
 }
 
 
+#: sub-packages named after their main function: ``fitlug.fit`` is always the sub-package,
+#: made callable (``fitlug.fit(rec, rig)`` calls ``fitlug.fit.fit``), whatever was imported
+#: first; a function bound here would hide the sub-package's other names
+#: (``fitlug.campaign.fit_points``), and the import system binds the module anyway.
+_VERBS = ("fit", "explain", "campaign")
+
+
 def __getattr__(name: str):
+    if name in _VERBS:
+        value = importlib.import_module(f".{name}", __name__)
+        globals()[name] = value
+        return value
     if name in _LAZY:
         mod = importlib.import_module(f".{_LAZY[name]}", __name__)
         value = getattr(mod, name)
