@@ -196,6 +196,11 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
     """
     t_start = time.perf_counter()
     timing = {}
+    from ..fit import FitResult
+
+    if not isinstance(res, FitResult):
+        raise TypeError(f"explain needs the FitResult of fitlug.fit(...), got "
+                        f"{type(res).__name__}")
     geo = geometry(res)
     sig_est = res.problem.noise_source in ("differences", "residual differences")
     det0 = detect(geo, res.residuals, res.dof, sigma_estimated=sig_est, alpha=alpha)

@@ -94,6 +94,20 @@ class FitResult:
     # set by fitlug.explain when the verdict is 'unexplained': how the quantities' errors
     # were widened (cluster-robust), see fitlug.explain._robust.robust_result
     robust: dict | None = None
+    # fitted under fitlug.fit(..., params=): the user's Parameters, which packed elements
+    # were held (bool per element of flat) and the priors' chi^2 (not in chi2)
+    constraints: object = None
+    held: np.ndarray | None = None
+    prior_chi2: float = 0.0
+
+    @property
+    def parameters(self):
+        """Every parameter by name (:class:`fitlug.Parameters`): fitted values, standard
+        errors, and the held elements, bounds and priors of the fit; pass it back as
+        ``fitlug.fit(rec, rig, params=res.parameters)``."""
+        from ._parameters import parameters_from_result
+
+        return parameters_from_result(self)
 
     @property
     def chi2_per_dof(self) -> float:
@@ -109,7 +123,8 @@ class FitResult:
         extra = sum(CATALOG[e].n_free(self.problem.lay.n_body)
                     - (len(CATALOG[e].defaults) - len(CATALOG[e].fixed_in_fit))
                     for e in self.effects)
-        return len(self.flat) + extra
+        held = 0 if self.held is None else int(np.sum(self.held))
+        return len(self.flat) - held + extra
 
     @property
     def n_data(self) -> int:

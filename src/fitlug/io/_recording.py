@@ -190,6 +190,14 @@ class Recording:
                                         calibration=calibration, rig=rig, body=body, lug=lug,
                                         likelihood=likelihood)
 
+    def to_dataframe(self):
+        """The samples as a pandas DataFrame in DATA.md's long form: columns time_s, marker,
+        role, x_mm, y_mm, then sigma_mm, frame, x_px, y_px, quality where present (one row
+        per sample; :meth:`from_dataframe` reads it back)."""
+        from ._frames import recording_to_dataframe
+
+        return recording_to_dataframe(self)
+
     def with_(self, **changes) -> "Recording":
         """A copy with some fields replaced (validated like a new Recording)."""
         return dataclasses.replace(self, **changes)
