@@ -135,3 +135,124 @@ def test_dataframes_dict_rigs_paths_and_a_float_noise_are_accepted(sim, tmp_path
     assert a.rig.mass_kg == b.rig.mass_kg == 10.0
     for k in ("lug_x", "body_y"):
         assert np.allclose(np.asarray(a.obs[k]), np.asarray(b.obs[k]), atol=1e-9)
+
+
+# --------------------------------------------------------------------------------------
+# parameters as objects: held, bounded, prior'd (issue 27, items 1 and 3)
+# --------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def fits(sim):
+    rec, truth, rig = sim
+    free = fitlug.fit(rec, rig, glitches=False)
+    params = fitlug.parameters(rec, rig)
+    params["R"].fix(SC.R_mm)
+    params["D_mm"].fix(SC.D_mm)  # the fit.json name is an alias of D
+    held = fitlug.fit(rec, rig, params=params, glitches=False)
+    return free, held, params
+
+
+def test_holding_R_and_D_at_the_truth_keeps_them_and_shrinks_the_slip_error(sim, fits):
+    """Fixing R and D worked only through undocumented p_start=/free= keywords, whole
+    arrays, a recompile; now params["R"].fix(...) holds them by a mask."""
+    _, truth, _ = sim
+    free, held, _ = fits
+    assert float(held.params["R"]) == SC.R_mm and float(held.params["D"]) == SC.D_mm
+    sl = held.packing.slices()
+    for k in ("R", "D"):
+        assert np.all(held.cov[sl[k], :] == 0) and np.all(held.cov[:, sl[k]] == 0)
+    assert held.dof == free.dof + 2 and held.n_params == free.n_params - 2
+    s_free, s_held = free.quantities["slip"], held.quantities["slip"]
+    # the geometry no longer trades with the slip: a smaller error, still covering the truth
+    assert s_held.std < 0.8 * s_free.std
+    assert abs(s_held.value - truth["slip"]) < 3 * s_held.std
+    p = held.parameters
+    assert p["R"].is_fixed and p["R"].std == 0.0 and not p["s0"].is_fixed
+    assert fitlug.fit_json(held)["parameter_constraints"] == {
+        "R": {"fixed": SC.R_mm}, "D": {"fixed": SC.D_mm}}
+    assert "parameter_constraints" not in fitlug.fit_json(free)
+
+
+def test_another_held_set_reuses_the_compiled_solver(sim, fits):
+    """Mask, don't reshape: holding one body offset (an element) and bounding e is the
+    same program as holding R and D: no compilation at all (a reshaped free list costs
+    9 backend compilations, ~60 s cold on this machine)."""
+    import jax
+
+    rec, _, rig = sim
+    events = []
+    jax.monitoring.register_event_duration_secs_listener(
+        lambda name, *a, **k: events.append(name) if "backend_compile" in name else None)
+    params = fitlug.parameters(rec, rig)
+    params["cx"][1].fix(60.0)
+    params["e"].bound(0.0, 2.5)  # the truth is 3 mm: the bound binds
+    res = fitlug.fit(rec, rig, params=params, glitches=False)
+    assert events == []
+    assert float(res.params["cx"][1]) == 60.0 and float(res.params["cx"][0]) != -60.0
+    assert 2.5 - 1e-5 <= float(res.params["e"]) <= 2.5
+    assert fitlug.fit_json(res)["parameter_constraints"] == {
+        "cx": {"fixed": {"1": 60.0}}, "e": {"min": 0.0, "max": 2.5}}
+
+
+def test_a_normal_prior_on_k_combines_variances(sim, fits):
+    """A bench value of k with sd s_p is a pseudo-observation: 1/s^2 = 1/s_d^2 + 1/s_p^2,
+    the estimate the inverse-variance mean (the fit is linear enough here)."""
+    rec, truth, rig = sim
+    free, _, _ = fits
+    k = free.quantities["stiffness_N_per_mm"]
+    bench, s_p = truth["stiffness_N_per_mm"] + 1.5 * k.std, 0.7 * k.std
+    params = fitlug.parameters(rec, rig)
+    params["k"].set_prior(fitlug.Prior.normal(bench, s_p))
+    res = fitlug.fit(rec, rig, params=params, glitches=False)
+    got = res.quantities["stiffness_N_per_mm"]
+    want_sd = (1 / k.std ** 2 + 1 / s_p ** 2) ** -0.5
+    want = (k.value / k.std ** 2 + bench / s_p ** 2) * want_sd ** 2
+    assert got.std == pytest.approx(want_sd, rel=0.03)
+    assert got.value == pytest.approx(want, abs=0.1 * want_sd)
+    assert res.dof == free.dof  # a prior adds information, not parameters
+    assert res.parameters["k"].prior.as_dict() == {"kind": "normal", "mean": bench, "sd": s_p}
+
+
+def test_parameters_name_checks_and_element_access(sim):
+    rec, _, rig = sim
+    params = fitlug.parameters(rec, rig)
+    with pytest.raises(KeyError, match="unknown parameter 'r'.*did you mean 'R'"):
+        params["r"]
+    with pytest.raises(ValueError, match="k is derived from the fitted parameters"):
+        params["k"].fix(0.3)
+    with pytest.raises(IndexError, match="cx has elements 0..1"):
+        params["cx"][2]
+    with pytest.raises(ValueError, match="bounds need min < max"):
+        params["e"].bound(3.0, 1.0)
+    with pytest.raises(ValueError, match="the spread must be > 0"):
+        fitlug.Prior.normal(1.0, 0.0)
+    with pytest.raises(TypeError, match="params: expected fitlug.Parameters"):
+        fitlug.fit(rec, rig, params={"R": 96.0})
+    assert params["R_mm"] is params["R"] and "stiffness_N_per_mm" in params
+    assert len(repr(params)) < 400
+
+
+def test_the_posterior_keeps_held_parameters_and_takes_a_prior_on_k(fits):
+    """sample_posterior(res, prior=...) was a TypeError, and the posterior marginalised
+    the held R and D again."""
+    from fitlug.posterior._marginal import _Marginal
+
+    free, held, _ = fits
+    names = ["s0", "beta"]
+    assert (_Marginal(held, names, 16).n_marginalised
+            == _Marginal(free, names, 16).n_marginalised - 2)
+    k = free.quantities["stiffness_N_per_mm"]
+    post = fitlug.sample_posterior(free, prior={"k": fitlug.Prior.normal(k.value, k.std)},
+                                   time_budget_s=4.0, seed=3)
+    # data and bench of equal weight: the band narrows by sqrt(2) (chain noise ~10 %)
+    assert post.estimates["stiffness_N_per_mm"].std == pytest.approx(k.std / np.sqrt(2),
+                                                                     rel=0.2)
+    with pytest.raises(TypeError, match=r"prior\['k'\] must be a fitlug.Prior"):
+        fitlug.sample_posterior(free, prior={"k": 0.25})
+
+
+def test_explain_does_not_free_held_parameters(fits):
+    """explain/_final.py called free_parameters: the held R and D were fitted again."""
+    _, held, _ = fits
+    ex = fitlug.explain(held)
+    assert float(ex.final.params["R"]) == SC.R_mm and float(ex.final.params["D"]) == SC.D_mm
+    assert ex.final.constraints is held.constraints
