@@ -256,3 +256,60 @@ def test_explain_does_not_free_held_parameters(fits):
     ex = fitlug.explain(held)
     assert float(ex.final.params["R"]) == SC.R_mm and float(ex.final.params["D"]) == SC.D_mm
     assert ex.final.constraints is held.constraints
+
+
+# --------------------------------------------------------------------------------------
+# labelled results, summary, short reprs (issue 27, items 3 and 7)
+# --------------------------------------------------------------------------------------
+def test_covariance_and_correlation_are_labelled(fits):
+    free, held, _ = fits
+    cov = free.covariance_frame()
+    n = len(free.flat)
+    assert cov.shape == (n, n) and list(cov.index) == list(cov.columns)
+    assert {"R", "D", "s0", "beta", "cx[1]", "v[0]"} <= set(cov.index)
+    sl = free.packing.slices()
+    assert cov.loc["R", "D"] == free.cov[sl["R"].start, sl["D"].start]
+    # the slip's error from the labelled table agrees with the quantity's (delta method:
+    # slip = s0 for the base model)
+    assert np.sqrt(cov.loc["s0", "s0"]) == pytest.approx(free.quantities["slip"].std,
+                                                         rel=1e-9)
+    corr = free.correlation()
+    assert np.allclose(np.diag(corr.to_numpy()), 1.0)
+    assert np.all(np.abs(corr.to_numpy()) <= 1 + 1e-9)
+    assert held.correlation().loc["R"].isna().all()  # held: no correlation
+
+
+def test_residuals_by_marker_and_axis_raw_and_standardised(sim, fits):
+    """Residuals were one flat weighted vector in internal order."""
+    rec, truth, _ = sim
+    free, _, _ = fits
+    df = free.residuals_frame()
+    assert len(df) == len(free.residuals)
+    assert set(df["marker"]) == set(rec.markers) and set(df["axis"]) == {"x", "y"}
+    used = df[df["used"]]
+    assert np.nansum(used["standardised"] ** 2) == pytest.approx(free.chi2, rel=1e-12)
+    # raw residuals in mm: their scatter is the simulated noise per role
+    for role, sd in (("lug", SC.noise_lug_mm), ("body", SC.noise_body_mm)):
+        raw = used[used["role"] == role]["raw_mm"]
+        assert np.std(raw) == pytest.approx(sd, rel=0.1)
+    by = free.residuals_by_marker()
+    m = rec.markers[0]
+    sel = df[(df["marker"] == m) & (df["axis"] == "y")]
+    assert np.array_equal(by[m]["y"], sel["raw_mm"].to_numpy(), equal_nan=True)
+    assert np.all(np.diff(by[m]["t"]) > 0)
+
+
+def test_summary_is_the_terminal_text_and_reprs_are_short(sim, fits):
+    """repr(FitResult) was 14 kB, Explanation 35 kB; no summary()."""
+    rec, _, _ = sim
+    free, held, _ = fits
+    text = free.summary()
+    s = free.quantities["slip"]
+    from fitlug.report._format import pm
+
+    assert text.splitlines()[1].startswith("  slip s0") and pm(s.value, s.std) in text
+    assert "chi2/dof" in text and "lug stiffness k" in text
+    for obj in (free, held, rec, fitlug.explain(held)):
+        assert len(repr(obj)) < 1000, type(obj).__name__
+    assert "2 held" in repr(held) and "slip" in repr(free)
+    assert "<table>" in free._repr_html_() and len(free._repr_html_()) < 3000

@@ -23,7 +23,7 @@ _LAZY = {
     "Parameters": "fit", "Parameter": "fit", "Prior": "fit", "parameters": "fit", "sample_posterior": "posterior", "Posterior": "posterior",
     "Scenario": "sim", "simulate": "sim", "write_simulation": "sim",
     "explain": "explain",
-    "fit_json": "report", "write_report": "report",
+    "fit_json": "report", "write_report": "report", "summary": "report",
     "CATALOG": "model",
     "campaign": "campaign", "CampaignResult": "campaign",
 }

@@ -90,6 +90,16 @@ class Explanation:
     geometry: object = None  # fitlug.explain.Geometry of the residual vectors
     systematics: dict | None = None  # the tracker-systematics check (see ._systematics)
 
+    def __repr__(self) -> str:
+        return (f"<Explanation: {self.verdict}; effects: {', '.join(self.effects) or 'none'}; "
+                f"final {self.final!r}>")
+
+    def summary(self) -> str:
+        """The terminal's text for the final fit with this explanation (fitlug.summary)."""
+        import importlib
+
+        return importlib.import_module("fitlug.report").summary(self)
+
     def _final_params(self, step: Step) -> dict:
         """The effect's parameters under the final model, with standard errors (and as
         they were when the effect was added, before later effects and the polish)."""

@@ -109,6 +109,52 @@ class FitResult:
 
         return parameters_from_result(self)
 
+    # -- labelled views (fitlug.fit._labelled) ----------------------------------------
+    def covariance_frame(self):
+        """Covariance of the fitted parameters, a pandas DataFrame labelled by element
+        (``R``, ``v[3]``, ``cx[1]``; held elements: zero rows and columns)."""
+        from ._labelled import covariance_frame
+
+        return covariance_frame(self)
+
+    def correlation(self):
+        """Correlation matrix of the fitted parameters, labelled (DataFrame)."""
+        from ._labelled import correlation_frame
+
+        return correlation_frame(self)
+
+    def residuals_frame(self):
+        """Residuals (model - data) per sample and axis, raw (mm) and standardised, as a
+        tidy DataFrame: time_s, marker, role, axis, raw_mm, standardised, sigma_mm, used."""
+        from ._labelled import residuals_frame
+
+        return residuals_frame(self)
+
+    def residuals_by_marker(self) -> dict:
+        """{marker: {'role', 't', 'x', 'y', 'x_std', 'y_std'}}: the residuals as arrays
+        (raw in mm, and standardised), per marker in time order."""
+        from ._labelled import residual_arrays
+
+        return residual_arrays(self)
+
+    def summary(self, explanation=None, posterior=None) -> str:
+        """The text `fit-lug` prints on the terminal for this fit (:func:`fitlug.summary`)."""
+        import importlib
+
+        # the report stage formats it (fit.json's fields): imported on call, downstream
+        return importlib.import_module("fitlug.report").summary(
+            self, explanation=explanation, posterior=posterior)
+
+    def __repr__(self) -> str:
+        from ._labelled import short_repr
+
+        return short_repr(self)
+
+    def _repr_html_(self) -> str:
+        from ._labelled import html_table
+
+        return html_table(self)
+
     @property
     def chi2_per_dof(self) -> float:
         return self.chi2 / max(self.dof, 1)

@@ -38,6 +38,13 @@ class Posterior:
     uncertainty_method: str = "posterior (emcee)"
     temper: dict = field(default_factory=lambda: {"factor": 1.0})
 
+    def __repr__(self) -> str:
+        e = self.estimates.get("slip")
+        slip = "n/a" if e is None or e.value is None else f"{e.value:.6g} ± {e.std:.2g}"
+        return (f"<Posterior ({self.method}): slip {slip}; sampled {', '.join(self.chain.names)}"
+                f"; {self.n_marginalised} marginalised; "
+                f"{'converged' if self.converged else 'NOT converged'}>")
+
     @property
     def parameters(self) -> tuple:
         return self.chain.names
