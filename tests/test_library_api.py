@@ -313,3 +313,26 @@ def test_summary_is_the_terminal_text_and_reprs_are_short(sim, fits):
         assert len(repr(obj)) < 1000, type(obj).__name__
     assert "2 held" in repr(held) and "slip" in repr(free)
     assert "<table>" in free._repr_html_() and len(free._repr_html_()) < 3000
+
+
+def test_scenario_takes_effect_parameters_by_their_fit_json_names():
+    """`Scenario(effects={"wheel_runout": {"epsilon": .., "phi_rad": ..}})` (fit.json's and
+    the CLI's names) raised ValueError: only runout_a/b were known."""
+    from fitlug.model.effects import CATALOG
+
+    sc = Scenario(effects={"wheel_runout": {"epsilon": 0.01, "phi_rad": 0.5}})
+    a, b = sc.effects["wheel_runout"]["runout_a"], sc.effects["wheel_runout"]["runout_b"]
+    assert a == pytest.approx(0.01 * np.cos(0.5)) and b == pytest.approx(0.01 * np.sin(0.5))
+    sc.check()
+    rng = np.random.default_rng(4)
+    for eid, eff in CATALOG.items():  # every reported set maps back to the same physics
+        p = {k: float(v) + float(rng.uniform(0.05, 0.2)) * (eff.scales.get(k) or 1.0)
+             for k, v in eff.defaults.items()}
+        rep = {k: v for k, v in eff.report(p).items() if v is not None}
+        back = Scenario(effects={eid: rep}).effects[eid]
+        again = eff.report({**eff.defaults, **back})
+        for k, v in rep.items():
+            assert again[k] == pytest.approx(v, rel=1e-9, abs=1e-15), (eid, k)
+    with pytest.raises(ValueError, match=r"no parameter 'eps'.*fit.json names them: "
+                                         r"epsilon, phi_rad"):
+        Scenario(effects={"wheel_runout": {"eps": 0.01}}).check()
