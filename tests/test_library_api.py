@@ -210,6 +210,12 @@ def test_a_normal_prior_on_k_combines_variances(sim, fits):
     assert got.value == pytest.approx(want, abs=0.1 * want_sd)
     assert res.dof == free.dof  # a prior adds information, not parameters
     assert res.parameters["k"].prior.as_dict() == {"kind": "normal", "mean": bench, "sd": s_p}
+    # the rig's mass with its uncertainty (2 %): k = m (k/m), relative errors in quadrature
+    params = fitlug.parameters(rec, rig)
+    params["mass_kg"].set_prior(fitlug.Prior.normal(SC.mass_kg, 0.02 * SC.mass_kg))
+    got = fitlug.fit(rec, rig, params=params, glitches=False).quantities["stiffness_N_per_mm"]
+    assert got.std == pytest.approx(np.hypot(k.std, 0.02 * k.value), rel=1e-3)
+    assert got.value == pytest.approx(k.value, rel=1e-6)
 
 
 def test_parameters_name_checks_and_element_access(sim):

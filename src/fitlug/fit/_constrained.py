@@ -74,8 +74,14 @@ def constraints_for(spec: Parameters, p0: dict, packing: Packing, lay, mass_kg,
     for name, par in spec.items():
         if par.derived or name not in p0:
             continue
-        held = ~np.broadcast_to(np.asarray(par.vary, bool), np.shape(p0[name]))
-        if np.any(held) and par.value is not None:
+        vary = np.asarray(par.vary, bool)
+        if vary.ndim and vary.shape != np.shape(p0[name]):
+            if not vary.all():  # elements held on another layout (another knot count)
+                raise ValueError(f"params: {name} has {vary.size} elements in the given "
+                                 f"Parameters but {np.size(p0[name])} in this model")
+            vary = np.ones((), bool)
+        held = ~np.broadcast_to(vary, np.shape(p0[name]))
+        if np.any(held) and par.value is not None and np.size(par.value) in (1, held.size):
             v = np.broadcast_to(np.asarray(par.value, float), np.shape(p0[name]))
             p0[name] = np.where(held, v, p0[name])
         if name not in sl:

@@ -93,7 +93,7 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
         raise ValueError(f"walkers must be an even number >= 4, not {walkers}")
     if not (time_budget_s > 0 and min_tau_multiple > 0 and target_ess > 0):
         raise ValueError("time_budget_s, min_tau_multiple and target_ess must be positive")
-    from ._user_prior import as_priors, user_log_prior
+    from ._user_prior import as_priors, mass_prior, user_log_prior
 
     if not isinstance(res, FitResult):
         raise TypeError(f"sample_posterior needs a FitResult (fitlug.fit(...), or an "
@@ -123,6 +123,7 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
                          target_ess=target_ess, progress=progress)
     t2 = time.perf_counter()
     samples = _derived_samples(res, names, chain.flat())
+    mass_prior(samples, priors, rng)
     estimates = {k: _estimate(samples[k]) for k in REPORTED if k in samples}
     unident = not_identifiable(samples, names)
     t3 = time.perf_counter()

@@ -72,3 +72,13 @@ def user_log_prior(priors: dict, names: list, res):
         return np.where(np.isnan(out), -np.inf, out)
 
     return log_prior
+
+
+def mass_prior(samples: dict, priors: dict, rng) -> None:
+    """A normal prior on the rig's mass m: k = m (k/m) with m drawn from it per sample
+    (relative sd, independent of the chain), so k's band carries the mass's error."""
+    pr = priors.get("m")
+    k = samples.get("stiffness_N_per_mm")
+    if pr is None or pr.kind != "normal" or k is None:
+        return
+    samples["stiffness_N_per_mm"] = k * rng.normal(1.0, pr.b / pr.a, np.shape(k))
