@@ -129,7 +129,10 @@ class Parameter:
         if prior is not None and not isinstance(prior, Prior):
             raise TypeError(f"{self.name}: prior must be a fitlug.Prior, got "
                             f"{type(prior).__name__}")
-        if prior is not None and prior.kind == "uniform" and not self.derived:
+        if prior is not None and prior.kind == "uniform":
+            if self.derived:
+                raise ValueError(f"{self.name} is derived: it takes a normal or log-normal "
+                                 "prior, not a uniform one (bound the fitted parameters)")
             self.bound(prior.a, prior.b)
         self.prior = prior
         return self

@@ -78,7 +78,27 @@ def derived(p: dict, lay, mass_kg, drawbar_N: float = 0.0) -> dict:
 
 @dataclass
 class FitResult:
-    """Least-squares fit of one recording under a set of effects."""
+    """Least-squares fit of one recording under a set of effects.
+
+    Attributes:
+        problem: the :class:`fitlug.fit.Problem` fitted (recording, rig, layout, weights).
+        params: name -> fitted value (float64 arrays; names as :class:`fitlug.Parameters`).
+        packing: how the varying parameters pack into `flat` (names, shapes).
+        flat: the packed parameter vector (held elements included, at their values).
+        cov: covariance of `flat` (packing order; labelled: :meth:`covariance_frame`).
+        residuals: weighted residuals (model - data) / sigma, lug x, lug y, body x, body y
+            (labelled: :meth:`residuals_frame`).
+        chi2, dof: sum of squared residuals (the data's, without priors) and degrees of
+            freedom (valid coordinates - varying parameters).
+        converged, steps: the solver's outcome.
+        quantities: name -> :class:`Estimate` (slip, delta_l_mm, stiffness_N_per_mm,
+            rolling_resistance, k_over_m, R_mm, D_mm, e_mm, pitch_mm, s0_linear, beta,
+            traction_N), delta-method errors.
+        robust: set by fitlug.explain when the misfit stays unexplained (widened errors).
+        constraints: the :class:`fitlug.Parameters` of ``fit(..., params=)``, or None.
+        held: bool per element of `flat`, True where held (None: nothing held).
+        prior_chi2: the priors' pseudo-observations' chi^2 (0 without priors).
+    """
 
     problem: object
     params: dict
