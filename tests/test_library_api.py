@@ -20,7 +20,6 @@ def _run(code: str) -> subprocess.CompletedProcess:
 
 # each order touches the three stage names differently before checking both uses
 _ORDERS = [
-    "import fitlug",
     "import fitlug; fitlug.campaign",
     "import fitlug.fit, fitlug.explain, fitlug.campaign; import fitlug",
     "import fitlug.campaign._law; import fitlug; fitlug.campaign",
