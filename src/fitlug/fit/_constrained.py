@@ -251,7 +251,7 @@ def fit_constrained(prob, p_start, spec: Parameters, *, free=None, max_steps: in
     res = FitResult(problem=prob, params={k: np.asarray(v) for k, v in params.items()},
                     packing=packing, flat=flat, cov=cov, residuals=r, chi2=chi2,
                     dof=prob.n_valid - int(np.sum(~held_mask)), converged=ok,
-                    steps=steps + held_steps, quantities=q, constraints=spec,
+                    steps=steps + held_steps, quantities=q, constraints=spec.copy(),
                     held=held_mask, prior_chi2=float(np.sum(re ** 2)))
     if require_convergence and not (ok and np.isfinite(chi2)):
         raise FitError(f"{prob.rec.path or 'recording'}: the least-squares fit did not converge "
