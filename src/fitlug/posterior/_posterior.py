@@ -45,6 +45,15 @@ class Posterior:
                 f"; {self.n_marginalised} marginalised; "
                 f"{'converged' if self.converged else 'NOT converged'}>")
 
+    def _repr_html_(self) -> str:
+        import html
+
+        rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{e.value:.6g}</td><td>{e.std:.2g}</td>"
+                       f"</tr>" for k, e in self.estimates.items()
+                       if e is not None and e.value is not None)
+        return (f"<div><b>{html.escape(repr(self)[1:-1])}</b><table><tr><th>quantity</th>"
+                f"<th>median</th><th>sd</th></tr>{rows}</table></div>")
+
     @property
     def parameters(self) -> tuple:
         return self.chain.names
