@@ -251,6 +251,7 @@ def test_the_posterior_keeps_held_parameters_and_takes_a_prior_on_k(fits):
     # data and bench of equal weight: the band narrows by sqrt(2) (chain noise ~10 %)
     assert post.estimates["stiffness_N_per_mm"].std == pytest.approx(k.std / np.sqrt(2),
                                                                      rel=0.2)
+    assert len(repr(post)) < 1000 and "<table>" in post._repr_html_()  # was ~5 kB
     with pytest.raises(TypeError, match=r"prior\['k'\] must be a fitlug.Prior"):
         fitlug.sample_posterior(free, prior={"k": 0.25})
 
@@ -318,6 +319,8 @@ def test_summary_is_the_terminal_text_and_reprs_are_short(sim, fits):
         assert len(repr(obj)) < 1000, type(obj).__name__
     assert "2 held" in repr(held) and "slip" in repr(free)
     assert "<table>" in free._repr_html_() and len(free._repr_html_()) < 3000
+    assert "<table>" in fitlug.explain(held)._repr_html_()
+    assert "<Recording" in repr(rec) and "samples" in repr(rec)
 
 
 def test_scenario_takes_effect_parameters_by_their_fit_json_names():
