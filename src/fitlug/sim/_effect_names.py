@@ -35,8 +35,8 @@ def internal_params(eid: str, vals: dict) -> dict:
     out = {k: v for k, v in vals.items() if k in eff.defaults}
     rest = {k: v for k, v in vals.items() if k not in eff.defaults}
     prefix = getattr(eff, "prefix", None)
-    if prefix and {"epsilon", "phi_rad"} <= set(rest):
-        eps, phi = float(rest.pop("epsilon")), float(rest.pop("phi_rad"))
+    if prefix and "epsilon" in rest:  # phi_rad 0 when left out, as `fit-lug simulate`
+        eps, phi = float(rest.pop("epsilon")), float(rest.pop("phi_rad", 0.0))
         out[prefix + "_a"], out[prefix + "_b"] = eps * math.cos(phi), eps * math.sin(phi)
     if eid == "lug_sliding" and "s_K" in rest:
         out["slide_mu"] = 1.0 / float(rest.pop("s_K"))
