@@ -19,16 +19,28 @@ from ._version import __version__ as __version__
 _LAZY = {
     "Recording": "io", "Rig": "io", "read_trajectories": "io", "write_trajectories": "io",
     "read_rig": "io", "find_rig": "io",
-    "fit": "fit", "FitResult": "fit", "build_problem": "fit", "sample_posterior": "posterior", "Posterior": "posterior",
+    "fit": "fit", "FitResult": "fit", "build_problem": "fit",
+    "Parameters": "fit", "Parameter": "fit", "Prior": "fit", "parameters": "fit", "sample_posterior": "posterior", "Posterior": "posterior",
     "Scenario": "sim", "simulate": "sim", "write_simulation": "sim",
     "explain": "explain",
-    "fit_json": "report", "write_report": "report",
+    "fit_json": "report", "write_report": "report", "summary": "report",
     "CATALOG": "model",
     "campaign": "campaign", "CampaignResult": "campaign",
 }
 
 
+#: sub-packages named after their main function: ``fitlug.fit`` is always the sub-package,
+#: made callable (``fitlug.fit(rec, rig)`` calls ``fitlug.fit.fit``), whatever was imported
+#: first; a function bound here would hide the sub-package's other names
+#: (``fitlug.campaign.fit_points``), and the import system binds the module anyway.
+_VERBS = ("fit", "explain", "campaign")
+
+
 def __getattr__(name: str):
+    if name in _VERBS:
+        value = importlib.import_module(f".{name}", __name__)
+        globals()[name] = value
+        return value
     if name in _LAZY:
         mod = importlib.import_module(f".{_LAZY[name]}", __name__)
         value = getattr(mod, name)

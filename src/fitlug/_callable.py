@@ -5,7 +5,9 @@
 But once anything imports the sub-package ``fitlug.fit`` (``fitlug.explain`` does), the
 import system sets the attribute ``fitlug.fit`` to that module, and the call failed with
 "'module' object is not callable". The module's class is made callable instead, calling
-the function of the same name."""
+the function of the same name, and ``fitlug.__getattr__`` always answers the sub-package
+(never the bare function), so that ``fitlug.campaign.fit_points`` and
+``fitlug.campaign(...)`` both work in any import order."""
 
 from __future__ import annotations
 
@@ -16,6 +18,13 @@ import types
 class _CallableModule(types.ModuleType):
     def __call__(self, *args, **kwargs):
         return getattr(self, self.__name__.rsplit(".", 1)[-1])(*args, **kwargs)
+
+    @property
+    def __signature__(self):
+        """The signature of the function the module calls (``inspect.signature``)."""
+        import inspect
+
+        return inspect.signature(getattr(self, self.__name__.rsplit(".", 1)[-1]))
 
 
 def make_callable(module_name: str) -> None:

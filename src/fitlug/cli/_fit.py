@@ -161,73 +161,11 @@ def _display_keys(doc, args) -> None:
                    .strftime("%Y-%m-%d %H:%M UTC"))
 
 
-def _fmt(est, unit="", reason=None):
-    from ..report._format import interval, pm
-
-    if not est or est.get("value") is None:
-        return "not identifiable" + (f": {reason}" if reason else "")
-    ci = est.get("ci95") or [None, None]
-    u = f" {unit}" if unit else ""
-    return (f"{pm(est['value'], est.get('std'))}{u}   ({interval(ci[0], ci[1], est.get('std'))})")
-
-
 def _summary(args, doc, out, report, seconds):
-    from ..report._format import pm, sig, sigma_apart
+    from ..report._summary import summary_lines
 
-    why = dict(doc.get("not_identifiable") or {})
-    why.setdefault("stiffness_N_per_mm", "needs [vehicle] mass_kg in rig.toml")
-    lines = [
-        f"fitlug: {doc['input']}   (± is 1 sigma: {doc.get('uncertainty_method', '')})",
-        f"  slip s0            {_fmt(doc['slip'], reason=why.get('slip'))}",
-        f"  lug deflection Δl' {_fmt(doc['delta_l_mm'], 'mm', why.get('delta_l_mm'))}",
-        f"  lug stiffness k    "
-        f"{_fmt(doc['stiffness_N_per_mm'], 'N/mm', why.get('stiffness_N_per_mm'))}",
-        f"  rolling resistance {_fmt(doc['rolling_resistance'], reason=why.get('rolling_resistance'))}",
-        f"  chi2/dof           {doc['chi2_per_dof']:.3f}   (noise: body "
-        f"{1000 * doc['noise_mm']['body']:.2f} µm, lug {1000 * doc['noise_mm']['lug']:.2f} µm)",
-    ]
-    applied = (doc.get("orientation") or {}).get("applied") or []
-    if applied:
-        lines.append("  axes               " + "; ".join(applied))
-    for sw in doc.get("swaps") or []:
-        lines.append(f"  identity swap      {' and '.join(sw['markers'])} from "
-                     f"{sw['t_s']:g} s: repaired")
-    for ex in doc.get("excluded") or []:
-        lines.append(f"  kept out           {ex['marker']} ({ex['role']}, {ex['n_samples']} "
-                     f"samples): {ex['reason']}")
-    d = doc.get("discrepancy")
-    if d:
-        eff = d.get("effects") or []
-        lines.append(f"  left-out physics   {d['verdict']}"
-                     + (": " + ", ".join(e["id"] for e in eff) if eff else ""))
-        for e in eff:
-            std = e.get("params_std") or {}
-            ps = ", ".join(f"{k} = " + (pm(v, std.get(k)) if v is not None else "n/a")
-                           for k, v in (e.get("params") or {}).items())
-            lines.append(f"    {e['id']}: {ps}")
-        b, s = d.get("slip_before") or {}, doc.get("slip") or {}
-        if eff and b.get("value") is not None and s.get("value"):
-            lines.append(f"    slip without {'it' if len(eff) == 1 else 'them'} {pm(b['value'], b.get('std'))}: "
-                         f"{sig(100 * (b['value'] - s['value']) / s['value'], 2)} %, "
-                         f"{sigma_apart(b['value'], s.get('std'), s['value'])} the final value")
-        if d.get("verdict") == "unexplained":
-            from ..report._section_discrepancy import handling_sentence, located_sentence
-
-            import html
-
-            lines.append("    " + html.unescape(located_sentence(d)))
-            lines.append("    " + handling_sentence(d))
-    m = doc.get("mcmc")
-    if m:
-        lines.append(f"  posterior          {m.get('walkers')} walkers × {m.get('steps')} steps, "
-                     f"ESS {_int(m.get('ess'))}, " + ("converged" if m.get("converged") else "NOT converged"))
+    lines = summary_lines(doc)
     lines.append(f"  wrote {os.path.join(out, 'fit.json')}" + (f" and {report}" if report else "")
                  + f"  ({seconds:.1f} s)")
     say(args, *lines)
 
-
-def _int(x):
-    try:
-        return f"{float(x):.0f}"
-    except (TypeError, ValueError):
-        return str(x)

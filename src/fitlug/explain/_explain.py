@@ -41,6 +41,7 @@ import numpy as np
 
 from .._errors import FitlugError
 from ..model import CATALOG
+from . import _display
 from ._candidates import physical, screen, sliding_starts
 from ._detect import ALPHA, Detection, detect
 from ._engine import Engine
@@ -89,6 +90,16 @@ class Explanation:
     timing_s: dict = field(default_factory=dict)
     geometry: object = None  # fitlug.explain.Geometry of the residual vectors
     systematics: dict | None = None  # the tracker-systematics check (see ._systematics)
+
+    def __repr__(self) -> str:
+        return _display.short_repr(self)
+
+    def _repr_html_(self) -> str:
+        return _display.html(self)
+
+    def summary(self) -> str:
+        """The terminal's text for the final fit with this explanation (fitlug.summary)."""
+        return _display.summary(self)
 
     def _final_params(self, step: Step) -> dict:
         """The effect's parameters under the final model, with standard errors (and as
@@ -196,6 +207,7 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
     """
     t_start = time.perf_counter()
     timing = {}
+    _display.check_result(res)
     geo = geometry(res)
     sig_est = res.problem.noise_source in ("differences", "residual differences")
     det0 = detect(geo, res.residuals, res.dof, sigma_estimated=sig_est, alpha=alpha)

@@ -95,6 +95,19 @@ def final_fit(res, eng, accepted, theta) -> FitResult:
     """
     prob = res.problem
     prob_f, p, free = _extended(res, eng, accepted, theta)
+    if getattr(res, "constraints", None) is not None:
+        # a fit under fitlug.Parameters: its held elements, bounds and priors stay (the
+        # constrained solver, not the undamped polish, which would free them again)
+        from ..fit import fit_problem
+
+        spec = res.constraints
+        final = fit_problem(prob_f, p, free=free, params=spec, require_convergence=False)
+        if prob.noise_source in ("differences", "residual differences"):
+            new = residual_noise(final)
+            if all(np.isfinite(v) and v > 0 for v in new.values()):
+                final = fit_problem(reweighted(final.problem, new), final.params, free=free,
+                                    params=spec, require_convergence=False)
+        return final
     final = _polish(prob_f, p, free)
     if prob.noise_source in ("differences", "residual differences"):
         new = residual_noise(final)
@@ -118,7 +131,8 @@ def polished_theta(res, eng, accepted, theta) -> np.ndarray:
     prob_f, p, free = _extended(res, eng, accepted, theta)
     from ..fit import fit_problem
 
-    out = fit_problem(prob_f, p, free=free, require_convergence=False)
+    out = fit_problem(prob_f, p, free=free, require_convergence=False,
+                      params=getattr(res, "constraints", None))
     return eng.with_values(theta, {k: v for k, v in out.params.items() if k in eng.slices})
 
 

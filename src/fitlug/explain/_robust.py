@@ -287,6 +287,7 @@ def taken_out(res, geo, found: dict):
     prob2 = dataclasses.replace(prob, obs=obs)
     try:
         res2 = fit_problem(prob2, res.params, free=list(res.packing.names), max_steps=100,
+                           params=getattr(res, "constraints", None),
                            require_convergence=False)
     except Exception:  # noqa: BLE001 - a failed refit leaves the robust errors to decide
         return None

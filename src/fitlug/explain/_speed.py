@@ -62,6 +62,7 @@ def speed_sensitivity(res) -> dict | None:
     try:
         with np.errstate(all="ignore"):  # its covariance only sizes the shift's own scatter
             res2 = fit_problem(prob2, p, free=list(res.packing.names), max_steps=100,
+                           params=getattr(res, "constraints", None),
                                require_convergence=False)
     except Exception:  # noqa: BLE001 - a failed sensitivity refit leaves the errors as they are
         return None

@@ -13,6 +13,12 @@ from ._lsq import least_squares as least_squares
 from ._residuals import residuals as residuals
 from ._noise import estimate_noise as estimate_noise
 from ._problem import Problem as Problem, build_problem as build_problem
+from ._parameters import (
+    Parameter as Parameter,
+    Parameters as Parameters,
+    Prior as Prior,
+    parameters as parameters,
+)
 from ._result import Estimate as Estimate, FitResult as FitResult, derived as derived
 
 from .._callable import make_callable as _make_callable

@@ -18,6 +18,7 @@ from ._covariance import covariance, covariance_normal, gauss_newton_polish
 from ._lsq import least_squares
 from . import _glitches
 from ._noise import fourth_differences, noise_from_differences
+from ._boundary import check_effects, check_free, check_noise
 from ._problem import Problem, build_problem
 from ._result import FitResult, compute_quantities
 
@@ -52,13 +53,23 @@ def _long(prob: Problem, p0: dict, free) -> bool:
 
 
 def fit_problem(prob: Problem, p_start: dict | None = None, *, free=None, max_steps: int = 300,
-                require_convergence: bool = True) -> FitResult:
+                require_convergence: bool = True, params=None) -> FitResult:
     """Fit `prob` from `p_start` (default: the data-derived start) by Levenberg-Marquardt.
+
+    `params`: a :class:`fitlug.Parameters` whose held elements, bounds and priors the fit
+    honours (:mod:`fitlug.fit._constrained`, one compiled solver for every choice).
 
     Raises FitError when the solver does not converge (unless require_convergence=False,
     in which case the result says converged=False).
     """
     p0 = dict(prob.p0 if p_start is None else p_start)
+    free = check_free(free, list(p0))
+    if params is not None:
+        from ._constrained import fit_constrained
+
+        return fit_constrained(prob, p_start, params, free=free, max_steps=max_steps,
+                               require_convergence=require_convergence,
+                               hold_beta_first=HOLD_BETA_FIRST)
     free = free_parameters(prob.lay) if free is None else list(free)
     held_steps = 0
     if p_start is None and "beta" in free and len(free) > 1 and HOLD_BETA_FIRST \
@@ -138,19 +149,49 @@ def reweighted(prob: Problem, noise: dict) -> Problem:
                       "noise_source": "residual differences"})
 
 
-def fit(rec, rig=None, *, effects=(), noise: dict | None = None, glitches: bool = True,
-        **kw) -> FitResult:
-    """Fit the base model (plus `effects`) to a recording; see :func:`fit_problem`.
+def fit(rec, rig=None, *, effects=(), noise: float | dict | None = None, glitches: bool = True,
+        params=None, **kw) -> FitResult:
+    """Fit the base model (plus `effects`) to a recording.
 
     Without a sigma_mm column or a given `noise`, the noise per role is re-estimated
     from the first fit's residuals and the fit repeated with those weights. Glitches
     (isolated gross errors of the tracker, :mod:`fitlug.fit._glitches`) are then found,
     given zero weight and listed in ``problem.init_info['glitches']``; the fit is
     repeated until their set is stable. ``glitches=False`` keeps every sample.
+
+    Args:
+        rec: a :class:`fitlug.io.Recording`, a pandas DataFrame
+            (:meth:`~fitlug.io.Recording.from_dataframe`) or a trajectory file's path.
+        rig: a :class:`fitlug.io.Rig`, a dict of its fields, a rig.toml path, or None
+            (the reference rig).
+        effects: a list of catalog effect ids (MODEL.md §3) fitted with the base model.
+        noise: position noise, mm: one number for both roles or {'lug': , 'body': };
+            None estimates it from the data.
+        glitches: find and zero-weight isolated gross errors.
+        params: a :class:`fitlug.Parameters` (:func:`fitlug.parameters`): held
+            parameters or elements, bounds and priors, honoured without recompiling.
+        **kw: `free` (parameter names), `max_steps`, `require_convergence`, `p_start`
+            of :func:`fit_problem`.
+
+    Returns:
+        FitResult.
+
+    Raises:
+        TypeError, ValueError: arguments of the wrong type or unknown names (naming the
+            valid ones), before any work.
+        InputError: a recording or rig that cannot be fitted (naming the file).
+        FitError: the solver did not converge.
     """
     from ..io import Rig
+    from ..io._coerce import as_recording, as_rig
 
+    effects = check_effects(effects)
+    noise = check_noise(noise)
+    rig = as_rig(rig)
     rig = Rig.reference() if rig is None else rig
+    rec = as_recording(rec, rig=rig)
+    if params is not None:
+        kw["params"] = params
     prob = build_problem(rec, rig, effects=effects, noise=noise)
     res = fit_problem(prob, **kw)
     res = _check_lug_count(res, **kw)

@@ -69,9 +69,24 @@ def _rows(rec, ids):
 def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem:
     """Validate a recording for fitting and build its :class:`Problem`.
 
+    `rec` and `rig` may also be a DataFrame / path and a dict / path (as in
+    :func:`fitlug.fit`); `effects` a list of catalog ids; `noise` one number (mm) or
+    {'lug': , 'body': }.
+
     Raises InputError (naming the file) for: no body or no lug markers, too few frames,
-    fewer valid samples than parameters.
+    fewer valid samples than parameters; TypeError / ValueError for arguments of the
+    wrong type or unknown effect ids (naming the valid ones).
     """
+    from ..io._coerce import as_recording, as_rig
+    from ._boundary import check_effects, check_noise
+
+    effects, noise = check_effects(effects), check_noise(noise)
+    rig = as_rig(rig)
+    if rig is None:
+        from ..io import Rig
+
+        rig = Rig.reference()
+    rec = as_recording(rec, rig=rig)
     rec, found = prepare(rec, rig)  # frame, plausibility, swaps, spurious tracks (_prepare)
     path = rec.path
     body_ids, lug_ids = _ids(rec)

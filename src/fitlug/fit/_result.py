@@ -78,7 +78,27 @@ def derived(p: dict, lay, mass_kg, drawbar_N: float = 0.0) -> dict:
 
 @dataclass
 class FitResult:
-    """Least-squares fit of one recording under a set of effects."""
+    """Least-squares fit of one recording under a set of effects.
+
+    Attributes:
+        problem: the :class:`fitlug.fit.Problem` fitted (recording, rig, layout, weights).
+        params: name -> fitted value (float64 arrays; names as :class:`fitlug.Parameters`).
+        packing: how the varying parameters pack into `flat` (names, shapes).
+        flat: the packed parameter vector (held elements included, at their values).
+        cov: covariance of `flat` (packing order; labelled: :meth:`covariance_frame`).
+        residuals: weighted residuals (model - data) / sigma, lug x, lug y, body x, body y
+            (labelled: :meth:`residuals_frame`).
+        chi2, dof: sum of squared residuals (the data's, without priors) and degrees of
+            freedom (valid coordinates - varying parameters).
+        converged, steps: the solver's outcome.
+        quantities: name -> :class:`Estimate` (slip, delta_l_mm, stiffness_N_per_mm,
+            rolling_resistance, k_over_m, R_mm, D_mm, e_mm, pitch_mm, s0_linear, beta,
+            traction_N), delta-method errors.
+        robust: set by fitlug.explain when the misfit stays unexplained (widened errors).
+        constraints: the :class:`fitlug.Parameters` of ``fit(..., params=)``, or None.
+        held: bool per element of `flat`, True where held (None: nothing held).
+        prior_chi2: the priors' pseudo-observations' chi^2 (0 without priors).
+    """
 
     problem: object
     params: dict
@@ -94,6 +114,66 @@ class FitResult:
     # set by fitlug.explain when the verdict is 'unexplained': how the quantities' errors
     # were widened (cluster-robust), see fitlug.explain._robust.robust_result
     robust: dict | None = None
+    # fitted under fitlug.fit(..., params=): the user's Parameters, which packed elements
+    # were held (bool per element of flat) and the priors' chi^2 (not in chi2)
+    constraints: object = None
+    held: np.ndarray | None = None
+    prior_chi2: float = 0.0
+
+    @property
+    def parameters(self):
+        """Every parameter by name (:class:`fitlug.Parameters`): fitted values, standard
+        errors, and the held elements, bounds and priors of the fit; pass it back as
+        ``fitlug.fit(rec, rig, params=res.parameters)``."""
+        from ._parameters import parameters_from_result
+
+        return parameters_from_result(self)
+
+    # -- labelled views (fitlug.fit._labelled) ----------------------------------------
+    def covariance_frame(self):
+        """Covariance of the fitted parameters, a pandas DataFrame labelled by element
+        (``R``, ``v[3]``, ``cx[1]``; held elements: zero rows and columns)."""
+        from ._labelled import covariance_frame
+
+        return covariance_frame(self)
+
+    def correlation(self):
+        """Correlation matrix of the fitted parameters, labelled (DataFrame)."""
+        from ._labelled import correlation_frame
+
+        return correlation_frame(self)
+
+    def residuals_frame(self):
+        """Residuals (model - data) per sample and axis, raw (mm) and standardised, as a
+        tidy DataFrame: time_s, marker, role, axis, raw_mm, standardised, sigma_mm, used."""
+        from ._labelled import residuals_frame
+
+        return residuals_frame(self)
+
+    def residuals_by_marker(self) -> dict:
+        """{marker: {'role', 't', 'x', 'y', 'x_std', 'y_std'}}: the residuals as arrays
+        (raw in mm, and standardised), per marker in time order."""
+        from ._labelled import residual_arrays
+
+        return residual_arrays(self)
+
+    def summary(self, explanation=None, posterior=None) -> str:
+        """The text `fit-lug` prints on the terminal for this fit (:func:`fitlug.summary`)."""
+        import importlib
+
+        # the report stage formats it (fit.json's fields): imported on call, downstream
+        return importlib.import_module("fitlug.report").summary(
+            self, explanation=explanation, posterior=posterior)
+
+    def __repr__(self) -> str:
+        from ._labelled import short_repr
+
+        return short_repr(self)
+
+    def _repr_html_(self) -> str:
+        from ._labelled import html_table
+
+        return html_table(self)
 
     @property
     def chi2_per_dof(self) -> float:
@@ -109,7 +189,8 @@ class FitResult:
         extra = sum(CATALOG[e].n_free(self.problem.lay.n_body)
                     - (len(CATALOG[e].defaults) - len(CATALOG[e].fixed_in_fit))
                     for e in self.effects)
-        return len(self.flat) + extra
+        held = 0 if self.held is None else int(np.sum(self.held))
+        return len(self.flat) - held + extra
 
     @property
     def n_data(self) -> int:

@@ -190,6 +190,26 @@ class Recording:
                                         calibration=calibration, rig=rig, body=body, lug=lug,
                                         likelihood=likelihood)
 
+    def __repr__(self) -> str:
+        roles = {r: sum(1 for x in self.roles if x == r) for r in ROLES}
+        t = self.times()
+        span = f"{t[0]:.4g}-{t[-1]:.4g} s, {len(t)} frames" if len(t) else "no samples"
+        return (f"<Recording {self.path or ''}: {roles.get('body', 0)} body and "
+                f"{roles.get('lug', 0)} lug markers, {self.n_samples} samples, {span}>")
+
+    def _repr_html_(self) -> str:
+        import html
+
+        return f"<code>{html.escape(repr(self))}</code>"
+
+    def to_dataframe(self):
+        """The samples as a pandas DataFrame in DATA.md's long form: columns time_s, marker,
+        role, x_mm, y_mm, then sigma_mm, frame, x_px, y_px, quality where present (one row
+        per sample; :meth:`from_dataframe` reads it back)."""
+        from ._frames import recording_to_dataframe
+
+        return recording_to_dataframe(self)
+
     def with_(self, **changes) -> "Recording":
         """A copy with some fields replaced (validated like a new Recording)."""
         return dataclasses.replace(self, **changes)

@@ -67,6 +67,10 @@ def slip_law_parameters(res: FitResult) -> list[str]:
         if CATALOG[eid].slip is not None:
             names += [k for k in CATALOG[eid].defaults if k in res.packing.names]
     missing = [k for k in names if k not in res.packing.names]
+    held = getattr(res, "held", None)
+    if held is not None:
+        sl = res.packing.slices()
+        missing += [k for k in names if k in sl and np.any(np.asarray(held)[sl[k]])]
     if missing:
         raise FitError(f"the fit holds {missing} fixed: the slip law cannot be sampled")
     return names
@@ -112,6 +116,9 @@ class _Marginal:
             JtJ = None
         n_par = len(res.flat)
         rest = np.setdiff1d(np.arange(n_par), self.idx)
+        held = getattr(res, "held", None)
+        if held is not None:  # held by fitlug.Parameters: at their values, not marginalised
+            rest = rest[~np.asarray(held, bool)[rest]]
         self._rest = rest
         self.n_marginalised = len(rest)
         if JtJ is None:

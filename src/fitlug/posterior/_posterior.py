@@ -38,6 +38,22 @@ class Posterior:
     uncertainty_method: str = "posterior (emcee)"
     temper: dict = field(default_factory=lambda: {"factor": 1.0})
 
+    def __repr__(self) -> str:
+        e = self.estimates.get("slip")
+        slip = "n/a" if e is None or e.value is None else f"{e.value:.6g} ± {e.std:.2g}"
+        return (f"<Posterior ({self.method}): slip {slip}; sampled {', '.join(self.chain.names)}"
+                f"; {self.n_marginalised} marginalised; "
+                f"{'converged' if self.converged else 'NOT converged'}>")
+
+    def _repr_html_(self) -> str:
+        import html
+
+        rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{e.value:.6g}</td><td>{e.std:.2g}</td>"
+                       f"</tr>" for k, e in self.estimates.items()
+                       if e is not None and e.value is not None)
+        return (f"<div><b>{html.escape(repr(self)[1:-1])}</b><table><tr><th>quantity</th>"
+                f"<th>median</th><th>sd</th></tr>{rows}</table></div>")
+
     @property
     def parameters(self) -> tuple:
         return self.chain.names

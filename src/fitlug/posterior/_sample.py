@@ -74,13 +74,15 @@ def _exact_log_prob(marg: _Marginal):
 def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
                      time_budget_s: float = 60.0, walkers: int = 32,
                      min_tau_multiple: float = 50.0, target_ess: float = 1000.0,
-                     method: str = "auto") -> Posterior:
+                     method: str = "auto", prior=None) -> Posterior:
     """Sample the posterior of the slip law of a least-squares fit; see the module docstring.
 
     res: a converged FitResult. seed: everything random (walker starts, emcee moves).
     progress: a tqdm bar on stderr (only on a terminal). time_budget_s: wall-clock limit of
     the chain (then converged=False and the reason in mcmc_json()). method: 'auto',
-    'gaussian' or 'exact'.
+    'gaussian' or 'exact'. prior: fitlug.Parameters or {name: fitlug.Prior} on s0, beta,
+    k, C_rr or a replacing slip law's parameters (default: the priors `res` was fitted
+    with, ``res.constraints``); parameters the fit held stay held.
     Raises ValueError for bad arguments, FitError when the slip law is not identifiable.
     """
     import time
@@ -91,14 +93,24 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
         raise ValueError(f"walkers must be an even number >= 4, not {walkers}")
     if not (time_budget_s > 0 and min_tau_multiple > 0 and target_ess > 0):
         raise ValueError("time_budget_s, min_tau_multiple and target_ess must be positive")
+    from ._user_prior import as_priors, mass_prior, user_log_prior
+
+    if not isinstance(res, FitResult):
+        raise TypeError(f"sample_posterior needs a FitResult (fitlug.fit(...), or an "
+                        f"Explanation's .final), got {type(res).__name__}")
+    priors = as_priors(getattr(res, "constraints", None) if prior is None else prior)
     t0 = time.perf_counter()
     names = slip_law_parameters(res)
+    user_lp = user_log_prior(priors, names, res)
     marg, temper = tempered_marginal(res, names, batch=walkers // 2)
     check = marg.linearity_check()
     use = method
     if method == "auto":
         use = "gaussian" if check["max_delta_chi2"] <= LINEARITY_TOL else "exact"
     log_prob = _gaussian_log_prob(marg) if use == "gaussian" else _exact_log_prob(marg)
+    if user_lp is not None:
+        base = log_prob
+        log_prob = lambda x: base(x) + user_lp(x)  # noqa: E731
     t1 = time.perf_counter()
 
     rng = np.random.default_rng(seed)
@@ -111,6 +123,7 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
                          target_ess=target_ess, progress=progress)
     t2 = time.perf_counter()
     samples = _derived_samples(res, names, chain.flat())
+    mass_prior(samples, priors, rng)
     estimates = {k: _estimate(samples[k]) for k in REPORTED if k in samples}
     unident = not_identifiable(samples, names)
     t3 = time.perf_counter()

@@ -102,6 +102,11 @@ def fit_json(res, *, input_path: str | None = None, mcmc=None, discrepancy=None,
     for key in ("swaps", "excluded", "sigma_notes"):
         if key in info:
             out[key] = list(info[key])
+    spec = getattr(res, "constraints", None)
+    if spec is not None and spec.as_json():
+        # fitted under fitlug.Parameters (docs/library/parameters.md): the held, bounded
+        # and prior'd parameters by their one name
+        out["parameter_constraints"] = spec.as_json()
     if mcmc is not None:
         out["mcmc"] = mcmc
     else:

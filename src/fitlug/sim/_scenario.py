@@ -51,6 +51,14 @@ class Scenario:
     write_sigma: bool = False
     effects: dict = field(default_factory=dict)  # id -> {param: value}
 
+    def __post_init__(self):
+        # an effect's parameters may be given by their fit.json names (epsilon, phi_rad of
+        # wheel_runout): stored under the model's (runout_a, runout_b)
+        if isinstance(self.effects, dict):
+            from ._effect_names import internal_params
+
+            self.effects = {e: internal_params(e, v) for e, v in self.effects.items()}
+
     @property
     def pitch(self) -> float:
         return self.lug_pitch_mm
@@ -159,8 +167,13 @@ class Scenario:
                 raise ValueError(f"effects: {eid} must map parameter -> value, got {vals!r}")
             for k, v in vals.items():
                 if k not in CATALOG[eid].defaults:
+                    from ._effect_names import accepted_names
+
+                    also = accepted_names(eid)
                     raise ValueError(f"effects: {eid} has no parameter {k!r}; known: "
-                                     f"{', '.join(CATALOG[eid].defaults)}")
+                                     f"{', '.join(CATALOG[eid].defaults)}"
+                                     + (f" (or as fit.json names them: {', '.join(also)})"
+                                        if also else ""))
                 if _finite(v) is None:
                     raise ValueError(f"effects: {eid} {k} must be a finite number, got {v!r}")
         peak = self.peak_friction_ratio()
