@@ -23,7 +23,8 @@ _LAZY = {
     "Scenario": "sim", "simulate": "sim", "write_simulation": "sim",
     "explain": "explain",
     "fit_json": "report", "write_report": "report",
-    "CATALOG": "model",
+    "CATALOG": "model", "Effect": "model", "register_effect": "model",
+    "unregister_effect": "model",
     "campaign": "campaign", "CampaignResult": "campaign",
 }
 
