@@ -24,6 +24,8 @@ class Estimate:
     value: float | None
     std: float | None
     ci95: tuple | None = None
+    #: why value is None: the data cannot fix the quantity (not identifiable)
+    reason: str | None = None
 
     def __post_init__(self):
         if self.ci95 is None and self.value is not None and self.std is not None:
@@ -288,4 +290,6 @@ def compute_quantities(res_params, packing, flat, cov, lay, mass_kg, fixed,
         g = np.asarray(jac[k])
         var = float(g @ cov @ g)
         out[k] = Estimate(float(v), float(np.sqrt(max(var, 0.0))))
-    return out
+    from ._identifiable import mark_not_identifiable
+
+    return mark_not_identifiable(out, Estimate)
