@@ -62,8 +62,13 @@ def test_least_squares_never_returns_a_negative_beta(cruise, monkeypatch):
     assert np.array_equal(np.delete(out.flat, i), np.delete(flat, i))  # nothing else moves
 
 
-def test_posterior_none_with_reason_and_inference_data_in_memory(cruise):
-    post = fitlug.sample_posterior(cruise, seed=3, time_budget_s=8.0, target_ess=200)
+@pytest.fixture(scope="module")
+def cruise_post(cruise):
+    return fitlug.sample_posterior(cruise, seed=3, time_budget_s=8.0, target_ess=200)
+
+
+def test_posterior_none_with_reason_and_inference_data_in_memory(cruise_post):
+    post = cruise_post
     for k in ("stiffness_N_per_mm", "k_over_m", "rolling_resistance"):
         assert post.estimates[k].value is None
         assert post.estimates[k].reason == post.not_identifiable[k]
@@ -79,3 +84,26 @@ def test_posterior_none_with_reason_and_inference_data_in_memory(cruise):
     assert np.all(post.samples["beta"] > 0)  # the prior's beta > 0
     assert json.loads(idata.attrs["not_identifiable"]) == post.not_identifiable
     assert "lp" in idata.sample_stats
+
+
+def test_posterior_plots_on_my_axes(cruise_post):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from fitlug import plot
+    from test_plot import legend_inside
+
+    post = cruise_post
+    fig, (a1, a2) = plt.subplots(1, 2)
+    assert plot.posterior(post, "slip", ax=a1) is a1 and legend_inside(a1)
+    med = [ln for ln in a1.get_lines() if ln.get_label().startswith("median")][0]
+    assert med.get_xdata()[0] == pytest.approx(np.median(post.samples["slip"]))
+    plot.posterior(post, "stiffness_N_per_mm", ax=a2)
+    assert "not identifiable" in a2.get_title()
+    with pytest.raises(ValueError, match="sampled: "):
+        plot.posterior(post, "nope", ax=a1)
+    f = plot.corner(post)
+    assert len(f.axes) == len(post.parameters) ** 2
+    plt.close("all")
