@@ -19,7 +19,7 @@ from ._version import __version__ as __version__
 _LAZY = {
     "Recording": "io", "Rig": "io", "read_trajectories": "io", "write_trajectories": "io",
     "read_rig": "io", "find_rig": "io",
-    "fit": "fit", "FitResult": "fit", "build_problem": "fit", "sample_posterior": "posterior", "Posterior": "posterior",
+    "fit": "fit", "fit_many": "fit", "FitResult": "fit", "build_problem": "fit", "sample_posterior": "posterior", "Posterior": "posterior",
     "Scenario": "sim", "simulate": "sim", "write_simulation": "sim",
     "explain": "explain",
     "fit_json": "report", "write_report": "report",

@@ -15,6 +15,7 @@ from ._noise import estimate_noise as estimate_noise
 from ._problem import Problem as Problem, build_problem as build_problem
 from ._result import Estimate as Estimate, FitResult as FitResult, derived as derived
 from ._predict import Band as Band, Prediction as Prediction
+from ._batch import fit_many as fit_many
 
 from .._callable import make_callable as _make_callable
 
