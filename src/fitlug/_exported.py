@@ -11,7 +11,11 @@ compilation cache. The numbers are the same bit for bit (tests/test_exported.py)
 
 The key is the function's name, its static arguments' repr, the shapes and dtypes of its
 array arguments, the versions of jax and jaxlib, and the identity (path, size, mtime) of
-fitlug's own source files, so an edited or upgraded installation exports afresh. Anything
+fitlug's own source files, so an edited or upgraded installation exports afresh, and the
+code of every plugin effect (each source added by :func:`add_identity`: the catalog's
+digest of its plugins' files, so an edited user effect under the same id is never served
+a program traced from its old code; a plugin whose source cannot be read turns the disk
+off). Anything
 unusual (a tracer or a non-array leaf among the arguments, an export or a read that fails,
 FITLUG_NO_EXPORT_CACHE=1) falls back to calling the function as it is.
 """
@@ -30,6 +34,14 @@ _MEMO: dict = {}  # key -> jitted call of the deserialised module, or None (fall
 _MEMO_MAX = 16  # signatures kept in a process (a campaign fits many recordings in one)
 STALE_DAYS = 30  # a module unused this long is removed when a new one is written
 _SOURCE: list = []
+_IDENTITIES: list = []  # callables -> str, or None when what they cover cannot be keyed
+
+
+def add_identity(fn) -> None:
+    """Make fn() (a str, or None to keep nothing on disk) part of every key: a later
+    stage's code that programs depend on (the catalog's plugin effects)."""
+    if fn not in _IDENTITIES:
+        _IDENTITIES.append(fn)
 
 
 def _source_identity() -> str:
@@ -70,9 +82,12 @@ def call(name: str, fn, static: tuple, *args):
         return fn(*args, *static)
     import jaxlib
 
+    extra = [f() for f in _IDENTITIES]
+    if any(x is None for x in extra):
+        return fn(*args, *static)
     sig = repr((name, static, str(treedef), [(x.shape, str(x.dtype)) for x in leaves],
                 jax.__version__, jaxlib.__version__, jax.default_backend(),
-                _source_identity()))
+                _source_identity(), *extra))
     key = hashlib.sha256(sig.encode()).hexdigest()[:32]
     f = _MEMO.get(key, False)
     if f is False:

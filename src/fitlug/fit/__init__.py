@@ -20,6 +20,8 @@ from ._parameters import (
     parameters as parameters,
 )
 from ._result import Estimate as Estimate, FitResult as FitResult, derived as derived
+from ._predict import Band as Band, Prediction as Prediction
+from ._batch import fit_many as fit_many
 
 from .._callable import make_callable as _make_callable
 

@@ -152,18 +152,37 @@ def least_squares(p0: dict, free, lay, obs, *, max_steps: int = 200, rtol: float
     if chunked and chunkable(p0, lay, packing):
         flat, A, r, ok, steps = _solve_chunked(packing.pack(p0), fixed, lay, obs, packing,
                                                chunk_plan(lay), max_steps, rtol, 1e-9)
+        flat = _onto_range(np.asarray(flat), packing)
         p = packing.unpack(flat, fixed)
-        return LsqOutput(params=p, flat=np.asarray(flat), J=None, r=np.asarray(r),
+        return LsqOutput(params=p, flat=flat, J=None, r=np.asarray(r),
                          converged=bool(ok), steps=int(steps), packing=packing,
                          normal=np.asarray(A))
     # through a module exported to disk: a new process skips the solver's tracing (~6 s)
     flat, J, r, ok, steps = _exported.call("lsq_solve", _solve,
                                            (packing, max_steps, rtol, atol),
                                            packing.pack(p0), fixed, lay, obs)
-    flat = np.asarray(flat)  # unpacked in numpy: jax slices compile once per (offset, size)
+    # unpacked in numpy: jax slices compile once per (offset, size)
+    flat = _onto_range(np.asarray(flat), packing)
     p = packing.unpack(flat, fixed)
     return LsqOutput(params=p, flat=flat, J=np.asarray(J), r=np.asarray(r),
                      converged=bool(ok), steps=int(steps), packing=packing)
+
+
+def _onto_range(flat: np.ndarray, packing: Packing) -> np.ndarray:
+    """beta = ds/da onto its physical range beta >= 0 (k > 0; beta = 0 is the rigid limit).
+
+    The solvers keep the range by a stiff one-sided penalty (bound_residuals), which a
+    recording that does not fix beta (a cruise) balances a hair outside it: the issue saw
+    beta = -9.7e-9. The projection moves beta by that hair (far inside its error), so
+    that the least squares never reports a negative beta; its residuals and Jacobian are
+    those of the solver's point (the difference is below the penalty's tolerance)."""
+    if "beta" not in packing.names or "s0" not in packing.names:
+        return flat
+    i = packing.slices()["beta"].start
+    if flat[i] < 0:
+        flat = flat.copy()
+        flat[i] = 0.0
+    return flat
 
 
 #: the chunked path is used when the dense Jacobian would exceed this many entries

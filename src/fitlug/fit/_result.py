@@ -24,6 +24,8 @@ class Estimate:
     value: float | None
     std: float | None
     ci95: tuple | None = None
+    #: why value is None: the data cannot fix the quantity (not identifiable)
+    reason: str | None = None
 
     def __post_init__(self):
         if self.ci95 is None and self.value is not None and self.std is not None:
@@ -200,6 +202,49 @@ class FitResult:
     def slip(self) -> Estimate:
         return self.quantities["slip"]
 
+    def predict(self, times, markers=None, *, extrapolate: bool = False):
+        """The fitted model's marker positions at any times, with 1 σ bands.
+
+        Args:
+            times: 1-D times, s, inside the recording (the span of its fitted samples).
+            markers: a marker name or names (the recording's spelling); None: every
+                fitted marker.
+            extrapolate: evaluate outside the recording too (speed and acceleration held
+                at the edge of the fit: a guess, not a measurement).
+
+        Returns:
+            A :class:`fitlug.fit.Prediction`: x, y and their standard errors (delta method
+            from this fit's covariance), mm, one row per marker; ``to_dataframe()``.
+
+        Raises:
+            ValueError: a time outside the recording (naming its range) without
+                ``extrapolate=True``, or an unknown marker (naming the fitted ones).
+        """
+        from ._predict import predict_positions
+
+        return predict_positions(self, times, markers, extrapolate=extrapolate)
+
+    def slip_at(self, times, *, extrapolate: bool = False):
+        """The model's slip s(t) = 1 - v / v_t at any times, with its 1 σ band.
+
+        Args:
+            times: 1-D times, s, inside the recording.
+            extrapolate: as in :meth:`predict`.
+
+        Returns:
+            A :class:`fitlug.fit.Band` (t, value, std; ``ci95``): NaN where the robot is at
+            rest (body speed under 5 % of its peak: the slip is undefined there). The
+            band is the statistical error of this fit; where the true acceleration jumps
+            (the end of a ramp) the speed spline smooths it, a bias of order beta times
+            the jump that the band does not include.
+
+        Raises:
+            ValueError: a time outside the recording without ``extrapolate=True``.
+        """
+        from ._predict import slip_at
+
+        return slip_at(self, times, extrapolate=extrapolate)
+
     def effect_params(self, effect_id: str) -> dict:
         return CATALOG[effect_id].report({k: np.asarray(v) for k, v in self.params.items()})
 
@@ -326,4 +371,6 @@ def compute_quantities(res_params, packing, flat, cov, lay, mass_kg, fixed,
         g = np.asarray(jac[k])
         var = float(g @ cov @ g)
         out[k] = Estimate(float(v), float(np.sqrt(max(var, 0.0))))
-    return out
+    from ._identifiable import mark_not_identifiable
+
+    return mark_not_identifiable(out, Estimate)

@@ -24,4 +24,11 @@ from ._physics import (
     reference_slip as reference_slip,
 )
 from ._knots import place_knots as place_knots
-from .effects import CATALOG as CATALOG, Effect as Effect
+from .effects import (
+    CATALOG as CATALOG,
+    Ctx as Ctx,
+    Effect as Effect,
+    plugins as plugins,
+    register_effect as register_effect,
+    unregister_effect as unregister_effect,
+)

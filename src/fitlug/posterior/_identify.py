@@ -28,12 +28,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..fit._identifiable import REL_STD_MAX  # one threshold for least squares and posterior
 from ..fit._result import FitResult
 from ._derived import _derived_samples
 from ._marginal import slip_law_parameters
 from ._tempering import tempered_marginal
 
-REL_STD_MAX = 0.25
 LINEAR_R2 = 0.99
 
 _LABEL = {"slip": "the slip", "delta_l_mm": "dl'", "stiffness_N_per_mm": "k",

@@ -20,7 +20,9 @@ class Posterior:
     """Posterior samples of the slip law and the physical quantities derived from it.
 
     estimates: name -> Estimate (median, std, 2.5-97.5 % interval) for 'slip',
-    'delta_l_mm', 'rolling_resistance', 'k_over_m' and 'stiffness_N_per_mm' (with a mass).
+    'delta_l_mm', 'rolling_resistance', 'k_over_m' and 'stiffness_N_per_mm' (with a mass);
+    a quantity the data do not fix is ``Estimate(None, None, reason=...)`` (the reason
+    also in `not_identifiable`).
     samples: name -> (draws * walkers,) for those and the sampled parameters.
     """
 
@@ -101,14 +103,19 @@ class Posterior:
             "seconds_by_stage": {k: _num(v) for k, v in self.timings.items()},
         }
 
-    def save(self, path, run_id=None) -> None:
-        """Write the samples as an ArviZ InferenceData netCDF file (atomically); `run_id`
-        (the fit-lug run that writes the folder) goes into its attrs.
+    def to_inference_data(self, run_id=None):
+        """The samples as an ArviZ InferenceData, in memory.
 
-        posterior group: every sampled and derived quantity, dims (chain=walker, draw);
-        sample_stats: lp. Read back with arviz.from_netcdf(path).
+        Returns:
+            arviz.InferenceData: group ``posterior`` with every sampled parameter (``s0``,
+            ``beta``, an effect's slip-law parameters) and derived quantity (``slip``,
+            ``delta_l_mm``, ``stiffness_N_per_mm``, ``rolling_resistance``, ``k_over_m``)
+            by name, dims (chain = walker, draw); ``sample_stats``: ``lp``. Its attrs say
+            how it was made and which quantities the data do not fix (a JSON object
+            ``not_identifiable``: name -> reason; their draws are kept, but their
+            percentiles only echo the prior).
         """
-        from ..io import atomic_path
+        import json
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -117,12 +124,24 @@ class Posterior:
             c = self.chain
             shape = c.samples.shape[:2]  # (draws, walkers)
             post = {k: np.asarray(v).reshape(shape).T for k, v in self.samples.items()}
-            idata = az.from_dict(
+            return az.from_dict(
                 posterior=post, sample_stats={"lp": c.log_prob.T},
                 attrs={"inference_library": "emcee", "fitlug_method": self.method,
                        "converged": int(c.converged), "burn_in": int(c.discard),
-                       "seed": int(self.seed),
+                       "seed": int(self.seed), "sampled": ",".join(c.names),
+                       "not_identifiable": json.dumps(self.not_identifiable),
                        **({"run_id": str(run_id)} if run_id is not None else {})})
+
+    def save(self, path, run_id=None) -> None:
+        """Write :meth:`to_inference_data` as a netCDF file (atomically); `run_id` (the
+        fit-lug run that writes the folder) goes into its attrs. Read back with
+        arviz.from_netcdf(path).
+        """
+        from ..io import atomic_path
+
+        idata = self.to_inference_data(run_id)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
             with atomic_path(path, suffix=".nc") as tmp:
                 idata.to_netcdf(tmp, engine="h5netcdf")
 

@@ -34,7 +34,7 @@ import numpy as np
 from .. import _jaxconfig  # noqa: F401
 from .._errors import FitError
 from ..model._physics import C_RR_MIN, beta_max
-from ..fit._result import FitResult
+from ..fit._result import Estimate, FitResult
 from ._derived import REPORTED, _derived_samples, _estimate
 from ._identify import not_identifiable
 from ._marginal import LINEARITY_TOL, _Marginal, slip_law_parameters
@@ -126,6 +126,9 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     mass_prior(samples, priors, rng)
     estimates = {k: _estimate(samples[k]) for k in REPORTED if k in samples}
     unident = not_identifiable(samples, names)
+    for k, why in unident.items():  # never a number for what the data cannot fix
+        if k in estimates:
+            estimates[k] = Estimate(None, None, reason=why)
     t3 = time.perf_counter()
     desc = {"gaussian": "emcee on the Gaussian limit of the linearly marginalised likelihood",
             "exact": "emcee on the exact-model, linearly marginalised likelihood"}[use]

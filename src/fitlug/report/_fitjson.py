@@ -39,6 +39,9 @@ def fit_json(res, *, input_path: str | None = None, mcmc=None, discrepancy=None,
     if posterior:
         q.update(posterior)
     unident = {JSON_KEY.get(k, k): v for k, v in (not_identifiable or {}).items()}
+    for k, e in q.items():  # the least squares' and the posterior's own None-with-reason
+        if k in JSON_KEY and e is not None and e.value is None and getattr(e, "reason", None):
+            unident.setdefault(JSON_KEY[k], e.reason)
     if rig.mass_kg is None:
         unident["stiffness_N_per_mm"] = NO_MASS
     if uncertainty_method is None:

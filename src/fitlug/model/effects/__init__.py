@@ -1,4 +1,6 @@
-"""The catalog of left-out physics (MODEL.md §3): one module per effect."""
+"""The catalog of left-out physics (MODEL.md §3): one module per effect, plus plugins."""
+
+from ... import _exported
 
 from ._base import Ctx as Ctx, Effect as Effect
 from ._body_bounce import BodyBounce
@@ -12,12 +14,20 @@ from ._lug_sliding import LugSliding
 from ._marker_depth import MarkerDepth
 from ._wheel_runout import WheelRunout
 
-#: id -> effect class, in the order of MODEL.md's table
-CATALOG: dict[str, type[Effect]] = {
-    cls.id: cls
-    for cls in (LugRipple, BodyBounce, LugSliding, BeltSag, GroundSinkage, WheelRunout,
-                LensDistortion, MarkerDepth, CameraTilt, FrameDrop)
-}
+from ._registry import (
+    CATALOG as CATALOG,
+    Catalog as Catalog,
+    _builtin,
+    code_identity,
+    plugins as plugins,
+    register_effect as register_effect,
+    unregister_effect as unregister_effect,
+)
+
+#: id -> effect class, in the order of MODEL.md's table, then plugins
+_builtin(LugRipple, BodyBounce, LugSliding, BeltSag, GroundSinkage, WheelRunout,
+         LensDistortion, MarkerDepth, CameraTilt, FrameDrop)
+_exported.add_identity(code_identity)
 
 
 def get(effect_id: str) -> type[Effect]:

@@ -29,7 +29,35 @@ class Ctx(NamedTuple):
 
 
 class Effect:
-    """One catalog entry of MODEL.md §3."""
+    """The base class of an effect: one piece of physics the base model leaves out
+    (MODEL.md §3), fitlug's own and plugins alike (docs/add-effect.md).
+
+    A subclass sets the class attributes below and overrides one or more hooks; every
+    hook is a classmethod, a JAX function of the parameter dict ``p`` (float64 arrays,
+    mm, s, rad), vectorised over samples. The effect must be identity at its `defaults`.
+    Register a plugin with :func:`fitlug.register_effect` or the entry-point group
+    ``fitlug.effects``.
+
+    Hooks (all optional, at least one):
+        time_map(p, t): true sample times (s) from the stamps.
+        speed(p, psi, ctx): (m, dm/dpsi), a relative speed modulation v -> v (1 + m)
+            locked to belt travel psi (mm).
+        slip(p, s_lin): the slip law replacing the linear one.
+        top_dy(p, xi, ctx) / bottom_dy(p, u, ctx): extra path y (mm) on the top run
+            (xi in [0, 1] along it) / on the bottom run (u, mm along it).
+        body_dy(p, psi, cx, ctx): extra y (mm) of a body marker at x offset cx.
+        image(p, x, y, is_lug): (x, y) after an image map, applied by the class
+            attribute ``order`` (plugins default to after fitlug's own).
+
+    Attributes:
+        id: the name in fit.json, the report, ``effects=`` and ``--effect``.
+        defaults: parameter name -> identity value (names unique over the whole model).
+        scales: parameter name -> typical size (fit scaling, sampler starts).
+        fixed_in_fit: parameters held fixed when the effect is fitted.
+        meaning: one sentence of physics for the report.
+        signature: what it acts on, "axis:role:where" (e.g. "y:lug:top"), matched to
+            located mismatches by the explanation.
+    """
 
     id: ClassVar[str]
     #: parameter name -> identity value
