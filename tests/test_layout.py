@@ -23,6 +23,13 @@ SRC = pathlib.Path(__file__).resolve().parents[1] / "src" / "fitlug"
 STAGES = ["(top)", "io", "vision", "model", "fit", "explain", "posterior", "report",
           "plot", "sim", "campaign", "cli"]
 MAX_LINES = 420
+# upward imports made on purpose, each with its reason: a result's `summary()` is the
+# terminal's text, which the report stage formats (from fit.json's fields); the method
+# imports it on call, so the fit and explain stages load nothing of report's until asked
+ALLOWED_UPWARD = {
+    ("fitlug.fit._result", "fitlug.report"),
+    ("fitlug.explain._display", "fitlug.report"),
+}
 LONG_REASON = "Longer than 400 lines because"
 
 
@@ -55,6 +62,10 @@ def _imports(mods: dict[str, pathlib.Path]) -> dict[str, set[str]]:
                 else:
                     mod = node.module or ""
                 targets = [mod] + [f"{mod}.{a.name}" for a in node.names]
+            if (isinstance(node, ast.Call) and getattr(node.func, "attr", None) == "import_module"
+                    and node.args and isinstance(node.args[0], ast.Constant)
+                    and isinstance(node.args[0].value, str)):
+                targets = [node.args[0].value]  # importlib.import_module("fitlug.x") too
             for t in targets:
                 if not t.startswith("fitlug"):
                     continue
@@ -124,7 +135,8 @@ def test_imports_follow_the_stages():
         assert sa in STAGES, f"{a}: stage {sa!r} is not in the house's order {STAGES}"
         for b in bs:
             sb = _stage(b)
-            if sb != "(top)" and STAGES.index(sb) > STAGES.index(sa) and sa != "(top)":
+            if (sb != "(top)" and STAGES.index(sb) > STAGES.index(sa) and sa != "(top)"
+                    and (a, b) not in ALLOWED_UPWARD):
                 upward.append(f"{a} -> {b}")
     assert upward == []
 
