@@ -140,7 +140,7 @@ def fit_many(recordings, rig=None, *, effects=(), noise: dict | None = None,
         FitError: a fit that does not converge.
     """
     from ..io import Rig
-    from ._fit import _check_lug_count, fit_problem, refit_noise, remove_glitches
+    from ._fit import finish_fit, fit_problem
 
     rig = Rig.reference() if rig is None else rig
     recordings = list(recordings)
@@ -158,12 +158,7 @@ def fit_many(recordings, rig=None, *, effects=(), noise: dict | None = None,
             "n_body_samples": _up(max(int(p.lay.body_t.shape[0]) for p in g), SAMPLE_BUCKET)}
         for i, prob in zip(idx, g):
             padded = pad_problem(prob, **shape)
-            res = fit_problem(padded, **kw)
-            res = _check_lug_count(res, **kw)
-            renoise = noise is None and prob.noise_source == "differences"
-            if glitches:
-                res = remove_glitches(res, renoise=renoise, **kw)
-            elif renoise:
-                res = refit_noise(res, **kw)
+            res = finish_fit(fit_problem(padded, **kw), prob, noise=noise, glitches=glitches,
+                             **kw)
             out[i] = unpad_result(res, prob)
     return out

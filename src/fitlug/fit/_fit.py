@@ -193,13 +193,19 @@ def fit(rec, rig=None, *, effects=(), noise: float | dict | None = None, glitche
     if params is not None:
         kw["params"] = params
     prob = build_problem(rec, rig, effects=effects, noise=noise)
-    res = fit_problem(prob, **kw)
+    return finish_fit(fit_problem(prob, **kw), prob, noise=noise, glitches=glitches, **kw)
+
+
+def finish_fit(res, prob, *, noise, glitches: bool, **kw):
+    """What follows a problem's first fit in :func:`fit` (and `fit_many`): the lug-count
+    check, then the glitch rounds, or a refit with the residuals' noise when the noise came
+    from frame differences."""
     res = _check_lug_count(res, **kw)
     renoise = noise is None and prob.noise_source == "differences"
     if glitches:
-        res = remove_glitches(res, renoise=renoise, **kw)
-    elif renoise:
-        res = refit_noise(res, **kw)
+        return remove_glitches(res, renoise=renoise, **kw)
+    if renoise:
+        return refit_noise(res, **kw)
     return res
 
 

@@ -1,15 +1,8 @@
 """The posterior of the slippage: emcee over the slip-law parameters, the rest marginalised.
 
-What is sampled. The data pin the slip law, theta = (s0, beta) (plus the parameters of a
-replacing law, e.g. lug_sliding's slide_mu); k/m = 2 / (1000 beta n L), C_rr =
-s0 / (1000 g beta), dl' = s0 L / (n - 1) and the steady slip follow per sample. The ~70
-other parameters eta (speed spline, marker phases, offsets, geometry, effect params) are
-marginalised linearly: around the least-squares optimum r(theta, eta) ~ r(theta, eta_hat)
-+ J_eta (eta - eta_hat), and with a flat prior on eta
-
-    -2 log L(theta) = |P r(theta, eta_hat)|^2 + const,   P = I - J_eta J_eta^+ .
-
-Its two evaluations, 'exact' and 'gaussian', are :mod:`._marginal`'s.
+What is sampled: the slip law's parameters theta = (s0, beta) (plus those of a replacing
+law), every other parameter marginalised linearly around the least-squares optimum; the
+derivation is at the top of :mod:`._marginal`, with its two evaluations, 'exact' and 'gaussian'.
 method='auto' (default) evaluates the exact marginal at 2-sigma points around the
 optimum (principal axes and diagonals) and uses the Gaussian limit only when it agrees
 to `LINEARITY_TOL` in delta-chi^2 everywhere there; otherwise it samples the exact
