@@ -21,7 +21,10 @@ CASES = {
     "runout_4pct": {"wheel_runout": {"runout_a": 0.04 * math.cos(-0.4),
                                      "runout_b": 0.04 * math.sin(-0.4)}},
     "runout_3pct": {"wheel_runout": {"runout_a": 0.0, "runout_b": 0.03}},
+    "runout_5pct": {"wheel_runout": {"runout_a": -0.05 * math.cos(1.0),
+                                     "runout_b": 0.05 * math.sin(1.0)}},
     "sag_3mm": {"belt_sag": {"sag_d": 3.0}},
+    "sag_6mm": {"belt_sag": {"sag_d": 6.0}},
 }
 for name in (sys.argv[1:] or CASES):
     eff = CASES[name]

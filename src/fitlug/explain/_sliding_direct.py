@@ -2,8 +2,8 @@
 
 Near the friction limit (a steady F0/F_max of ~0.85 and more, ramps that take the traction
 to within a few % of F_max) the linear base model bends its speed spline to follow the
-law's curvature (accelerations 30-60 % above the body markers' own) and its slip slope
-beta to the secant of the law over the ramps. Every start built on that base (the
+law's curvature (peak accelerations 1.6 times the body markers' own, braking 2.9 times)
+and its slip slope beta to the secant of the law over the ramps. Every start built on that base (the
 screening's Gauss-Newton step, :func:`._candidates.sliding_starts`) puts F/F_max past 1
 somewhere in the ramps, and the fit stops far from the law (issue 32: s0 0.40, chi^2/dof
 ~500 after explanation).
@@ -19,10 +19,12 @@ data's accelerations reach. With the base fit's steady slip S and the rig's mass
 largest traction seen). z_pk is spaced evenly in -ln(1 - z_pk): chi^2 is a narrow valley
 there (F/F_max within a few % of 1 in the ramps, the slip there changes by tens of % for
 1 % of F_max). The grid's chi^2 costs model evaluations only (~600 of them, batched);
-around its best point a finer grid, then the law held while the rest settles, then
-everything free (the project's Levenberg-Marquardt with the exact Jacobian). The result
-is an ordinary fit of the base model plus lug_sliding; the search judges it by the
-catalog's rules like any other candidate.
+around its best point a finer grid; where that is no lower than the model without the
+law, the misfit is of another kind and nothing is fitted (a strong runout or sag costs the
+grid alone); else the law held while the rest settles, then everything free (the
+project's Levenberg-Marquardt with the exact Jacobian). The result is an ordinary fit of
+the base model plus lug_sliding; the search judges it by the catalog's rules like any
+other candidate.
 """
 
 from __future__ import annotations
@@ -90,8 +92,9 @@ def direct_sliding(res, eng, theta) -> np.ndarray | None:
     (z0, *_), _ = best_of(_grid(Z0_GRID, S, a_max, N_PEAK))
     fine = np.linspace(z0 - FINE_DZ0, z0 + FINE_DZ0, N_Z0_FINE)
     row, c2 = best_of(_grid(fine, S, a_max, N_PEAK_FINE))
-    if not np.isfinite(c2):
-        return None
+    r_cur = eng.residuals(theta)[0]
+    if not (np.isfinite(c2) and c2 < float(r_cur @ r_cur)):
+        return None  # no better than the model without the law: a misfit of another kind
     params = eng.params(eng.with_values(th0, dict(zip(law, row[2:]))))
     start = {k: np.asarray(params[k]) if k in params else np.asarray(v) for k, v in p.items()}
     free = free_parameters(prob_f.lay)
