@@ -59,14 +59,20 @@ def _single(s0, seed=100):
     return sc, rec, truth, s_K
 
 
+#: the loads of the single-recording test. 0.172 and 0.268 (F0/F_max 0.60, 0.76) pass too
+#: (2026-11-27, ~215 s each on the loaded 2-core machine) and are asserted one by one in
+#: test_a_campaign_at_the_friction_limit (c_017, c_027); the suite runs the new case alone
+SINGLE_LOADS = (0.396,)
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("s0", [0.172, 0.268, 0.396])
+@pytest.mark.parametrize("s0", SINGLE_LOADS)
 def test_one_recording_near_the_limit_is_lug_sliding(s0):
-    """A single recording at F0/F_max 0.60, 0.76 and 0.88 (the last one's ramp peaks at
-    0.97 F_max) is explained by lug_sliding alone, with s_K (so F_max), k, C_rr and the slip
-    within 3 sigma of the simulator's truth. Before issue 32 the first two came out
-    `unexplained`; the third until the direct fit of explain._sliding_direct (2026-11-27:
-    the linear base fit bends its speed spline there, chi^2/dof ~400)."""
+    """A single recording at F0/F_max 0.88 (its ramp peaks at 0.97 F_max) is explained by
+    lug_sliding alone, with s_K (so F_max), k, C_rr and the slip within 3 sigma of the
+    simulator's truth: `unexplained` (chi^2/dof ~500) until the direct fit of
+    explain._sliding_direct (the linear base fit bends its speed spline there, chi^2/dof
+    ~400, and no start built on it reaches the law)."""
     from fitlug.explain import explain
     from fitlug.fit import fit
     from fitlug.sim import rig_of
