@@ -42,6 +42,10 @@ FINE_DZ0, N_Z0_FINE, N_PEAK_FINE = 0.05, 11, 60
 Z_PEAK_MAX = 0.995
 #: steps of the held-law fit and of the free fit
 HELD_STEPS, FREE_STEPS = 100, 300
+#: the most residuals a recording may have for the direct fit: its grids cost ~1 200 model
+#: evaluations (~8 s at 2 900 residuals, 240 frames of 6 markers, on a loaded 2-core
+#: machine); longer recordings (and the chunked path) keep the search's own fit only
+MAX_RESIDUALS = 50_000
 
 
 def _grid(z0s, S, a_max, n_pk):
@@ -62,14 +66,15 @@ def _grid(z0s, S, a_max, n_pk):
 def direct_sliding(res, eng, theta) -> np.ndarray | None:
     """Engine vector of `res`'s model plus lug_sliding fitted from the data's own start,
     or None where that does not apply (a slip law already in the model, no positive
-    steady slip, no acceleration in the data). Never raises on a fit that fails: None."""
+    steady slip, no acceleration in the data, more than MAX_RESIDUALS residuals). Never raises on a fit that fails: None."""
     import jax.numpy as jnp
 
     from .._errors import FitlugError
     from ..fit import fit_problem, free_parameters
     from ..model._model import speed_basis_values
 
-    if "lug_sliding" in res.effects or "slide_mu" not in eng.slices:
+    if "lug_sliding" in res.effects or "slide_mu" not in eng.slices \
+            or eng.chunked or eng.n_res > MAX_RESIDUALS:
         return None
     prob = res.problem
     S = float(res.params["s0"])
