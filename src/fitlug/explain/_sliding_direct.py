@@ -21,8 +21,9 @@ there (F/F_max within a few % of 1 in the ramps, the slip there changes by tens 
 1 % of F_max). The grid's chi^2 costs model evaluations only (~600 of them, batched);
 around its best point a finer grid; where that is no lower than the model without the
 law, the misfit is of another kind and nothing is fitted (a strong runout or sag costs the
-grid alone); else the law held while the rest settles, then everything free (the
-project's Levenberg-Marquardt with the exact Jacobian). The result is an ordinary fit of
+grid alone); else the fine grid's N_HELD best laws each with the law held while the rest
+settles, the best of them then with everything free (the project's Levenberg-Marquardt
+with the exact Jacobian). The result is an ordinary fit of
 the base model plus lug_sliding; the search judges it by the catalog's rules like any
 other candidate.
 """
