@@ -103,6 +103,7 @@ def direct_sliding(res, eng, theta) -> np.ndarray | None:
     rows = _grid(np.linspace(z0 - FINE_DZ0, z0 + FINE_DZ0, N_Z0_FINE), S, a_max, N_PEAK_FINE)
     c2 = chi2_of(rows)
     r_cur = eng.residuals(theta)[0]
+    _dbg("grid best", np.min(c2), "current", float(r_cur @ r_cur))
     if not (np.isfinite(np.min(c2)) and np.min(c2) < float(r_cur @ r_cur)):
         return None  # no better than the model without the law: a misfit of another kind
     picks = []  # the best row of each z0, the N_HELD best of those at least DZ0_APART apart
@@ -123,7 +124,7 @@ def direct_sliding(res, eng, theta) -> np.ndarray | None:
             _dbg("held", rows[i][:2], c2[i], out.steps, out.converged, out.chi2_per_dof)
             if np.isfinite(out.chi2) and (best is None or out.chi2 < best.chi2):
                 best = out
-        if best is None:
+        if best is None or not best.chi2 < float(r_cur @ r_cur):
             return None
         out = fit_problem(prob_f, best.params, free=free, max_steps=FREE_STEPS,
                           require_convergence=False)
