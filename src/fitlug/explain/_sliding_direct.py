@@ -45,12 +45,21 @@ Z_PEAK_MAX = 0.995
 #: with the geometry and speed held the grid's chi^2 is only roughly right, and its best
 #: z0 can be 0.02 off the law's (one noise seed of four at F0/F_max 0.88)
 N_HELD, DZ0_APART = 3, 0.015
+#: points of each refinement of a z0's peak between the neighbours of its best
+N_REFINE = 21
 #: steps of the held-law fit and of the free fit
 HELD_STEPS, FREE_STEPS = 100, 300
 #: the most residuals a recording may have for the direct fit: its grids cost ~1 200 model
 #: evaluations (~8 s at 2 900 residuals, 240 frames of 6 markers, on a loaded 2-core
 #: machine); longer recordings (and the chunked path) keep the search's own fit only
 MAX_RESIDUALS = 50_000
+
+
+def _peaks(z0, S, a_max, us):
+    """(z0, z_pk, s0, beta, mu) rows at z0 for peaks z_pk = 1 - exp(-u), u in `us`."""
+    mu = -math.log1p(-z0) / S
+    return [(z0, -math.expm1(-u), z0 / mu, (-math.expm1(-u) - z0) / (a_max * mu), mu)
+            for u in us]
 
 
 def _grid(z0s, S, a_max, n_pk):
@@ -60,11 +69,7 @@ def _grid(z0s, S, a_max, n_pk):
     for z0 in z0s:
         if not 0 < z0 < Z_PEAK_MAX:
             continue
-        mu = -math.log1p(-z0) / S
-        u_lo = -math.log1p(-z0) + 0.02
-        for u in np.linspace(u_lo, u_hi, n_pk):
-            z_pk = -math.expm1(-u)
-            rows.append((z0, z_pk, z0 / mu, (z_pk - z0) / (a_max * mu), mu))
+        rows += _peaks(z0, S, a_max, np.linspace(-math.log1p(-z0) + 0.02, u_hi, n_pk))
     return rows
 
 
@@ -98,10 +103,27 @@ def direct_sliding(res, eng, theta) -> np.ndarray | None:
         T = np.array([eng.with_values(th0, dict(zip(law, r[2:]))) for r in rows])
         return eng.chi2_best(T)[0]
 
-    rows = _grid(Z0_GRID, S, a_max, N_PEAK)
-    z0 = rows[int(np.argmin(chi2_of(rows)))][0]
-    rows = _grid(np.linspace(z0 - FINE_DZ0, z0 + FINE_DZ0, N_Z0_FINE), S, a_max, N_PEAK_FINE)
-    c2 = chi2_of(rows)
+    def refined(z0s, n_pk):
+        # per z0 the peak's valley is narrower than the grid's step: twice, N_REFINE points
+        # between the neighbours of each z0's best peak
+        rows = _grid(z0s, S, a_max, n_pk)
+        c2 = chi2_of(rows)
+        for _ in range(2):
+            extra = []
+            for z in sorted({r[0] for r in rows}):
+                idx = [i for i, r in enumerate(rows) if r[0] == z]
+                us = np.array([-math.log1p(-rows[i][1]) for i in idx])
+                order = np.argsort(us)
+                j = int(np.argmin(c2[np.array(idx)[order]]))
+                lo, hi = us[order][max(j - 1, 0)], us[order][min(j + 1, len(us) - 1)]
+                extra += _peaks(z, S, a_max, np.linspace(lo, hi, N_REFINE))
+            rows = rows + extra
+            c2 = np.concatenate([c2, chi2_of(extra)])
+        return rows, c2
+
+    rows, c2 = refined(Z0_GRID, N_PEAK)
+    z0 = rows[int(np.argmin(c2))][0]
+    rows, c2 = refined(np.linspace(z0 - FINE_DZ0, z0 + FINE_DZ0, N_Z0_FINE), N_PEAK_FINE)
     r_cur = eng.residuals(theta)[0]
     _dbg("grid best", np.min(c2), "current", float(r_cur @ r_cur))
     if not (np.isfinite(np.min(c2)) and np.min(c2) < float(r_cur @ r_cur)):
