@@ -18,8 +18,9 @@ data's accelerations reach. With the base fit's steady slip S and the rig's mass
 (F_max = m a_max / (1000 (z_pk - z0)), MODEL.md §2-§3; F_max is thus bounded above the
 largest traction seen). z_pk is spaced evenly in -ln(1 - z_pk): chi^2 is a narrow valley
 there (F/F_max within a few % of 1 in the ramps, the slip there changes by tens of % for
-1 % of F_max). The grid's chi^2 costs model evaluations only (~600 of them, batched);
-around its best point a finer grid; where that is no lower than the model without the
+1 % of F_max), so each z0's peak is refined twice between the neighbours of its best.
+The grid's chi^2 costs model evaluations only (~1 100, batched); around its best z0 a
+finer grid (~1 200); where that is no lower than the model without the
 law, the misfit is of another kind and nothing is fitted (a strong runout or sag costs the
 grid alone); else the fine grid's N_HELD best laws each with the law held while the rest
 settles, the best of them then with everything free (the project's Levenberg-Marquardt
