@@ -126,7 +126,6 @@ def direct_sliding(res, eng, theta) -> np.ndarray | None:
     z0 = rows[int(np.argmin(c2))][0]
     rows, c2 = refined(np.linspace(z0 - FINE_DZ0, z0 + FINE_DZ0, N_Z0_FINE), N_PEAK_FINE)
     r_cur = eng.residuals(theta)[0]
-    _dbg("grid best", np.min(c2), "current", float(r_cur @ r_cur))
     if not (np.isfinite(np.min(c2)) and np.min(c2) < float(r_cur @ r_cur)):
         return None  # no better than the model without the law: a misfit of another kind
     picks = []  # the best row of each z0, the N_HELD best of those at least DZ0_APART apart
@@ -144,14 +143,12 @@ def direct_sliding(res, eng, theta) -> np.ndarray | None:
                      for k, v in p.items()}
             out = fit_problem(prob_f, start, free=[k for k in free if k not in law],
                               max_steps=HELD_STEPS, require_convergence=False)
-            _dbg("held", rows[i][:2], c2[i], out.steps, out.converged, out.chi2_per_dof)
             if np.isfinite(out.chi2) and (best is None or out.chi2 < best.chi2):
                 best = out
         if best is None or not best.chi2 < float(r_cur @ r_cur):
             return None
         out = fit_problem(prob_f, best.params, free=free, max_steps=FREE_STEPS,
                           require_convergence=False)
-        _dbg("free", out.steps, out.converged, out.chi2_per_dof)
     except (FitlugError, FloatingPointError, np.linalg.LinAlgError):
         return None
     if not np.isfinite(out.chi2):
@@ -173,8 +170,3 @@ def direct_candidate(res, eng, theta, out):
         return out
     return LMResult(th, r, c2, out.iterations, True)
 
-
-def _dbg(*a):
-    import os
-    if os.environ.get("FITLUG_DBG"):
-        print("direct:", *a, flush=True)
