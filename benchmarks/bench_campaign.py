@@ -3,6 +3,7 @@
     python benchmarks/bench_campaign.py                 # 32 recordings, 1 and 2 workers, n=50
     python benchmarks/bench_campaign.py --quick         # 6 recordings, n=10
     python benchmarks/bench_campaign.py --skip-timing --n 200 --workers 16
+    python benchmarks/bench_campaign.py --skip-timing --law janosi_hanamoto --where limit
 
 Timing: a simulated campaign of --recordings short recordings (fitlug.sim SMALL_BASE:
 3 s at 50 fps, 5 lug + 1 body markers) fitted with 1 and 2 local Dask workers (fresh output
@@ -15,8 +16,9 @@ Coverage: --n campaigns whose per-recording points are drawn from the law
 (fitlug.sim.simulate_points: each point's error the size of one short recording's fit),
 NOT from simulated recordings (that would take hours); each is fitted by the campaign model
 (law choice, flags, emcee) and we count how often the 95 % interval of k holds the truth
-(target 90-98 %), of C_rr's and (sliding law) F_max's per ground, and how many recordings
-are flagged wrongly; each law twice: the default campaign far from the friction limit, and
+(target 90-98 %), of C_rr's and (sliding law) F_max's per ground (each band alone, and
+both grounds' bands at once: ~90 % for two grounds), the sd of (estimate - truth)/std, and
+how often each recording is flagged wrongly (every recording is drawn from the law); each law twice: the default campaign far from the friction limit, and
 fitlug.sim's limit campaign (LIMIT_K, LIMIT_GROUNDS, limit_runs: pulls to ~0.86 F_max at
 cruise, ramps to 0.97, two grounds; issue 32). Parallel over campaigns with --workers
 processes (spawn).
@@ -59,8 +61,13 @@ def _coverage_one(args):
     fm = res.F_max or {}
     f_in = (all(fm[g]["ci95"][0] <= grounds[g]["F_max"] <= fm[g]["ci95"][1] for g in fm)
             if fm else None)
+    each = {f"C_rr[{g}]": (crr[g], grounds[g]["C_rr"]) for g in crr}
+    each.update({f"F_max[{g}]": (fm[g], grounds[g]["F_max"]) for g in fm})
+    bands = {nm: (e["ci95"][0] <= t <= e["ci95"][1], (e["value"] - t) / e["std"])
+             for nm, (e, t) in each.items()}
     return {"k_in": lo <= k <= hi, "crr_in": c_in, "fmax_in": f_in, "law_ok": res.law == law,
             "flagged": len(res.flagged), "n_rec": len(pts),
+            "flagged_names": [o.name for o in res.flagged], "bands": bands,
             "z": (res.stiffness["value"] - k) / res.stiffness["std"]}
 
 
@@ -71,8 +78,20 @@ def coverage(n: int, law: str, n_rec: int, workers: int, limit: bool = False) ->
             out = list(ex.map(_coverage_one, jobs))
     else:
         out = [_coverage_one(j) for j in jobs]
+    import numpy as np
+
     fin = [o["fmax_in"] for o in out if o["fmax_in"] is not None]
-    return {"n": n, "k_coverage": sum(o["k_in"] for o in out) / n,
+    names = sorted({nm for o in out for nm in o["bands"]})
+    each = {nm: (float(np.mean([o["bands"][nm][0] for o in out if nm in o["bands"]])),
+                 float(np.std([o["bands"][nm][1] for o in out if nm in o["bands"]])))
+            for nm in names}
+    flags = {}
+    for o in out:
+        for nm in o["flagged_names"]:
+            flags[nm] = flags.get(nm, 0) + 1
+    return {"each": each, "flags_by_recording": flags,
+            "campaigns_with_flags": sum(o["flagged"] > 0 for o in out),
+            "n": n, "k_coverage": sum(o["k_in"] for o in out) / n,
             "crr_coverage": sum(o["crr_in"] for o in out) / n,
             "fmax_coverage": (sum(fin) / len(fin)) if fin else None,
             "law_named": sum(o["law_ok"] for o in out) / n,
@@ -128,6 +147,8 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="6 recordings, n = 10")
     ap.add_argument("--skip-timing", action="store_true")
     ap.add_argument("--skip-coverage", action="store_true")
+    ap.add_argument("--where", default="far,limit",
+                    help="coverage campaigns: far (from F_max), limit (to 0.86 F_max), or both")
     ap.add_argument("--keep", help="work folder to keep (and reuse) the simulated recordings")
     a = ap.parse_args()
     if a.quick:
@@ -138,7 +159,7 @@ def main() -> None:
     if not a.skip_coverage:
         laws = ("linear", "janosi_hanamoto") if a.law == "both" else (a.law,)
         for law in laws:
-            for limit in (False, True):
+            for limit in [w == "limit" for w in a.where.split(",")]:
                 t = time.perf_counter()
                 c = coverage(a.n, law, 8, a.workers, limit)
                 fm = ("" if c["fmax_coverage"] is None else
@@ -150,6 +171,10 @@ def main() -> None:
                       f"{100 * c['law_named']:.0f} %, recordings flagged wrongly "
                       f"{c['false_flags']} ({100 * c['flag_rate']:.1f} %), sd of (k - truth)/std "
                       f"{c['z_sd']:.2f}  ({time.perf_counter() - t:.0f} s)")
+                print("  each band alone (coverage, sd of z): " + ", ".join(
+                    f"{nm} {100 * cv:.0f} % {sd:.2f}" for nm, (cv, sd) in c["each"].items()))
+                print(f"  campaigns with a recording flagged: {c['campaigns_with_flags']} of "
+                      f"{c['n']}; wrong flags by recording: {c['flags_by_recording'] or 'none'}")
 
 
 if __name__ == "__main__":

@@ -48,6 +48,7 @@ from ._engine import Engine
 from ._final import final_fit, polished_theta
 from ._locate import Location, locate, residual_map, spectrum_summary
 from ._robust import nuisance_result, robust_result
+from ._sliding_direct import direct_candidate
 from ._systematics import tracker_systematics
 from ._table import geometry, structured_misfit
 
@@ -57,6 +58,9 @@ STRONG_MISFIT_Z = 10.0
 MAX_FITS_PER_ROUND = 4
 MAX_EFFECTS = 4
 SLIDING_GRID_STEPS = 4
+#: chi^2/dof that lug_sliding's search fit may leave under a strong misfit before its
+#: direct fit from the data's own start is tried (:mod:`._sliding_direct`)
+DIRECT_SLIDING_CHI2 = 2.0
 
 
 @dataclass
@@ -242,6 +246,11 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
         dof_cur = N - k_cur
         excess = chi2 - dof_cur  # chi^2 the misfit carries (noise scale known to ~2 %)
         strong = excess > STRONG_MISFIT_Z * det_cur.chi2_spread * dof_cur
+        direct = strong and chi2 > DIRECT_SLIDING_CHI2 * dof_cur and "lug_sliding" in cands
+        if direct and "lug_sliding" not in to_fit:
+            # a base that the sliding law distorts can hide it from the screening's
+            # linear step (issue 32): its direct fit below decides
+            to_fit.append("lug_sliding")
         M_cur, _ = structured_misfit(geo, r)
         tried = {e: {"id": e, "delta_bic_linear": lin[e], "start": scr[e].label}
                  for e in order}
@@ -258,6 +267,9 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
             out = eng.fit(_start(eng, scr[e], chi2, extra + eng.free_names(e)),
                           extra + eng.free_names(e),
                           give_up=lambda c2, pr, k_e=k_e: give_up(c2, pr, k_e))
+            if e == "lug_sliding" and direct and \
+                    out.chi2 > DIRECT_SLIDING_CHI2 * (dof_cur - k_e):
+                out = direct_candidate(res, eng, theta, out)
             dbic = out.chi2 - chi2 + eng.n_free(e) * lnN
             M_new, _ = structured_misfit(geo, out.r)
             gain = chi2 - out.chi2

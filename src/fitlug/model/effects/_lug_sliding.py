@@ -3,12 +3,26 @@ import jax.numpy as jnp
 from ._base import Effect
 
 
+#: where -ln(1 - z) is continued by its second-order Taylor polynomial (see log_ratio)
+Z_SMOOTH = 0.999
+
+
 def log_ratio(z):
-    """-ln(1 - z) / z, smooth through z = 0 (the linear limit)."""
-    zc = jnp.minimum(z, 1.0 - 1e-12)
-    small = jnp.abs(zc) < 1e-4
-    zs = jnp.where(small, 1.0, zc)
-    return jnp.where(small, 1.0 + zc / 2 + zc * zc / 3, -jnp.log1p(-zs) / zs)
+    """-ln(1 - z) / z, smooth through z = 0 (the linear limit).
+
+    Past the friction limit (z >= Z_SMOOTH, a traction within 0.1 % of F_max) -ln(1 - z) is
+    continued by its Taylor polynomial of second order at Z_SMOOTH: finite and increasing,
+    with a gradient. A law that sets F/F_max >= 1 anywhere has no physical reading, but a
+    fit passes through such points: clipped at 1 - 1e-12 (before issue 32) the slip was
+    flat there, the fit had no gradient back and stopped (near the limit, from a start
+    whose accelerations overshoot the data's by 30 %, at chi^2/dof 1e3..1e6)."""
+    z1 = Z_SMOOTH
+    zs = jnp.where(jnp.abs(z) < 1e-4, 1.0, z)
+    inside = -jnp.log1p(-jnp.where(zs > z1, z1, zs)) / zs
+    d = z - z1
+    past = (-jnp.log1p(-z1) + d / (1 - z1) + 0.5 * (d / (1 - z1)) ** 2) / zs
+    big = jnp.where(z > z1, past, inside)
+    return jnp.where(jnp.abs(z) < 1e-4, 1.0 + z / 2 + z * z / 3, big)
 
 
 class LugSliding(Effect):
