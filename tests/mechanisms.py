@@ -10,8 +10,9 @@ How the recordings are made (our own simulator, but not the fitting side's forms
 
 - the rig and the motion are drawn as `realism.drive_scenario` draws them (n 6-10,
   L 100-160 mm, R 18-35 mm, pitch 15-22 mm, 18-26 lugs, 6-10 markers on consecutive lugs,
-  two body markers anywhere, 100-250 fps, 5-8 s, cruise 120-260 mm/s, ramps 0.8-1.6 s of
-  a cos, smoothstep or quintic shape), noise 4-9 µm (lug) and 3-6 µm (body);
+  100-250 fps, 5-8 s, cruise 120-260 mm/s, ramps 0.8-1.6 s of a cos, smoothstep or
+  quintic shape), with one, two (most often) or three body markers anywhere on the body,
+  a towed load of 1-10 N in 30 % of the draws, noise 4-9 µm (lug) and 3-6 µm (body);
 - the kinematics are integrated here (numpy RK4, 16 steps per frame, the belt travel's
   implicit rate by fixed-point iteration as MODEL.md §3's conventions read), so a
   mechanism that changes the motion (`cogging`, `slip_speed`) acts on X, a, F, s and psi
@@ -31,7 +32,7 @@ Mechanisms (family and coordinate as MODEL.md §5 names them):
   phi2))), th = r psi / R + phi, r periods per wheel turn, not near a whole number nor
   near a multiple of the lugs per wheel turn; eps 0.2-2 %, h2 0-0.3, 5 Hz to 0.4 fps;
 - `bump` (ground profile; ground x): a cosine bump of height 0.2-1 mm and width
-  20-80 mm at a ground x in view; bottom-run lugs rise by it, each wheel rides over it
+  20-80 mm at a ground x in view where a marked lug lies; bottom-run lugs rise by it, each wheel rides over it
   (its centre lifted by the highest point of the bump under a circle of radius R + e)
   and the body follows the two wheels (heave and pitch);
 - `slip_speed` (slip law; traction F and speed v): slip grows with speed (drag of the
@@ -87,15 +88,27 @@ def scenario(seed: int) -> Scenario:
     rest = 0.5 * (d["t_acc"][0] + d["duration"] - d["t_dec"][1])
     ramp = d["t_acc"][1] - d["t_acc"][0]
     cruise = d["duration"] - 2 * rest - 2 * ramp
-    slip = 2 * d["m"] * d["C_rr"] * 9.81 / (d["k"] * d["n"] * d["L"])
+    body = [tuple(c) for c in d["body"]]
+    n_body = int(rng.choice([1, 2, 2, 2, 3]))  # one marker (no pitch), two, or three
+    if n_body == 1:
+        body = body[:1]
+    elif n_body == 3:
+        half = (d["N"] * d["pitch"] - 2 * np.pi * d["R"]) / 4 + d["R"]
+        body.append((float(rng.uniform(-half, half)), float(rng.uniform(1.5, 3.2) * d["R"])))
+    F0 = d["m"] * d["C_rr"] * 9.81
+    pull = float(rng.uniform(1, 10)) if rng.random() < 0.3 else 0.0  # a towed load
+    if 2 * (F0 + pull) / (d["k"] * d["n"] * d["L"]) > 0.25:
+        pull = 0.0
+    slip = 2 * (F0 + pull) / (d["k"] * d["n"] * d["L"])
     return Scenario(
         duration_s=d["duration"], fps=d["fps"], travel_mm=d["v_max"] * (cruise + ramp),
         rest_s=rest, ramp_s=ramp, ramp=str(rng.choice(["cos", "smoothstep", "quintic"])),
         n_contact=d["n"], L_mm=d["L"], lug_pitch_mm=d["pitch"], n_belt=d["N"],
-        mass_kg=d["m"], slip=slip, rolling_resistance=d["C_rr"], R_mm=d["R"], e_mm=d["e"],
-        x_off_mm=d["x_off"], y_off_mm=d["y_off"], lug_markers=d["n_lug"], lug_spacing=1,
+        mass_kg=d["m"], drawbar_pull_N=pull, slip=slip, rolling_resistance=d["C_rr"],
+        R_mm=d["R"], e_mm=d["e"], x_off_mm=d["x_off"], y_off_mm=d["y_off"],
+        lug_markers=d["n_lug"], lug_spacing=1,
         sigma_start_mm=float(rng.uniform(0, d["N"] * d["pitch"])),
-        body_markers=tuple(tuple(c) for c in d["body"]),
+        body_markers=tuple(body),
         noise_lug_mm=float(rng.uniform(0.004, 0.009)),
         noise_body_mm=float(rng.uniform(0.003, 0.006)))
 
@@ -273,7 +286,11 @@ def _bump(sc, c, rng, size, window=None):
     h = _uniform(rng, 0.2, 1.0, size)
     w = float(rng.uniform(20, 80))
     lo, hi = window if window is not None else (0.0, sc.travel_mm)
-    q = {"height_mm": h, "width_mm": w, "x_mm": float(rng.uniform(lo, hi)),
+    # where a marked lug lies on the ground (else the lugs never show the bump)
+    on = c["lx"][(c["seg"] == 0) & (c["lx"] > lo) & (c["lx"] < hi)]
+    xb = float(rng.choice(on)) + float(rng.uniform(-w / 4, w / 4)) if len(on) else \
+        float(rng.uniform(lo, hi))
+    q = {"height_mm": h, "width_mm": w, "x_mm": xb,
          "form": "cosine bump h (1 + cos(pi (x - x_b) / (w/2))) / 2"}
     bottom = c["seg"] == 0
     c["ly"] = c["ly"] + np.where(bottom, _bump_height(c["lx"], q), 0.0)
@@ -381,7 +398,8 @@ def make(mechanism: str, seed: int, *, size: float | None = None, faults: bool =
                    for k, v in params.items()},
         "slip": float(slip_true), "slip_linear_s0": sc.slip,
         "stiffness_N_per_mm": sc.stiffness, "rolling_resistance": sc.rolling_resistance,
-        "mass_kg": sc.mass_kg, "fps": sc.fps, "v_cruise_mm_s": sc.v_cruise,
+        "mass_kg": sc.mass_kg, "drawbar_pull_N": sc.drawbar_pull_N, "fps": sc.fps,
+        "v_cruise_mm_s": sc.v_cruise,
         "window": None if window is None else [float(v) for v in window],
         "n_glitches": len(info.get("glitches", [])), "seed": seed,
         "scenario": {k: v for k, v in dataclasses.asdict(sc).items() if k != "effects"},
