@@ -73,26 +73,24 @@ def coord_tokens(coordinate) -> set:
 
 
 def _terms(ex) -> list:
-    """The kept family terms of an Explanation as dicts (family, coordinate, partial, ...)."""
-    disc = getattr(ex, "discovery", None)
-    terms = getattr(disc, "terms", None) or getattr(ex, "discovered", None) or []
+    """The kept family terms of an Explanation as dicts (family, coordinate, partial, ...):
+    `ex.discovered` (fit.json's `discrepancy.discovered`), else `ex.discovery.terms`."""
+    try:
+        terms = ex.discovered
+        terms = terms() if callable(terms) else terms
+    except Exception:  # noqa: BLE001 - an older explain: the search's own terms
+        terms = None
+    if terms is None:
+        terms = getattr(getattr(ex, "discovery", None), "terms", None) or []
+    keep = ("family", "coordinate", "partial", "chi2_per_dof_after", "delta_bic",
+            "frequency_hz", "segment", "axis", "reading")
     out = []
     for term in terms:
-        d = None
-        if hasattr(term, "to_json"):
-            try:
-                d = term.to_json()
-            except Exception:  # noqa: BLE001 - fall back on the attributes
-                d = None
-        if d is None:
-            ch = getattr(term, "choice", term)
-            d = {"family": getattr(ch, "family", None),
-                 "coordinate": getattr(ch, "coordinate", None),
-                 "partial": getattr(term, "partial", None),
-                 "chi2_per_dof_after": getattr(term, "chi2_per_dof_after", None)}
-        keep = ("family", "coordinate", "partial", "chi2_per_dof_after", "delta_bic",
-                "frequency_hz", "segment", "axis", "reading")
-        out.append({k: _plain(d.get(k)) for k in keep})
+        if not isinstance(term, dict):
+            term = term.to_json() if hasattr(term, "to_json") else {
+                k: getattr(getattr(term, "choice", term), k, getattr(term, k, None))
+                for k in keep}
+        out.append({k: _plain(term.get(k)) for k in keep})
     return out
 
 
@@ -127,6 +125,7 @@ def one(task):
         rec, rig, truth = M.make(kind, seed)
         out.update(family=truth["family"], coordinate=truth["coordinate"],
                    catalog=truth["catalog"], truth=truth["slip"], fps=truth["fps"],
+                   truth_s0=truth["slip_linear_s0"],
                    window=truth["window"],
                    params={k: v for k, v in truth["params"].items()
                            if isinstance(v, (int, float))})
@@ -155,6 +154,10 @@ def one(task):
             signal.alarm(0)
     out["seconds"] = round(time.perf_counter() - t0, 1)
     return out
+
+
+def _num(v):
+    return f"{v:.2f}" if abs(v) < 1000 else f"{v:.2e}"
 
 
 def _pct(k, n):
@@ -196,8 +199,8 @@ def summarise(results, kinds=None, file=sys.stdout):
         p(f"| {kind} | {fam[0] or '-'} ({fam[1] or '-'}) | {n} | {len(rs) - n} | {vtxt} | "
           f"{_pct(right, n) if is_mech else '-'} | {_pct(rc, n) if is_mech else '-'} | "
           f"{_pct(wrong, n) if is_mech else '-'} | {'-' if is_mech else _pct(fa, n)} | "
-          f"{'-' if is_mech else _pct(cat, n)} | "
-          f"{np.median(chi):.2f} | {_pct(int(np.sum(chi <= 1.3)), n)} | "
+          f"{_pct(cat, n) if kind in M.CATALOG_CASES else '-'} | "
+          f"{_num(np.median(chi))} | {_pct(int(np.sum(chi <= 1.3)), n)} | "
           f"{z.mean():+.2f} | {np.sqrt(np.mean(z ** 2)):.2f} | "
           f"{_pct(int(np.sum(np.abs(z) <= 3)), len(z))} |" if n else
           f"| {kind} | - | 0 | {len(rs)} |" + " - |" * 11)
