@@ -49,6 +49,10 @@ markers only (the top run and the arcs are not lifted with the frame); the true 
 reported is the steady slip at the cruise speed (for `slip_speed`: s0 (1 + c v_cruise));
 `squat`'s acceleration is the motor profile's a(t).
 
+`write(out_dir, mechanism, seed)` writes the recording as a user hands it over
+(trajectories.csv in the wide export form, rig.toml with the roles) with truth.json beside
+it; from a shell: `python tests/mechanisms.py flap 3 /tmp/flap3 [size]`.
+
 `size` sets the mechanism's headline amplitude (in the units above: A mm per m/s²
 for squat, A mm for flap, eps for cogging, height mm for bump, c v_cruise for slip_speed,
 w mm for idler_wobble; the catalog's eps, d or A) instead of drawing it.
@@ -405,3 +409,26 @@ def make(mechanism: str, seed: int, *, size: float | None = None, faults: bool =
         "scenario": {k: v for k, v in dataclasses.asdict(sc).items() if k != "effects"},
     }
     return rec, rig_of(sc), truth
+
+
+def write(out_dir, mechanism: str, seed: int, *, size: float | None = None,
+          faults: bool = True, wide: bool = True) -> dict:
+    """Write `make`'s recording as a user would hand it over: trajectories.csv (the wide
+    export form with faults, else long form), rig.toml (with the markers' roles) and
+    truth.json beside them (for the one who checks, not for fit-lug). Returns truth."""
+    import os
+
+    from fitlug.io import write_json
+
+    rec, rig, truth = make(mechanism, seed, size=size, faults=faults)
+    realism.write_realistic(out_dir, rec, rig, wide=wide)
+    write_json(os.path.join(out_dir, "truth.json"), truth)
+    return truth
+
+
+if __name__ == "__main__":  # python tests/mechanisms.py flap 3 /tmp/flap3 [size]
+    import sys
+
+    kind, seed, out = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+    tr = write(out, kind, seed, size=float(sys.argv[4]) if len(sys.argv) > 4 else None)
+    print(f"{out}: {kind} seed {seed}, family {tr['family']!r}, params {tr['params']}")

@@ -105,3 +105,23 @@ def test_faults_window_and_truth():
     assert np.array_equal(rec.x, rec2.x, equal_nan=True) and truth2 == truth
     with pytest.raises(ValueError, match="unknown mechanism"):
         M.make("warp_drive", 0)
+
+
+def test_write_reads_back(tmp_path):
+    """write(): the wide export and rig.toml read back with fitlug.io as the same recording
+    (roles from rig.toml), truth.json beside them."""
+    import json
+
+    from fitlug.io import read_rig, read_trajectories
+
+    truth = M.write(tmp_path, "flap", 275, size=0.2)
+    rec, _, _ = M.make("flap", 275, size=0.2)
+    rig = read_rig(tmp_path / "rig.toml")
+    back = read_trajectories(tmp_path / "trajectories.csv", rig=rig)
+    assert sorted(back.markers) == sorted(rec.markers)
+    assert {m: r for m, r in zip(back.markers, back.roles)} == \
+        {m: r for m, r in zip(rec.markers, rec.roles)}
+    ok = np.isfinite(rec.x)
+    assert np.isfinite(back.x).sum() == ok.sum()
+    assert json.loads((tmp_path / "truth.json").read_text())["params"]["A_mm"] == 0.2
+    assert truth["family"] == "segment vibration"
