@@ -30,11 +30,20 @@ class SpeedModulation(Family):
         sel = (ctx.axis == 0) & ctx.valid
         T = float(np.ptp(ctx.t[sel]))
         fps = 1.0 / float(np.median(np.diff(np.unique(ctx.t))))
-        seeds = [p["frequency_hz"] for p in parts if cls.applies(p)]
-        f0 = seeds[0] if seeds else peak_frequency(ctx.t[sel], ctx.r[sel], fps / 2, T)
-        if not np.isfinite(f0):
-            return None
         vt = float(np.max(np.abs(ctx.vt_nodes)))
+        # seeds: the located parts' peaks, and the strongest line of the body's x residuals
+        # (X carries the modulation's integral directly) in t and in belt travel
+        body = sel & (ctx.segment == 4)
+        u_rows = np.interp(ctx.t, ctx.grid, ctx.psi_nodes) / vt
+        seeds = [p["frequency_hz"] for p in parts if cls.applies(p)]
+        if body.sum() > 20:
+            seeds += [peak_frequency(ctx.t[body], ctx.r[body], fps / 2, T),
+                      peak_frequency(u_rows[body], ctx.r[body], fps / 2, T)]
+        seeds = [f for f in seeds if np.isfinite(f)]
+        seeds = [f for i, f in enumerate(seeds)  # distinct ones, in order
+                 if all(abs(f - g) > 0.06 * g for g in seeds[:i])][:3]
+        if not seeds:
+            return None
         v, vtn = ctx.v_nodes, ctx.vt_nodes
         a = np.gradient(v, ctx.grid)
         s = 1.0 - v / np.where(vtn == 0, 1.0, vtn)
@@ -58,7 +67,8 @@ class SpeedModulation(Family):
                 return np.where(ctx.valid[:, None],
                                 ctx.dr_dX[:, None] * dX + ctx.dr_dpsi[:, None] * dpsi, 0.0)
 
-            f, _ = best_frequency(proj, cols, f0, max(2.0 / T, 0.06 * f0), T)
+            f = max((best_frequency(proj, cols, f0, max(2.0 / T, 0.06 * f0), T)
+                     for f0 in seeds), key=lambda q: q[1])[0]
             found = best_size(proj, [(n, cols(f, n), 1) for n in range(1, MAX_HARMONICS + 1)])
             if found is not None:
                 out.append((coord, f, found, cols))
