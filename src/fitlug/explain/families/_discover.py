@@ -203,7 +203,8 @@ def after_catalog(res, geo, parts, det, sig_est, alpha):
     t0 = time.perf_counter()
     try:
         disc = discover(res, parts, det)
-    except (FitlugError, np.linalg.LinAlgError, ValueError) as err:
+    except (FitlugError, np.linalg.LinAlgError, ValueError, IndexError,
+            FloatingPointError) as err:  # a family's failure never sinks explain
         return ("partial", None, None, None,
                 Discovery([], None, why_not=f"the families' fit failed: {err}"))
     if not disc.terms:
