@@ -6,9 +6,9 @@ The recordings come from tests/mechanisms.py (its own simulator and forms: a tan
 a cosine bump with wheels rolling over it, a cogging with a second harmonic at a
 non-integer period per wheel turn), seen through a real tracker's faults (a window
 narrower than the travel, misses, occlusions, glitches, split ids). Seed 19 draws one of
-the shortest recordings (100 fps, 5.07 s: the file stays fast); squat and cogging use
-seed 0 (250 fps, drawn sizes), where the catalog names nothing wrong first (on seed 19 it
-takes part of a squat for body_bounce: a catalog matter, not the families'). Set sizes are
+the shortest recordings (100 fps, 5.07 s: the file stays fast); squat uses seed 0 (250
+fps, drawn size), where the catalog names nothing wrong first (on seed 19 it takes part of
+a squat for body_bounce: a catalog matter, not the families'). Set sizes are
 in the upper half of the drawn ranges, so that the base model clearly fails.
 """
 
@@ -26,7 +26,7 @@ SEED = 19  # 100 fps, 5.07 s, two body markers (pitch identifiable)
 CASES = {
     "squat": (0, None, "body motion", "a"),  # 250 fps: A 0.099 mm per m/s^2
     "flap": (SEED, 0.2, "segment vibration", "xi"),
-    "cogging": (0, None, "speed modulation", "psi"),  # eps 0.35 %, 47 Hz, h2 0.11
+    "cogging": (SEED, None, "speed modulation", "psi"),  # drawn size
     "bump": (SEED, 0.6, "ground profile", "x"),
 }
 
