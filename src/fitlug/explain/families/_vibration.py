@@ -70,7 +70,7 @@ class SegmentVibration(Family):
             return params, text
 
         return Choice(cls.name, "xi", fitted, names(ctx, sel), "y", "top", f, amplitude, xs,
-                      "mm", "1 (rear wheel 0, front wheel 1)", describe,
+                      "mm", "0 rear wheel, 1 front wheel", describe,
                       label=f"{n} mode(s) at {f:.2f} Hz", rows=sel,
                       row_coord=np.mod(f * t, 1.0),
                       row_coord_name=f"phase of the {f:.3g} Hz cycle (fraction)",
