@@ -43,6 +43,8 @@ from .._errors import FitlugError
 from ..model import CATALOG
 from . import _display
 from ._candidates import physical, screen, sliding_starts
+from ._criterion import BIC_THRESHOLD, MIN_SHARE_REMOVED, MODELLED_CHI2, STRONG_MISFIT_Z
+from .families import after_catalog
 from ._detect import ALPHA, Detection, detect
 from ._engine import Engine
 from ._final import final_fit, polished_theta
@@ -52,9 +54,6 @@ from ._sliding_direct import direct_candidate
 from ._systematics import tracker_systematics
 from ._table import geometry, structured_misfit
 
-BIC_THRESHOLD = -10.0
-MIN_SHARE_REMOVED = 0.3
-STRONG_MISFIT_Z = 10.0
 MAX_FITS_PER_ROUND = 4
 MAX_EFFECTS = 4
 SLIDING_GRID_STEPS = 4
@@ -79,7 +78,7 @@ class Step:
 class Explanation:
     """What explain() concluded; `final` is the FitResult under base + named effects."""
 
-    verdict: str  # 'none' | 'explained' | 'unexplained'
+    verdict: str  # 'none' | 'explained' | 'modelled' | 'unexplained'
     base: object
     final: object
     effects: list
@@ -94,6 +93,12 @@ class Explanation:
     timing_s: dict = field(default_factory=dict)
     geometry: object = None  # fitlug.explain.Geometry of the residual vectors
     systematics: dict | None = None  # the tracker-systematics check (see ._systematics)
+    discovery: object = None  # the families' search (fitlug.explain.families.Discovery)
+
+    @property
+    def discovered(self) -> list:
+        """The kept family terms as fit.json's `discrepancy.discovered` dicts (MODEL.md §5)."""
+        return [t.to_json() for t in self.discovery.terms] if self.discovery else []
 
     def __repr__(self) -> str:
         return _display.short_repr(self)
@@ -158,6 +163,13 @@ class Explanation:
         nuis = (getattr(self.final, "robust", None) or {}).get("nuisance")
         if nuis is not None:  # a measurement nuisance taken out (explain._nuisance)
             out[nuis[0]] = nuis[1]
+        if self.discovery is not None:
+            out["discovered"] = self.discovered
+            out["families_tried"] = {"tried": self.discovery.tried,
+                                     "not_tried_because": self.discovery.why_not,
+                                     "modelled_chi2_per_dof": MODELLED_CHI2,
+                                     "time_s": self.discovery.seconds,
+                                     "glitches_after_terms": self.discovery.glitches}
         if self.systematics is not None:
             sysb = {k: v for k, v in self.systematics.items()
                     if k != "why_not" and not k.startswith("_")}
@@ -341,9 +353,15 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
             final = nuisance_result(res, sysb)  # its errors carry the tracker's systematics
             return Explanation("none", res, final, [], [], [], det0, det0, loc0, loc0, rounds,
                                _method(final), timing, geo, sysb)
+        how, final, det_f, loc_f, disc = after_catalog(res, geo, loc0.parts, det0, sig_est,
+                                                       alpha)  # the families (MODEL.md §5)
+        timing["total"] = time.perf_counter() - t_start
+        if how == "modelled":
+            return Explanation("modelled", res, final, [], loc0.parts, [], det0, det_f, loc0,
+                               loc_f, rounds, _method(final), timing, geo, sysb, disc)
         final, method = robust_result(res, geo, alpha)
         return Explanation("unexplained", res, final, [], loc0.parts, [], det0, det0, loc0,
-                           loc0, rounds, method, timing, geo, sysb)
+                           loc0, rounds, method, timing, geo, sysb, disc)
 
     t0 = time.perf_counter()
     final = final_fit(res, eng, accepted, theta)
@@ -353,7 +371,7 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
     if steps:  # the last step's chi2 from the exact final fit
         steps[-1].chi2_per_dof_after = float(final.chi2_per_dof)
         steps[-1].params = final.effect_params(steps[-1].effect)
-    sysb = None
+    sysb = disc = None
     if det1.consistent or not loc1.parts:
         verdict, located, method = "explained", loc0.parts, "least squares"
     else:
@@ -362,11 +380,17 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
             final = nuisance_result(final, sysb)
             verdict, located, method = "explained", loc0.parts, _method(final)
         else:
-            verdict, located = "unexplained", loc1.parts
-            final, method = robust_result(final, geo, alpha)
+            fam = after_catalog(final, geo, loc1.parts, det1, sig_est, alpha)
+            disc = fam[-1]
+            if fam[0] == "modelled":
+                _, final, det1, loc1, disc = fam
+                verdict, located, method = "modelled", loc0.parts, _method(final)
+            else:
+                verdict, located = "unexplained", loc1.parts
+                final, method = robust_result(final, geo, alpha)
     timing["total"] = time.perf_counter() - t_start
     return Explanation(verdict, res, final, list(accepted), located, steps, det0, det1, loc0,
-                       loc1, rounds, method, timing, geo, sysb)
+                       loc1, rounds, method, timing, geo, sysb, disc)
 
 
 def _method(res) -> str:

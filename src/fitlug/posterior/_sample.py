@@ -100,6 +100,11 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     use = method
     if method == "auto":
         use = "gaussian" if check["max_delta_chi2"] <= LINEARITY_TOL else "exact"
+        if (getattr(res, "robust", None) or {}).get("method") == "family term":
+            # the model extended by a family term (fitlug.explain.families) has no exact
+            # marginal here (res.problem is the catalog's model, without the term): the
+            # Gaussian limit at the extended fit, stretched to its covariance
+            use = "gaussian"
     log_prob = _gaussian_log_prob(marg) if use == "gaussian" else _exact_log_prob(marg)
     if user_lp is not None:
         base = log_prob

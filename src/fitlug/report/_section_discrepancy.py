@@ -251,6 +251,14 @@ def discrepancy_section(fit_json: dict, state=None) -> str:
                    f"Adding {'it' if len(effects) == 1 else 'them'} brings χ²/dof from "
                    f"{_num(d.get('chi2_per_dof_before'))} to {_num(d.get('chi2_per_dof_after'))}."
                    "</p>")
+    elif v == "modelled":
+        from ._section_discovered import verdict_sentence
+
+        out.append(f'<div class="verdict v-explained"><b>Modelled beyond the catalog.</b> '
+                   f"{located_sentence(d)} {_e(verdict_sentence(d))} χ²/dof goes from "
+                   f"{_num(d.get('chi2_per_dof_before'))} to "
+                   f"{_num(d.get('chi2_per_dof_after'))}; the headline is the extended "
+                   "model's fit, its errors carrying the term's uncertainty.</div>")
     else:
         nuis = d.get("image_motion") or d.get("marker_shift")
         how = ("what the mismatch is was found and modelled outside the catalog (below), and "
@@ -304,6 +312,10 @@ def discrepancy_section(fit_json: dict, state=None) -> str:
                        f"{_num(e.get('chi2_per_dof_after'))}</td>"
                        f"<td>{_e(e.get('meaning', ''))}</td></tr>")
         out.append("</table></div>")
+    if d.get("discovered"):
+        from ._section_discovered import discovered_html
+
+        out.append(discovered_html(d))
     out.append(_whiteness(d))
     out.append(_located(d))
     plots = []

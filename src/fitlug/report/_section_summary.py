@@ -97,7 +97,13 @@ def _verdict_box(fj) -> str:
                 f'(χ²/dof {F.sig(d.get("chi2_per_dof_before"), 4)} → '
                 f'{F.sig(d.get("chi2_per_dof_after"), 4)}).{off} {meaning}</div>')
     from ._section_discrepancy import handling_sentence
+    from ._section_discovered import verdict_sentence
 
+    if v == "modelled":
+        return (f'<div class="verdict v-explained"><b>Modelled beyond the catalog.</b> '
+                f'{_e(verdict_sentence(d))} χ²/dof {F.sig(d.get("chi2_per_dof_before"), 4)} → '
+                f'{F.sig(d.get("chi2_per_dof_after"), 4)}; the slip above is the extended '
+                "model's, its error carrying the term's uncertainty.</div>")
     sentence = _located_sentence(d)
     if _widened(fj):  # the error bar carries the mismatch
         tail = (f' ({_e(d.get("slip_after_uncertainty") or fj.get("uncertainty_method") or "widened")}); '

@@ -86,6 +86,11 @@ def summary_lines(doc: dict) -> list[str]:
             lines.append(f"    slip without {'it' if len(eff) == 1 else 'them'} {pm(b['value'], b.get('std'))}: "
                          f"{sig(100 * (b['value'] - s['value']) / s['value'], 2)} %, "
                          f"{sigma_apart(b['value'], s.get('std'), s['value'])} the final value")
+        for t in d.get("discovered") or []:
+            lines.append(f"    {t['family']} ({t['coordinate']})"
+                         f"{' partial' if t.get('partial') else ''}: chi2/dof "
+                         f"{t['chi2_per_dof_before']:.3g} -> {t['chi2_per_dof_after']:.3g}, "
+                         f"delta BIC {t['delta_bic']:.3g}: {t['reading']}")
         if d.get("verdict") == "unexplained":
             from ._section_discrepancy import handling_sentence, located_sentence
 

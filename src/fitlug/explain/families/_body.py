@@ -1,0 +1,159 @@
+"""Body motion: body-marker y += A(.) + B(.) c_x (heave and pitch) in acceleration a (the
+suspension squats under acceleration and dives under braking) or in belt travel psi with a
+free period (a wheel, a sprocket or a lug pattern lifting the frame once per turn); the
+coordinate with the lower Delta BIC is kept (MODEL.md §5). body_bounce is the catalog's
+case at the lug pitch."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._base import Choice, Family, best_size, names
+from ._solve import best_frequency, peak_frequency
+from ._vibration import _frequency_std
+
+MAX_POWER = 3
+MAX_HARMONICS = 3
+
+
+class BodyMotion(Family):
+    """A(a) = sum_k A_k (a/a_s)^k, B(a) likewise (pitch, two or more body markers)."""
+
+    name = "body motion"
+
+    @classmethod
+    def applies(cls, part):
+        return part.get("segment") == "body" and part.get("axis") == "y"
+
+    @classmethod
+    def fit(cls, ctx, proj, parts):
+        found = [c for c in (cls.fit_a(ctx, proj), cls.fit_psi(ctx, proj, parts)) if c]
+        return min(found, key=lambda c: c.fitted.delta_bic) if found else None
+
+    @classmethod
+    def fit_psi(cls, ctx, proj, parts):
+        """Heave and pitch periodic in belt travel, the period free (seeded by the located
+        frequency at cruise)."""
+        sel = (ctx.role == 1) & (ctx.axis == 1) & ctx.valid
+        if sel.sum() < 20:
+            return None
+        T = float(np.ptp(ctx.t[sel]))
+        fps = 1.0 / float(np.median(np.diff(np.unique(ctx.t))))
+        seeds = [p["frequency_hz"] for p in parts if cls.applies(p) and p.get("frequency_hz")]
+        f0 = seeds[0] if seeds else peak_frequency(ctx.t[sel], ctx.r[sel], fps / 2, T)
+        if not np.isfinite(f0) or f0 * T < 3:
+            return None
+        vt = float(np.max(np.abs(ctx.vt_nodes)))
+        u = np.interp(ctx.t, ctx.grid, ctx.psi_nodes) / vt  # belt travel in s at cruise
+        pitch = ctx.n_body >= 2 and np.ptp(ctx.cx[sel]) > 1.0
+
+        def cols(f, n=1):
+            out = []
+            for k in range(1, n + 1):
+                for g in (np.sin(2 * np.pi * k * f * u), np.cos(2 * np.pi * k * f * u)):
+                    g = np.where(sel, ctx.w * g, 0.0)
+                    out += [g, g * ctx.cx] if pitch else [g]
+            return np.stack(out, 1)
+
+        f, _ = best_frequency(proj, cols, f0, max(2.0 / T, 0.06 * f0), T)
+        found = best_size(proj, [(n, cols(f, n), 1) for n in range(1, MAX_HARMONICS + 1)])
+        if found is None:
+            return None
+        n, fitted = found
+        f_std = _frequency_std(proj, lambda g: cols(g, n), f, T)
+        per = 2 if pitch else 1
+        cmid = float(np.mean(np.unique(ctx.cx[sel]))) if pitch else 0.0
+        period = vt / f
+        xs = np.linspace(0.0, period, 61)
+
+        def series(x, c, j):  # j = 0: heave at c_x = 0, 1: pitch (rad)
+            ph = 2 * np.pi * np.outer(np.asarray(x), np.arange(1, n + 1)) / period
+            cs = np.asarray(c)[j::per]  # per harmonic: sin, cos
+            return np.sin(ph) @ cs[0::2] + np.cos(ph) @ cs[1::2]
+
+        def heave(x, c):  # body y at the markers' centre over one period of belt travel
+            return series(x, c, 0) + (cmid * series(x, c, 1) if pitch else 0.0)
+
+        def describe(c):
+            grid = np.linspace(0, period, 241)
+            amp = 0.5 * float(np.ptp(heave(grid, c)))
+            params = {"period_mm": period, "frequency_hz": f, "frequency_std_hz": f_std,
+                      "harmonics": n, "heave_amplitude_mm": amp,
+                      "at_body_x_offset_mm": cmid,
+                      "coefficients": [float(v) for v in c]}
+            text = (f"body y heaves {amp:.2g} mm once per {period:.3g} mm of belt travel "
+                    f"({f:.2f} Hz at cruise)")
+            if pitch:
+                pa = 0.5 * float(np.ptp(series(grid, c, 1)))
+                params["pitch_amplitude_rad"] = pa
+                text += f" and pitches {pa:.2g} rad"
+            wheel = 2 * np.pi * ctx.R
+            if abs(period / wheel - 1) < 0.03:
+                text += ": once per wheel turn, an eccentric wheel or idler lifts the frame"
+            elif abs(period / ctx.pitch - 1) < 0.03:
+                text += ": once per lug, the lugs lift the frame as they pass the wheels"
+            else:
+                text += (f": something turning with the belt ({period / wheel:.3g} times per "
+                         "wheel turn) lifts the frame")
+            return params, text
+
+        return Choice(cls.name, "psi", fitted, names(ctx, sel), "y", "body", f, heave, xs,
+                      "mm", "mm of belt travel", describe,
+                      label=f"{n} harmonic(s) in psi, period {period:.3g} mm", rows=sel,
+                      row_coord=np.mod(f * u, 1.0),
+                      row_coord_name=f"phase of the {period:.3g} mm cycle (fraction)",
+                      ambiguity=("a recording at another speed would tell a motion locked "
+                                 "to the belt from one at a fixed frequency in time"))
+
+    @classmethod
+    def fit_a(cls, ctx, proj):
+        """Heave and pitch as powers of the acceleration."""
+        sel = (ctx.role == 1) & (ctx.axis == 1) & ctx.valid
+        if sel.sum() < 20:
+            return None
+        a_s = float(np.max(np.abs(ctx.a[sel]))) or 1.0
+        z = np.where(sel, ctx.a / a_s, 0.0)
+        pitch = ctx.n_body >= 2 and np.ptp(ctx.cx[sel]) > 1.0
+
+        def cols(n):
+            out = []
+            for k in range(1, n + 1):
+                g = np.where(sel, ctx.w * z ** k, 0.0)
+                out.append(g)
+                if pitch:
+                    out.append(g * ctx.cx)
+            return np.stack(out, 1)
+
+        found = best_size(proj, [(n, cols(n), 0) for n in range(1, MAX_POWER + 1)])
+        if found is None:
+            return None
+        n, fitted = found
+        per = 2 if pitch else 1
+        a_lo, a_hi = float(np.min(ctx.a[sel])), float(np.max(ctx.a[sel]))
+        xs = np.linspace(a_lo, a_hi, 61) / 1000.0  # m/s^2
+        # read at the body markers' centre (the reference point c_x = 0 is arbitrary)
+        cmid = float(np.mean(np.unique(ctx.cx[sel]))) if pitch else 0.0
+
+        def heave(x, c):  # body y at the markers' centre, mm
+            zz = np.asarray(x) * 1000.0 / a_s
+            return sum((c[per * k] + (c[per * k + 1] * cmid if pitch else 0.0))
+                       * zz ** (k + 1) for k in range(n))
+
+        def describe(c):
+            A1 = (c[0] + (c[1] * cmid if pitch else 0.0)) * 1000.0 / a_s  # mm per m/s^2
+            params = {"powers": n, "a_scale_m_s2": a_s / 1000.0,
+                      "heave_mm_per_m_s2": A1, "at_body_x_offset_mm": cmid,
+                      "coefficients": [float(v) for v in c]}
+            text = (f"body y {'dips' if A1 < 0 else 'rises'} {abs(A1):.3g} mm per m/s² "
+                    "of acceleration")
+            if pitch:
+                B1 = c[1] * 1000.0 / a_s  # rad per m/s^2
+                params["pitch_rad_per_m_s2"] = B1
+                text += f" and pitches {abs(B1):.2g} rad per m/s²"
+            text += (": the suspension squats under acceleration (and dives under braking)"
+                     if A1 < 0 else ": the body lifts as the robot accelerates")
+            return params, text
+
+        return Choice(cls.name, "a", fitted, names(ctx, sel), "y", "body", None, heave, xs,
+                      "mm", "m/s^2", describe, label=f"{n} power(s) of a", rows=sel,
+                      row_coord=ctx.a / 1000.0, row_coord_name="acceleration a (m/s²)")

@@ -1,0 +1,220 @@
+"""After the catalog, the families: fit the family terms a located mismatch points at and
+keep those that earn their place by the catalog's criterion (MODEL.md §5).
+
+Only the families whose place matches a located part are tried (:meth:`Family.applies`);
+each is fitted at its best size (:mod:`._solve`), the best one kept when its Delta BIC is
+below the catalog's threshold (and it removes 30 % of a strong misfit's excess), then a
+second one on what is left when the first does not bring chi^2/dof to MODELLED_CHI2.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..._errors import FitlugError
+from .._detect import detect
+from .._locate import locate
+from .._criterion import MODELLED_CHI2, STRONG_MISFIT_Z
+from ._body import BodyMotion
+from ._context import context
+from ._exact import refine
+from ._extend import extended
+from ._ground import GroundProfile
+from ._solve import Projector, chooses
+from ._speed import SpeedModulation
+from ._vibration import SegmentVibration
+
+#: MODEL.md §5's families that the search knows, in its table's order
+FAMILIES = (SpeedModulation, BodyMotion, GroundProfile, SegmentVibration)
+MAX_TERMS = 2
+#: at most this share of the samples may be set aside as glitches after the terms
+GLITCH_SHARE = 1e-3
+
+
+@dataclass
+class Term:
+    """One kept family term, as fit.json's `discrepancy.discovered` reports it."""
+
+    choice: object
+    c: np.ndarray
+    cov: np.ndarray
+    delta_bic: float
+    delta_chi2: float
+    chi2_per_dof_before: float
+    chi2_per_dof_after: float
+    partial: bool = False
+    residuals: dict | None = None  # Choice.binned: before/after at the term's rows
+
+    def to_json(self) -> dict:
+        ch = self.choice
+        params, reading = ch.describe(self.c)
+        if ch.ambiguity:
+            reading += "; " + ch.ambiguity
+        return {"family": ch.family, "coordinate": ch.coordinate, "markers": ch.markers,
+                "axis": ch.axis, "segment": ch.segment, "frequency_hz": ch.frequency_hz,
+                "shape": ch.shape(self.c, self.cov), "params": params,
+                "n_parameters": int(ch.fitted.k), "form": ch.label,
+                "delta_chi2": self.delta_chi2, "delta_bic": self.delta_bic,
+                "chi2_per_dof_before": self.chi2_per_dof_before,
+                "chi2_per_dof_after": self.chi2_per_dof_after,
+                "partial": self.partial, "reading": reading + ".",
+                "residuals": self.residuals}
+
+
+@dataclass
+class Discovery:
+    """What the families found: the kept terms, the extended fit and what was tried."""
+
+    terms: list
+    final: object | None  # the extended FitResult (None without terms)
+    tried: list = field(default_factory=list)
+    why_not: str | None = None  # why no family was tried at all
+    seconds: float = 0.0
+    glitches: list = field(default_factory=list)  # samples set aside after the terms
+
+    @property
+    def modelled(self) -> bool:
+        return bool(self.terms) and self.final.chi2_per_dof <= MODELLED_CHI2
+
+
+def discover(res, parts: list, det, J=None) -> Discovery:
+    """Fit the families the located `parts` point at, on top of FitResult `res`.
+
+    Args:
+        res: the fit after the catalog (its model, at its least-squares minimum).
+        parts: DATA.md's `located` parts of its residuals.
+        det: its :class:`fitlug.explain.Detection` (for the strong-misfit rule).
+        J: its dense weighted Jacobian (computed when None).
+
+    Returns:
+        A :class:`Discovery`; its `terms` are empty when no family earns its place.
+    """
+    fams = [F for F in FAMILIES if any(F.applies(p) for p in parts)]
+    if not fams:
+        return Discovery([], None, why_not="no located part is at a family's place")
+    if J is None:
+        from ...fit._rowchunks import RowChunks
+        from .._engine import jacobian_of
+
+        fixed = {k: v for k, v in res.params.items() if k not in res.packing.names}
+        J = jacobian_of(res.flat, fixed, res.packing, res.problem.lay, res.problem.obs)
+        if isinstance(J, RowChunks):
+            return Discovery([], None, why_not="a long recording (chunked Jacobian): "
+                                               "families are not tried")
+    ctx = context(res, J)
+    proj = proj0 = Projector(ctx.J, ctx.r, ctx.valid)
+    chi2, dof = float(ctx.r[ctx.valid] @ ctx.r[ctx.valid]), int(res.dof)
+    excess = chi2 - dof
+    strong = excess > STRONG_MISFIT_Z * det.chi2_spread * dof
+    kept, tried = [], []
+    B_all, k_all = np.zeros((len(ctx.r), 0)), 0
+    r_cur, chi2_cur, dof_cur = ctx.r, chi2, dof
+    for _ in range(MAX_TERMS):
+        best = None
+        for F in fams:
+            if any(t.choice.family == F.name for t in kept):
+                continue
+            ch = F.fit(ctx, proj, parts)
+            if ch is None:
+                tried.append({"family": F.name, "rejected_because": "no samples at its place"})
+                continue
+            why = chooses(ch.fitted, excess, strong)
+            tried.append({"family": F.name, "coordinate": ch.coordinate, "form": ch.label,
+                          "delta_bic": ch.fitted.delta_bic, "delta_chi2": ch.fitted.dchi2,
+                          "rejected_because": why})
+            if why is None and (best is None or ch.fitted.delta_bic < best.fitted.delta_bic):
+                best = ch
+        if best is None:
+            break
+        f = best.fitted
+        r_new = r_cur + proj.moved(f.B, f.c)
+        chi2_new = chi2_cur - f.dchi2
+        dof_new = dof_cur - f.k
+        kept.append(Term(best, f.c, f.cov, f.delta_bic, f.dchi2, chi2_cur / dof_cur,
+                         chi2_new / dof_new))
+        B_all = np.hstack([B_all, f.B])
+        k_all += f.k
+        proj = proj.with_columns(f.B, r_new)
+        r_cur, chi2_cur, dof_cur = r_new, chi2_new, dof_new
+        excess = chi2_cur - dof_cur
+        strong = excess > STRONG_MISFIT_Z * det.chi2_spread * dof_cur
+        if chi2_cur / dof_cur <= MODELLED_CHI2:
+            break
+    if not kept:
+        return Discovery([], None, tried)
+    joint = proj0.fit(B_all, k_all - B_all.shape[1])
+    flat = r_ex = None
+    i = 0
+    for t in kept:  # a term with an exact (nonlinear) form is refitted in it
+        m = t.choice.fitted.B.shape[1]
+        if t.choice.exact is not None:
+            flat, joint.c, r_ex = refine(proj0, ctx, B_all, joint.c, t.choice.exact,
+                                         np.arange(i, i + m))
+            break
+        i += m
+    final = extended(res, ctx, proj0, B_all, joint.c, joint.cov, k_all, flat, r_ex)
+    final, glitches = _glitches(final, ctx)
+    i = 0
+    for t in kept:  # each term's coefficients from the joint fit
+        m = t.choice.fitted.B.shape[1]
+        t.c, t.cov = joint.c[i:i + m], joint.cov[i:i + m, i:i + m]
+        i += m
+    kept[-1].chi2_per_dof_after = float(final.chi2_per_dof)
+    for t in kept:
+        t.residuals = t.choice.binned(ctx.r, np.asarray(final.residuals), ctx.w)
+    partial = final.chi2_per_dof > MODELLED_CHI2
+    for t in kept:
+        t.partial = partial
+    return Discovery(kept, final, tried, glitches=glitches)
+
+
+def _glitches(final, ctx):
+    """Samples the extended model leaves far off alone: a tracker glitch the base fit's
+    finder (fitlug.fit._glitches) could not see under the misfit (its local level follows a
+    steep misfit, a bump's flank). The same Bonferroni bound, c = sqrt(2 ln(N / 0.01)),
+    on the extended model's residuals; only when they are few (at most GLITCH_SHARE of
+    the samples, else they are misfit, not glitches). Their residuals are set to zero and
+    the dof lowered; they are listed (Discovery.glitches)."""
+    r = np.asarray(final.residuals, float).copy()
+    n = int(ctx.valid.sum())
+    c = math.sqrt(2 * math.log(n / 0.01))
+    far = np.flatnonzero(ctx.valid & (np.abs(r) > c))
+    if far.size == 0 or far.size > max(5, GLITCH_SHARE * n):
+        return final, []
+    listed = [{"marker": ctx.markers[ctx.marker[i]], "t_s": float(ctx.t[i]),
+               "axis": "xy"[ctx.axis[i]], "residual_sigma": float(r[i])} for i in far]
+    r[far] = 0.0
+    return dataclasses.replace(final, residuals=r, chi2=float(r @ r),
+                               dof=int(final.dof - far.size)), listed
+
+
+def after_catalog(res, geo, parts, det, sig_est, alpha):
+    """The families after the catalog, on fit `res` whose located `parts` the catalog left.
+
+    Returns ("modelled" | "partial", the extended fit, its detection, its location, the
+    :class:`Discovery`), the middle three None without a kept term. 'modelled' when the
+    extended model brings chi^2/dof to MODELLED_CHI2 or passes detection (`det`, `geo`,
+    `sig_est`, `alpha`: fitlug.explain's detection of `res` and its settings)."""
+    t0 = time.perf_counter()
+    try:
+        disc = discover(res, parts, det)
+    except (FitlugError, np.linalg.LinAlgError, ValueError, IndexError,
+            FloatingPointError) as err:  # a family's failure never sinks explain
+        return ("partial", None, None, None,
+                Discovery([], None, why_not=f"the families' fit failed: {err}"))
+    if not disc.terms:
+        return ("partial", None, None, None, disc)
+    final = disc.final
+    det_f = detect(geo, final.residuals, final.dof, sigma_estimated=sig_est, alpha=alpha)
+    loc_f = locate(geo, final.residuals, det_f)
+    ok = final.chi2_per_dof <= MODELLED_CHI2 or det_f.consistent
+    disc.seconds = time.perf_counter() - t0
+    for t in disc.terms:
+        t.partial = not ok
+    return ("modelled" if ok else "partial", final, det_f, loc_f, disc)
+

@@ -1,0 +1,52 @@
+"""The fit extended by its kept family terms, as a :class:`fitlug.fit.FitResult`.
+
+The terms' coefficients c (covariance C, marginal over the fit's parameters) and the fit's
+parameters moved with them (d = -J^+ (r + B c)): the residuals are evaluated exactly at the
+moved parameters plus the terms (B c); the fit's covariance gains K C K^T, K = J^+ B (the
+block inverse of the extended normal matrix), and every derived quantity (slip, dl', k/m,
+C_rr) is recomputed with it, so its error carries the terms' uncertainty. `robust` records
+the extended covariance so that the posterior is stretched to it (fitlug.posterior).
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+from ...fit import FitResult, residuals
+from ...fit._result import compute_quantities
+
+
+def extended(res, ctx, proj, B: np.ndarray, c: np.ndarray, C: np.ndarray,
+             k_extra: int, flat=None, r=None) -> FitResult:
+    """`res` with terms of columns B (S, m), coefficients c and their covariance C;
+    `proj` the :class:`._solve.Projector` of `res`; `k_extra` parameters counted
+    (coefficients and free frequencies); `flat`, `r`: the fit's parameters and the
+    residuals when an exact term was refitted (:func:`._exact.refine`)."""
+    K = proj.solve(B)
+    if flat is None:
+        flat = np.asarray(res.flat, float) - proj.solve(ctx.r + B @ c)
+    cov = np.asarray(res.cov, float) + K @ C @ K.T
+    prob = res.problem
+    packing = res.packing
+    fixed = {k: jnp.asarray(v, float) for k, v in res.params.items() if k not in packing.names}
+    p = {**{k: np.asarray(v) for k, v in packing.unpack(jnp.asarray(flat), {}).items()},
+         **{k: np.asarray(v) for k, v in fixed.items()}}
+    p = {k: p[k] for k in res.params}
+    if r is None:
+        r = np.asarray(residuals({k: jnp.asarray(v) for k, v in p.items()}, prob.lay,
+                                 prob.obs)) + B @ c
+    chi2 = float(r @ r)
+    fixed_np = {k: np.asarray(v) for k, v in fixed.items()}
+    q = compute_quantities(p, packing, flat, cov, prob.lay, prob.rig.mass_kg, fixed_np,
+                           prob.rig.drawbar_pull_N)
+    std = {k: e.std for k, e in q.items()}
+    robust = {"method": "family term", "clusters": None, "cov": cov,
+              "covs": {"family term": (cov, None)}, "robust_std": std,
+              "naive_std": {k: e.std for k, e in res.quantities.items()},
+              "headline": True, "label": "least squares, family term marginalised",
+              "uncertainty_method": ("least squares under the model extended by the family "
+                                     "term(s), their uncertainty included")}
+    return FitResult(problem=prob, params=p, packing=packing, flat=flat, cov=cov,
+                     residuals=r, chi2=chi2, dof=int(res.dof - k_extra),
+                     converged=res.converged, steps=res.steps, quantities=q, robust=robust)

@@ -1,0 +1,120 @@
+"""Ground profile: the bottom run's lugs follow a profile y_g(x) of the ground, fixed in
+the ground frame (a bump, a dip, a step), a cubic B-spline in ground position x whose knot
+spacing the criterion picks (MODEL.md §5). Variant: the body rides on it too, resting on
+the two wheels (y_body += mean of y_g under the wheels + c_x times their slope)."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.interpolate import BSpline
+
+from ._base import Choice, Family, best_size, names
+
+INTERVALS = (2, 4, 8, 16, 32, 64)
+MIN_SPACING_MM = 4.0
+
+
+def _design(x, lo, hi, n_int):
+    """(len(x), n_int + 3) cubic B-spline basis on [lo, hi], n_int equal intervals."""
+    inner = np.linspace(lo, hi, n_int + 1)
+    knots = np.r_[[lo] * 3, inner, [hi] * 3]
+    xc = np.clip(np.asarray(x, float), lo, hi)
+    return BSpline.design_matrix(xc, knots, 3).toarray()
+
+
+class GroundProfile(Family):
+    """y_g(x) under the bottom run (and, variant, under the wheels carrying the body)."""
+
+    name = "ground profile"
+
+    @classmethod
+    def applies(cls, part):
+        return part.get("axis") == "y" and part.get("segment") in ("bottom", "body")
+
+    @classmethod
+    def fit(cls, ctx, proj, parts):
+        lug = (ctx.role == 0) & (ctx.axis == 1) & (ctx.segment == 0) & ctx.valid
+        body = (ctx.role == 1) & (ctx.axis == 1) & ctx.valid
+        if lug.sum() < 40:
+            return None
+        lo, hi = np.percentile(ctx.x_ground[lug], [0.5, 99.5])
+        front = ctx.X + ctx.x_off + ctx.D / 2  # the wheels' centres over the ground
+        rear = ctx.X + ctx.x_off - ctx.D / 2
+        if body.any():  # the profile spans where the wheels go too
+            lo = min(lo, float(np.min(rear[body])))
+            hi = max(hi, float(np.max(front[body])))
+
+        def cols(n_int, mode):
+            nb = n_int + 3
+            B = np.zeros((len(ctx.r), nb * (2 if mode == "separate" else 1)))
+            B[lug, :nb] = ctx.w[lug, None] * _design(ctx.x_ground[lug], lo, hi, n_int)
+            if mode != "lugs" and body.any():
+                gf = _design(front[body], lo, hi, n_int)
+                gr = _design(rear[body], lo, hi, n_int)
+                # the frame rests on the two wheels: a marker at x = X + c_x sits on the
+                # line through them, (c_x - x_off + D/2) / D of the way from the rear one
+                q = ((ctx.cx[body] - ctx.x_off + ctx.D / 2) / ctx.D)[:, None]
+                B[body, nb * (mode == "separate"):] = ctx.w[body, None] * (gr + q * (gf - gr))
+            return B
+
+        sizes = [n for n in INTERVALS if (hi - lo) / n >= MIN_SPACING_MM]
+        best = None
+        # the lugs on the profile; the wheels (and the frame) on it too; or the wheels on
+        # a profile of their own (a wheel rolling over a bump rides the bump's envelope
+        # under its rim, wider and flatter than the bump itself)
+        for mode in ("lugs", "shared", "separate"):
+            found = best_size(proj, [(n, cols(n, mode), 0) for n in sizes])
+            if found and (best is None or found[1].delta_bic < best[2].delta_bic):
+                best = (mode, *found)
+        if best is None:
+            return None
+        mode, n_int, fitted = best
+        with_body = mode != "lugs"
+        nb = n_int + 3
+        xs = np.linspace(lo, hi, 121)
+        # the profile's level and tilt are the fit's (y_off, the offsets): shown and read
+        # relative to its straight line through the data's ends
+
+        def profile(x, c):
+            y = _design(x, lo, hi, n_int) @ c[:nb]
+            ends = _design(np.array([lo, hi]), lo, hi, n_int) @ c[:nb]
+            return y - (ends[0] + (ends[1] - ends[0]) * (np.asarray(x) - lo) / (hi - lo))
+
+        def describe(c):
+            y = profile(xs, c)
+            k = int(np.argmax(np.abs(y)))
+            h = float(y[k])
+            above = np.abs(y) >= 0.5 * abs(h)
+            # the contiguous run of half height round the peak
+            i0 = k
+            while i0 > 0 and above[i0 - 1]:
+                i0 -= 1
+            i1 = k
+            while i1 < len(xs) - 1 and above[i1 + 1]:
+                i1 += 1
+            width = float(xs[i1] - xs[i0])
+            params = {"peak_mm": h, "at_x_mm": float(xs[k]), "half_height_width_mm": width,
+                      "intervals": n_int, "knot_spacing_mm": float((hi - lo) / n_int),
+                      "body_follows": mode,
+                      "x_range_mm": [float(lo), float(hi)]}
+            kind = "a bump" if h > 0 else "a dip"
+            text = (f"the ground {'rises' if h > 0 else 'falls'} {abs(h):.2g} mm at x = "
+                    f"{xs[k]:.0f} mm over {width:.0f} mm under the bottom run"
+                    f"{' and the wheels ride over it, lifting the body' if with_body else ''}"
+                    f": {kind} in the ground")
+            if mode == "separate":
+                wl = profile(xs, np.r_[c[nb:], c[nb:]])
+                params["wheel_lift_peak_mm"] = float(wl[np.argmax(np.abs(wl))])
+            return params, text
+
+        sel = lug | (body if with_body else np.zeros_like(lug))
+        return Choice(cls.name, "x", fitted, names(ctx, sel), "y", "bottom", None, profile,
+                      xs, "mm", "mm (ground frame)", describe,
+                      label=f"B-spline, {n_int} intervals" + {"lugs": "", "shared": ", body on "
+                                                               "the wheels", "separate": ", the "
+                                                               "wheels' lift its own"}[mode],
+                      rows=lug, row_coord=ctx.x_ground,
+                      row_coord_name="ground x of the bottom-run lugs (mm)",
+                      ambiguity=("a recording driving over the same place again (or in "
+                                 "the other direction) would tell a feature of the ground "
+                                 "from one of the belt"))

@@ -1,0 +1,434 @@
+"""Recordings of physics outside the catalog (issue 28), with a real tracker's faults.
+
+`make(mechanism, seed)` draws a rig, a motion and a mechanism of physically plausible size,
+simulates the recording and puts it through `tests/realism.drive_through` (a window
+narrower than the travel, misses, occlusions, glitches, ids split after gaps). It returns
+`(recording, rig, truth)`; `truth` holds the mechanism's family and natural coordinate
+(MODEL.md §5 names), its parameters, and the true slip, k and C_rr.
+
+How the recordings are made (our own simulator, but not the fitting side's forms):
+
+- the rig and the motion are drawn as `realism.drive_scenario` draws them (n 6-10,
+  L 100-160 mm, R 18-35 mm, pitch 15-22 mm, 18-26 lugs, 6-10 markers on consecutive lugs,
+  100-250 fps, 5-8 s, cruise 120-260 mm/s, ramps 0.8-1.6 s of a cos, smoothstep or
+  quintic shape), with one, two (most often) or three body markers anywhere on the body,
+  a towed load of 1-10 N in 30 % of the draws, noise 4-9 µm (lug) and 3-6 µm (body);
+- the kinematics are integrated here (numpy RK4, 16 steps per frame, the belt travel's
+  implicit rate by fixed-point iteration as MODEL.md §3's conventions read), so a
+  mechanism that changes the motion (`cogging`, `slip_speed`) acts on X, a, F, s and psi
+  together; the positions then come from `fitlug.model.positions` (the stadium path);
+- a mechanism that moves markers only is added to the noise-free positions in numpy.
+
+Mechanisms (family and coordinate as MODEL.md §5 names them):
+
+- `squat` (body motion; coordinate: acceleration a): the suspension squats, body y -=
+  (A + B c_x) a_s tanh(a / a_s); A 0.02-0.1 mm per m/s^2, pitch length A/B 100-400 mm
+  of either sign, saturation a_s 0.3-1 m/s^2;
+- `flap` (segment vibration; xi and a free frequency): the slack top run flaps in its
+  first mode, top-run lug y += A sin(pi xi) sin(2 pi f t + phi); A 0.05-0.3 mm,
+  f 10-30 Hz (and < 0.4 fps);
+- `cogging` (speed modulation; belt travel psi): the motor cogs, periodic in the motor's
+  angle (gear ratio x wheel angle psi / R): v -> v (1 + eps (sin th + h2 sin(2 th +
+  phi2))), th = r psi / R + phi, r periods per wheel turn, not near a whole number nor
+  near a multiple of the lugs per wheel turn; eps 0.2-2 %, h2 0-0.3, 5 Hz to 0.4 fps;
+- `bump` (ground profile; ground x): a cosine bump of height 0.2-1 mm and width
+  20-80 mm at a ground x in view where a marked lug lies; bottom-run lugs rise by it, each wheel rides over it
+  (its centre lifted by the highest point of the bump under a circle of radius R + e)
+  and the body follows the two wheels (heave and pitch);
+- `slip_speed` (slip law; traction F and speed v): slip grows with speed (drag of the
+  lug tips), s = s_lin (1 + c v), c v_cruise 0.1-0.4;
+- `idler_wobble` (body motion; psi at the wheel's period): the rear (idler) wheel is
+  eccentric, its axle height varies by w sin(psi / R + phi), w 0.02-0.15 mm, so the
+  body heaves and pitches about the front wheel once per wheel turn.
+
+Also `null` (the base model) and catalog recordings (`wheel_runout`, `belt_sag`,
+`lug_ripple`, `body_bounce`) from `fitlug.sim.simulate` with the same rigs and faults.
+
+Readings of the conventions: like the catalog's `body_bounce`, body motion moves the body
+markers only (the top run and the arcs are not lifted with the frame); the true slip
+reported is the steady slip at the cruise speed (for `slip_speed`: s0 (1 + c v_cruise));
+`squat`'s acceleration is the motor profile's a(t).
+
+`write(out_dir, mechanism, seed)` writes the recording as a user hands it over
+(trajectories.csv in the wide export form, rig.toml with the roles) with truth.json beside
+it; from a shell: `python tests/mechanisms.py flap 3 /tmp/flap3 [size]`.
+
+`size` sets the mechanism's headline amplitude (in the units above: A mm per m/s²
+for squat, A mm for flap, eps for cogging, height mm for bump, c v_cruise for slip_speed,
+w mm for idler_wobble; the catalog's eps, d or A) instead of drawing it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from fitlug.sim import Scenario, rig_of, simulate, speed_profile, truth_params
+
+import realism
+
+#: mechanism -> (family, natural coordinate) in MODEL.md §5's words
+FAMILIES = {
+    "squat": ("body motion", "a"),
+    "flap": ("segment vibration", "xi,t"),
+    "cogging": ("speed modulation", "psi"),
+    "bump": ("ground profile", "x"),
+    "slip_speed": ("slip law", "F,v"),
+    "idler_wobble": ("body motion", "psi"),
+}
+#: catalog recordings this generator also makes (no family term may be kept on them)
+CATALOG_CASES = ("wheel_runout", "belt_sag", "lug_ripple", "body_bounce")
+MECHANISMS = tuple(FAMILIES)
+ALL = MECHANISMS + ("null",) + CATALOG_CASES
+STEPS_PER_FRAME = 16
+
+
+def scenario(seed: int) -> Scenario:
+    """A drawn rig and motion (see the module docstring), as a Scenario without effects."""
+    d = realism.drive_scenario(seed)
+    rng = np.random.default_rng([seed, 28])
+    rest = 0.5 * (d["t_acc"][0] + d["duration"] - d["t_dec"][1])
+    ramp = d["t_acc"][1] - d["t_acc"][0]
+    cruise = d["duration"] - 2 * rest - 2 * ramp
+    body = [tuple(c) for c in d["body"]]
+    n_body = int(rng.choice([1, 2, 2, 2, 3]))  # one marker (no pitch), two, or three
+    if n_body == 1:
+        body = body[:1]
+    elif n_body == 3:
+        half = (d["N"] * d["pitch"] - 2 * np.pi * d["R"]) / 4 + d["R"]
+        body.append((float(rng.uniform(-half, half)), float(rng.uniform(1.5, 3.2) * d["R"])))
+    F0 = d["m"] * d["C_rr"] * 9.81
+    pull = float(rng.uniform(1, 10)) if rng.random() < 0.3 else 0.0  # a towed load
+    if 2 * (F0 + pull) / (d["k"] * d["n"] * d["L"]) > 0.25:
+        pull = 0.0
+    slip = 2 * (F0 + pull) / (d["k"] * d["n"] * d["L"])
+    return Scenario(
+        duration_s=d["duration"], fps=d["fps"], travel_mm=d["v_max"] * (cruise + ramp),
+        rest_s=rest, ramp_s=ramp, ramp=str(rng.choice(["cos", "smoothstep", "quintic"])),
+        n_contact=d["n"], L_mm=d["L"], lug_pitch_mm=d["pitch"], n_belt=d["N"],
+        mass_kg=d["m"], drawbar_pull_N=pull, slip=slip, rolling_resistance=d["C_rr"],
+        R_mm=d["R"], e_mm=d["e"], x_off_mm=d["x_off"], y_off_mm=d["y_off"],
+        lug_markers=d["n_lug"], lug_spacing=1,
+        sigma_start_mm=float(rng.uniform(0, d["N"] * d["pitch"])),
+        body_markers=tuple(body),
+        noise_lug_mm=float(rng.uniform(0.004, 0.009)),
+        noise_body_mm=float(rng.uniform(0.003, 0.006)))
+
+
+# ---------------------------------------------------------------- kinematics (numpy)
+
+def _kinematics(sc: Scenario, speed_mod=None, slip_of=None):
+    """(t_frames, X, psi, a) at the frame times: RK4 on STEPS_PER_FRAME steps per frame.
+
+    speed_mod(psi) -> (m, dm/dpsi): v = v0 (1 + m); slip_of(s_lin, v) -> s replaces the
+    linear law s_lin = s0 + beta a. a is the body's acceleration (mm/s^2)."""
+    h = 1.0 / (sc.fps * STEPS_PER_FRAME)
+    nf = int(round(sc.duration_s * sc.fps))
+    prof = dict(v_cruise=sc.v_cruise, duration=sc.duration_s, rest=sc.rest_s,
+                ramp=sc.ramp_s, shape=sc.ramp)
+
+    def rates(v0, a0, psi):
+        m, dm = speed_mod(psi) if speed_mod is not None else (0.0, 0.0)
+        v = v0 * (1 + m)
+        law = (lambda a: sc.slip + sc.beta * a) if slip_of is None else \
+            (lambda a: slip_of(sc.slip + sc.beta * a, v))
+        dpsi = v / (1 - law(a0 * (1 + m)))
+        for _ in range(6):  # a depends on dpsi/dt through m(psi)
+            a = a0 * (1 + m) + v0 * dm * dpsi
+            dpsi = v / (1 - law(a))
+        return v, dpsi, a0 * (1 + m) + v0 * dm * dpsi
+
+    n = (nf - 1) * STEPS_PER_FRAME
+    tg = np.arange(n + 1) * h
+    if speed_mod is None:  # the rates do not depend on psi: Simpson on nodes and midpoints
+        vn, dn, A = rates(*speed_profile(tg, **prof), None)
+        vm, dm_, _ = rates(*speed_profile(tg[:-1] + h / 2, **prof), None)
+        X = np.r_[0.0, np.cumsum(h / 6 * (vn[:-1] + 4 * vm + vn[1:]))]
+        P = np.r_[0.0, np.cumsum(h / 6 * (dn[:-1] + 4 * dm_ + dn[1:]))]
+    else:
+        X = np.zeros(n + 1)
+        P = np.zeros(n + 1)
+        A = np.zeros(n + 1)
+        v0n, a0n = (a.tolist() for a in speed_profile(tg, **prof))
+        v0m, a0m = (a.tolist() for a in speed_profile(tg[:-1] + h / 2, **prof))
+        x = p = 0.0
+        for k in range(n):
+            v1, d1, A[k] = rates(v0n[k], a0n[k], p)
+            v2, d2, _ = rates(v0m[k], a0m[k], p + h / 2 * d1)
+            v3, d3, _ = rates(v0m[k], a0m[k], p + h / 2 * d2)
+            v4, d4, _ = rates(v0n[k + 1], a0n[k + 1], p + h * d3)
+            x += h / 6 * (v1 + 2 * v2 + 2 * v3 + v4)
+            p += h / 6 * (d1 + 2 * d2 + 2 * d3 + d4)
+            X[k + 1], P[k + 1] = x, p
+        A[n] = rates(v0n[n], a0n[n], p)[2]
+    idx = np.arange(nf) * STEPS_PER_FRAME
+    return np.arange(nf) / sc.fps, X[idx], P[idx], A[idx]
+
+
+def _clean(sc: Scenario, speed_mod=None, slip_of=None):
+    """Noise-free positions of every marker at every frame, plus what the marker-only
+    mechanisms need: dict with the layout's sample arrays."""
+    from fitlug.model import make_layout
+    from fitlug.model._model import ctx_of, positions
+    from fitlug.model._path import stadium
+
+    t, X, psi, a = _kinematics(sc, speed_mod, slip_of)
+    nl, nb = sc.lug_markers, len(sc.body_markers)
+    f_l, i_l = np.repeat(np.arange(len(t)), nl), np.tile(np.arange(nl), len(t))
+    f_b, j_b = np.repeat(np.arange(len(t)), nb), np.tile(np.arange(nb), len(t))
+    breaks = np.arange(-0.05, sc.duration_s + 0.1 + 1e-9, 0.01)
+    lay = make_layout(breaks=breaks, t_lo=-0.05, t_hi=sc.duration_s + 0.1, fps=sc.fps,
+                      lug_t=t[f_l], lug_i=i_l, body_t=t[f_b], body_j=j_b, n_lug=nl,
+                      n_body=nb, n_belt=sc.n_belt, n_contact=sc.n_contact, L=sc.L_mm)
+    p = truth_params(sc, lay, breaks)
+    lx, ly, bx, by = (np.array(v) for v in positions(p, lay, X[f_l], psi[f_l], X[f_b],
+                                                        psi[f_b]))
+    ctx = ctx_of(p, lay)
+    sig = np.asarray(p["sigma0"])[i_l] + psi[f_l]
+    _, _, seg = stadium(sig, ctx)
+    u = np.mod(sig, float(ctx.P))
+    return dict(t=t, X=X, psi=psi, a=a, f_l=f_l, i_l=i_l, f_b=f_b, j_b=j_b, lx=lx, ly=ly,
+                bx=bx, by=by, seg=np.asarray(seg), u=u, D=float(ctx.D), R=float(ctx.R),
+                cx=np.asarray(p["cx"]))
+
+
+def _recording(sc: Scenario, c: dict, seed: int):
+    """A Recording (long form, like fitlug.sim.simulate) from the clean positions + noise."""
+    from fitlug.io import Recording
+
+    rng = np.random.default_rng([seed, 2801])
+    nl, nb = sc.lug_markers, len(sc.body_markers)
+    lx = c["lx"] + rng.normal(0, sc.noise_lug_mm, c["lx"].shape)
+    ly = c["ly"] + rng.normal(0, sc.noise_lug_mm, c["ly"].shape)
+    bx = c["bx"] + rng.normal(0, sc.noise_body_mm, c["bx"].shape)
+    by = c["by"] + rng.normal(0, sc.noise_body_mm, c["by"].shape)
+    t = c["t"]
+    ol = np.lexsort((c["f_l"], c["i_l"]))
+    ob = np.lexsort((c["f_b"], c["j_b"]))
+    mi = np.r_[c["i_l"][ol], nl + c["j_b"][ob]].astype(np.int64)
+    return Recording(
+        markers=tuple([f"B{i + 1:02d}" for i in range(nl)] + [f"C{j + 1}" for j in range(nb)]),
+        roles=tuple(["lug"] * nl + ["body"] * nb), t=np.r_[t[c["f_l"]][ol], t[c["f_b"]][ob]],
+        marker_index=mi, x=np.r_[lx[ol], bx[ob]], y=np.r_[ly[ol], by[ob]],
+        frame=np.r_[c["f_l"][ol], c["f_b"][ob]].astype(np.int64),
+        meta={"fps": f"{sc.fps:g}", "source": "tests/mechanisms.py", "units": "mm"})
+
+
+# ---------------------------------------------------------------- the mechanisms
+
+def _uniform(rng, lo, hi, size):
+    return float(rng.uniform(lo, hi)) if size is None else float(size)
+
+
+def _squat(sc, c, rng, size):
+    A = _uniform(rng, 0.02, 0.1, size)  # mm per m/s^2
+    lp = float(rng.uniform(100, 400)) * float(rng.choice([-1.0, 1.0]))
+    a_s = float(rng.uniform(0.3, 1.0))  # m/s^2
+    a_b = c["a"][c["f_b"]] / 1000.0
+    cx = c["cx"][c["j_b"]]
+    c["by"] = c["by"] - A * (1 + cx / lp) * a_s * np.tanh(a_b / a_s)
+    return {"A_mm_per_m_s2": A, "B_per_mm": A / lp, "pitch_length_mm": lp,
+            "a_sat_m_s2": a_s, "form": "(A + B c_x) a_s tanh(a / a_s), downward"}
+
+
+def _flap(sc, c, rng, size):
+    A = _uniform(rng, 0.05, 0.3, size)
+    f = float(rng.uniform(10.0, min(30.0, 0.4 * sc.fps)))
+    phi = float(rng.uniform(0, 2 * np.pi))
+    top = c["seg"] == 2
+    D, R = c["D"], c["R"]
+    xi = np.clip((c["u"] - D - np.pi * R) / D, 0, 1)
+    tl = c["t"][c["f_l"]]
+    c["ly"] = c["ly"] + np.where(top, A * np.sin(np.pi * xi) * np.sin(2 * np.pi * f * tl + phi),
+                                 0.0)
+    return {"A_mm": A, "f_Hz": f, "phi_rad": phi, "mode": "sin(pi xi)"}
+
+
+def _cogging_draw(sc, rng, size):
+    eps = _uniform(rng, 0.002, 0.02, size)
+    lugs_per_turn = 2 * np.pi * sc.R_mm / sc.pitch
+    f_wheel = sc.v_cruise / (1 - sc.slip) / (2 * np.pi * sc.R_mm)
+    lo, hi = 5.0 / f_wheel, min(60.0, 0.4 * sc.fps) / f_wheel  # cogging 5 Hz .. 0.4 fps
+    for _ in range(1000):
+        r = float(rng.uniform(lo, hi))
+        off_int = abs(r - round(r)) > 0.15
+        q = r / lugs_per_turn
+        if off_int and abs(q - round(q)) > 0.1 and abs(2 * q - round(2 * q)) > 0.1:
+            break
+    return {"epsilon": eps, "periods_per_wheel_turn": r,
+            "period_mm": 2 * np.pi * sc.R_mm / r, "phi_rad": float(rng.uniform(0, 2 * np.pi)),
+            "h2": float(rng.uniform(0, 0.3)), "phi2_rad": float(rng.uniform(0, 2 * np.pi)),
+            "f_cruise_Hz": r * f_wheel}
+
+
+def _cogging_mod(q, R):
+    k = q["periods_per_wheel_turn"] / R
+
+    def mod(psi):
+        th = k * psi + q["phi_rad"]
+        m = q["epsilon"] * (np.sin(th) + q["h2"] * np.sin(2 * th + q["phi2_rad"]))
+        dm = q["epsilon"] * k * (np.cos(th) + 2 * q["h2"] * np.cos(2 * th + q["phi2_rad"]))
+        return m, dm
+    return mod
+
+
+def _bump_height(x, q):
+    z = (x - q["x_mm"]) / (q["width_mm"] / 2)
+    return np.where(np.abs(z) < 1, q["height_mm"] * 0.5 * (1 + np.cos(np.pi * z)), 0.0)
+
+
+def _wheel_lift(xw, R, q):
+    """Centre lift of a wheel of radius R (plus belt) rolling over the bump at centre xw."""
+    s = np.linspace(-R, R, 241)
+    prof = _bump_height(xw[:, None] + s[None, :], q) + np.sqrt(R * R - s * s)[None, :] - R
+    return np.maximum(prof.max(axis=1), 0.0)
+
+
+def _bump(sc, c, rng, size, window=None):
+    h = _uniform(rng, 0.2, 1.0, size)
+    w = float(rng.uniform(20, 80))
+    lo, hi = window if window is not None else (0.0, sc.travel_mm)
+    # where a marked lug lies on the ground (else the lugs never show the bump)
+    on = c["lx"][(c["seg"] == 0) & (c["lx"] > lo) & (c["lx"] < hi)]
+    xb = float(rng.choice(on)) + float(rng.uniform(-w / 4, w / 4)) if len(on) else \
+        float(rng.uniform(lo, hi))
+    q = {"height_mm": h, "width_mm": w, "x_mm": xb,
+         "form": "cosine bump h (1 + cos(pi (x - x_b) / (w/2))) / 2"}
+    bottom = c["seg"] == 0
+    c["ly"] = c["ly"] + np.where(bottom, _bump_height(c["lx"], q), 0.0)
+    Xb = c["X"][c["f_b"]]
+    xr = Xb + sc.x_off_mm - c["D"] / 2
+    xf = Xb + sc.x_off_mm + c["D"] / 2
+    Rw = sc.R_mm + sc.e_mm
+    lr, lf = _wheel_lift(xr, Rw, q), _wheel_lift(xf, Rw, q)
+    cx = c["cx"][c["j_b"]]
+    c["by"] = c["by"] + lr + (lf - lr) * (Xb + cx - xr) / c["D"]
+    return q
+
+
+def _idler_wobble(sc, c, rng, size):
+    w = _uniform(rng, 0.02, 0.15, size)
+    phi = float(rng.uniform(0, 2 * np.pi))
+    g = w * np.sin(c["psi"][c["f_b"]] / sc.R_mm + phi)
+    cx = c["cx"][c["j_b"]]
+    frac = (sc.x_off_mm + c["D"] / 2 - cx) / c["D"]  # 1 at the rear axle, 0 at the front
+    c["by"] = c["by"] + g * frac
+    return {"w_mm": w, "phi_rad": phi, "pivot": "front wheel"}
+
+
+_CATALOG_DRAW = {
+    "wheel_runout": lambda rng, s: _ab("runout", _uniform(rng, 0.003, 0.01, s), rng),
+    "lug_ripple": lambda rng, s: _ab("ripple", _uniform(rng, 0.002, 0.01, s), rng),
+    "belt_sag": lambda rng, s: {"sag_d": _uniform(rng, 0.1, 0.5, s)},
+    "body_bounce": lambda rng, s: {"bounce_A": _uniform(rng, 0.01, 0.05, s),
+                                   "bounce_B": float(rng.uniform(-1e-4, 1e-4)),
+                                   "bounce_phi": float(rng.uniform(-np.pi, np.pi))},
+}
+
+
+def _ab(prefix, eps, rng):
+    phi = float(rng.uniform(0, 2 * np.pi))
+    return {f"{prefix}_a": eps * math.cos(phi), f"{prefix}_b": eps * math.sin(phi)}
+
+
+def make(mechanism: str, seed: int, *, size: float | None = None, faults: bool = True):
+    """(recording, rig, truth) of one drawn recording with `mechanism` (see ALL).
+
+    faults=True: seen through `realism.drive_through` (window, misses, occlusions,
+    glitches, split ids; the window always sees a speed change, and for `bump` the bump);
+    faults=False: the whole clean recording (every marker, every frame, noise only).
+    truth: mechanism, family, coordinate (None for null and catalog recordings),
+    catalog (the effect id or None), params, slip (true steady slip), slip_linear_s0,
+    stiffness_N_per_mm, rolling_resistance, mass_kg, fps, window (ground x) and seed.
+    """
+    if mechanism not in ALL:
+        raise ValueError(f"unknown mechanism {mechanism!r}; known: {', '.join(ALL)}")
+    sc = scenario(seed)
+    rng = np.random.default_rng([seed, 28, ALL.index(mechanism)])
+    speed_mod = slip_of = None
+    slip_true = sc.slip
+    params: dict = {}
+    if mechanism in CATALOG_CASES or mechanism == "null":
+        if mechanism != "null":
+            params = _CATALOG_DRAW[mechanism](rng, size)
+            sc = sc.replace(effects={mechanism: params})
+        rec, tr = simulate(sc, seed)
+        slip_true = tr["slip"]
+    else:
+        if mechanism == "cogging":
+            params = _cogging_draw(sc, rng, size)
+            speed_mod = _cogging_mod(params, sc.R_mm)
+        elif mechanism == "slip_speed":
+            cv = _uniform(rng, 0.1, 0.4, size)
+            cc = cv / sc.v_cruise  # per mm/s
+            params = {"c_per_m_s": cc * 1000.0, "c_v_cruise": cv,
+                      "form": "s = s_lin (1 + c v)"}
+            slip_of = lambda s_lin, v: s_lin * (1 + cc * v)  # noqa: E731
+            slip_true = sc.slip * (1 + cv)
+        c = _clean(sc, speed_mod, slip_of)
+        if mechanism == "squat":
+            params = _squat(sc, c, rng, size)
+        elif mechanism == "flap":
+            params = _flap(sc, c, rng, size)
+        elif mechanism == "bump":
+            params = {"_pending": True}
+        elif mechanism == "idler_wobble":
+            params = _idler_wobble(sc, c, rng, size)
+        if mechanism != "bump":
+            rec = _recording(sc, c, seed)
+    window = None
+    info = {}
+    if mechanism == "bump":
+        # the window first (from a bump-free draw), then the bump inside it
+        base = _recording(sc, c, seed)
+        if faults:
+            _, info = realism.drive_through(base, seed=seed, need_motion=True, faults=False)
+            window = info["window"]
+        lo, hi = window if window is not None else (0.0, sc.travel_mm)
+        params = _bump(sc, c, rng, size, window=(lo + 40.0, hi - 40.0) if hi - lo > 100
+                       else (lo, hi))
+        rec = _recording(sc, c, seed)
+    if faults:
+        rec, info = realism.drive_through(rec, seed=seed, need_motion=True, window=window)
+        window = info["window"]
+    truth = {
+        "mechanism": mechanism,
+        "family": FAMILIES.get(mechanism, (None, None))[0],
+        "coordinate": FAMILIES.get(mechanism, (None, None))[1],
+        "catalog": mechanism if mechanism in CATALOG_CASES else None,
+        "params": {k: (float(v) if isinstance(v, (int, float, np.floating)) else v)
+                   for k, v in params.items()},
+        "slip": float(slip_true), "slip_linear_s0": sc.slip,
+        "stiffness_N_per_mm": sc.stiffness, "rolling_resistance": sc.rolling_resistance,
+        "mass_kg": sc.mass_kg, "drawbar_pull_N": sc.drawbar_pull_N, "fps": sc.fps,
+        "v_cruise_mm_s": sc.v_cruise,
+        "window": None if window is None else [float(v) for v in window],
+        "n_glitches": len(info.get("glitches", [])), "seed": seed,
+        "scenario": {k: v for k, v in dataclasses.asdict(sc).items() if k != "effects"},
+    }
+    return rec, rig_of(sc), truth
+
+
+def write(out_dir, mechanism: str, seed: int, *, size: float | None = None,
+          faults: bool = True, wide: bool = True) -> dict:
+    """Write `make`'s recording as a user would hand it over: trajectories.csv (the wide
+    export form with faults, else long form), rig.toml (with the markers' roles) and
+    truth.json beside them (for the one who checks, not for fit-lug). Returns truth."""
+    import os
+
+    from fitlug.io import write_json
+
+    rec, rig, truth = make(mechanism, seed, size=size, faults=faults)
+    realism.write_realistic(out_dir, rec, rig, wide=wide)
+    write_json(os.path.join(out_dir, "truth.json"), truth)
+    return truth
+
+
+if __name__ == "__main__":  # python tests/mechanisms.py flap 3 /tmp/flap3 [size]
+    import sys
+
+    kind, seed, out = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+    tr = write(out, kind, seed, size=float(sys.argv[4]) if len(sys.argv) > 4 else None)
+    print(f"{out}: {kind} seed {seed}, family {tr['family']!r}, params {tr['params']}")
