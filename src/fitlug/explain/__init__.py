@@ -1,7 +1,8 @@
 """Find the physics the base model left out (MODEL.md §3): detect, locate, explain."""
 
 from ._detect import ALPHA as ALPHA, Detection as Detection, detect as detect
-from ._explain import Explanation as Explanation, Step as Step, explain as explain
+from ._explain import explain as explain
+from ._explanation import Explanation as Explanation, Step as Step
 from ._locate import Location as Location, locate as locate
 from ._table import Geometry as Geometry, geometry as geometry
 

@@ -1,0 +1,161 @@
+"""What :func:`fitlug.explain.explain` returns: the :class:`Explanation` (verdict, base and
+final fits, the effects added as :class:`Step`s, the families' terms, and its fit.json
+`discrepancy` block) — the record, apart from the search that fills it (:mod:`._explain`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..model import CATALOG
+from . import _display
+from ._criterion import BIC_THRESHOLD, MIN_SHARE_REMOVED, MODELLED_CHI2, STRONG_MISFIT_Z
+from ._detect import ALPHA, Detection
+from ._locate import Location, residual_map, spectrum_summary
+
+
+@dataclass
+class Step:
+    """One effect added to the model."""
+
+    effect: str
+    params: dict
+    delta_bic: float
+    chi2_per_dof_before: float
+    chi2_per_dof_after: float
+    misfit_removed_share: float
+
+
+@dataclass
+class Explanation:
+    """What explain() concluded; `final` is the FitResult under base + named effects."""
+
+    verdict: str  # 'none' | 'explained' | 'modelled' | 'unexplained'
+    base: object
+    final: object
+    effects: list
+    located: list
+    steps: list = field(default_factory=list)
+    detection_before: Detection | None = None
+    detection_after: Detection | None = None
+    location_before: Location | None = None
+    location_after: Location | None = None
+    rounds: list = field(default_factory=list)
+    slip_uncertainty: str = "least squares"
+    timing_s: dict = field(default_factory=dict)
+    geometry: object = None  # fitlug.explain.Geometry of the residual vectors
+    systematics: dict | None = None  # the tracker-systematics check (see ._systematics)
+    discovery: object = None  # the families' search (fitlug.explain.families.Discovery)
+
+    @property
+    def discovered(self) -> list:
+        """The kept family terms as fit.json's `discrepancy.discovered` dicts (MODEL.md §5)."""
+        return [t.to_json() for t in self.discovery.terms] if self.discovery else []
+
+    def __repr__(self) -> str:
+        return _display.short_repr(self)
+
+    def _repr_html_(self) -> str:
+        return _display.html(self)
+
+    def summary(self) -> str:
+        """The terminal's text for the final fit with this explanation (fitlug.summary)."""
+        return _display.summary(self)
+
+    def _final_params(self, step: Step) -> dict:
+        """The effect's parameters under the final model, with standard errors (and as
+        they were when the effect was added, before later effects and the polish)."""
+        try:
+            params = self.final.effect_params(step.effect)
+            std = self.final.effect_params_std(step.effect)
+        except (KeyError, AttributeError):  # the final model lost it: keep the step's
+            params, std = step.params, None
+        return {"params": params, "params_std": std, "params_when_added": step.params}
+
+    def to_json(self) -> dict:
+        """The `discrepancy` block of fit.json (DATA.md)."""
+        def slip(res):
+            return res.slip.as_dict()
+
+        out = {
+            "verdict": self.verdict,
+            "located": self.located,
+            "effects": [{"id": s.effect, **self._final_params(s), "delta_bic": s.delta_bic,
+                         "chi2_per_dof_before": s.chi2_per_dof_before,
+                         "chi2_per_dof_after": s.chi2_per_dof_after,
+                         "misfit_removed_share": s.misfit_removed_share,
+                         "meaning": CATALOG[s.effect].meaning} for s in self.steps],
+            "slip_before": slip(self.base),
+            "slip_after": slip(self.final),
+            "slip_after_uncertainty": self.slip_uncertainty,
+            "chi2_per_dof_before": float(self.base.chi2_per_dof),
+            "chi2_per_dof_after": float(self.final.chi2_per_dof),
+            "detection_before": self.detection_before.as_dict() if self.detection_before else None,
+            "detection_after": self.detection_after.as_dict() if self.detection_after else None,
+            "misfit_before": self.location_before.as_dict() if self.location_before else None,
+            "misfit_after": self.location_after.as_dict() if self.location_after else None,
+            "candidates": self.rounds,
+            "criterion": {"delta_bic_threshold": BIC_THRESHOLD, "alpha": ALPHA,
+                          "min_share_of_strong_excess_chi2_removed": MIN_SHARE_REMOVED,
+                          "strong_excess_chi2_in_spreads": STRONG_MISFIT_Z,
+                          "bic": "chi2 + k ln N, noise per role fixed at the base fit's"},
+            "timing_s": self.timing_s,
+        }
+        speed = (getattr(self.final, "robust", None) or {}).get("speed_sensitivity")
+        if speed is not None:
+            how = ("that fit holds the whole misfit and is the headline (slip_before: the "
+                   "base model's)" if speed.get("headline") else
+                   "shift added in quadrature to its robust error")
+            out["speed_sensitivity"] = {
+                **speed, "note": ("the model refitted with a free speed spline "
+                                  f"(breakpoints {speed['spacing_s']:g} s apart): "
+                                  "shift_raw is each quantity's change between the fits, "
+                                  "shift its excess over the change's own scatter "
+                                  f"(sqrt(max(0, d^2 - (V_free - V_base)))); {how}")}
+        nuis = (getattr(self.final, "robust", None) or {}).get("nuisance")
+        if nuis is not None:  # a measurement nuisance taken out (explain._nuisance)
+            out[nuis[0]] = nuis[1]
+        if self.discovery is not None:
+            out["discovered"] = self.discovered
+            out["families_tried"] = {"tried": self.discovery.tried,
+                                     "not_tried_because": self.discovery.why_not,
+                                     "modelled_chi2_per_dof": MODELLED_CHI2,
+                                     "time_s": self.discovery.seconds,
+                                     "glitches_after_terms": self.discovery.glitches}
+        if self.systematics is not None:
+            sysb = {k: v for k, v in self.systematics.items()
+                    if k != "why_not" and not k.startswith("_")}
+            if self.systematics.get("why_not") is None:
+                out["systematics"] = sysb
+            else:
+                out["systematics_check"] = {**sysb, "not_systematics_because":
+                                            self.systematics["why_not"],
+                                            "note": "checked: not a tracker floor"}
+        if self.geometry is not None:
+            g = self.geometry
+            out["maps"] = {"before": residual_map(g, self.base.residuals)}
+            out["spectra"] = {"before": spectrum_summary(g, self.base.residuals)}
+            if self.final.residuals is not self.base.residuals:
+                out["maps"]["after"] = residual_map(g, self.final.residuals)
+                out["spectra"]["after"] = spectrum_summary(g, self.final.residuals)
+        return _plain(out)
+
+
+def _plain(x):
+    """JSON-safe copy: numpy scalars to Python, non-finite numbers to None (strict JSON)."""
+    if isinstance(x, dict):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    if isinstance(x, (int, np.integer)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        return float(x) if math.isfinite(x) else None
+    if isinstance(x, np.ndarray):
+        return _plain(x.tolist())
+    return x
