@@ -432,8 +432,12 @@ def test_exact_marginal_follows_the_profile_on_a_free_speed_headline(speed_mod):
     from fitlug.posterior._marginal import slip_law_parameters
     from fitlug.posterior._tempering import tempered_marginal
 
+    from fitlug.explain._speed import speed_sensitivity
+
     ex, post, doc, truth = speed_mod
-    res = ex.final
+    # the free speed profile's refit of the base fit: the headline of this recording before
+    # the families modelled its modulation (issue 28), and still the sensitivity check's fit
+    res = speed_sensitivity(ex.base)["_fit"]
     names = slip_law_parameters(res)
     marg, _ = tempered_marginal(res, names, batch=16)
     pts = marg.map_theta(np.vstack([marg.theta_hat, marg.check_points()]))
@@ -441,5 +445,7 @@ def test_exact_marginal_follows_the_profile_on_a_free_speed_headline(speed_mod):
     prof = np.array([profile_chi2(res, names, t) for t in pts])
     assert exact[0] == pytest.approx(res.chi2, abs=1e-6)  # the optimum is stationary
     np.testing.assert_allclose(exact[1:] - exact[0], prof[1:] - prof[0], atol=0.02)
-    assert post.check["max_delta_chi2"] < 0.05, post.check
+    # the check's points lie at 2 sigma of the Gaussian limit: the exact marginal is
+    # linear there (it failed the linearity check, 0.36, before the fix)
+    assert np.max(np.abs(exact[1:] - exact[0] - 4.0)) < 0.05
     jax.clear_caches()
