@@ -19,29 +19,28 @@ from ._version import __version__ as __version__
 _LAZY = {
     "Recording": "io", "Rig": "io", "read_trajectories": "io", "write_trajectories": "io",
     "read_rig": "io", "find_rig": "io",
-    "fit": "fit", "fit_many": "fit", "FitResult": "fit", "build_problem": "fit",
+    "fit_many": "fit", "FitResult": "fit", "build_problem": "fit",
     "Parameters": "fit", "Parameter": "fit", "Prior": "fit", "parameters": "fit",
     "sample_posterior": "posterior", "Posterior": "posterior",
     "Scenario": "sim", "simulate": "sim", "write_simulation": "sim",
-    "explain": "explain",
     "fit_json": "report", "write_report": "report", "summary": "report",
     "CATALOG": "model", "Effect": "model", "register_effect": "model",
     "unregister_effect": "model",
-    "campaign": "campaign", "CampaignResult": "campaign",
+    "CampaignResult": "campaign",
 }
 
 
-#: sub-packages named after their main function: ``fitlug.fit`` is always the sub-package,
+#: the sub-packages, reachable as attributes after a bare ``import fitlug``. ``fit``,
+#: ``explain`` and ``campaign`` are named after their main function: always the sub-package,
 #: made callable (``fitlug.fit(rec, rig)`` calls ``fitlug.fit.fit``), whatever was imported
 #: first; a function bound here would hide the sub-package's other names
 #: (``fitlug.campaign.fit_points``), and the import system binds the module anyway.
-_VERBS = ("fit", "explain", "campaign")
-#: the other sub-packages, reachable as attributes after a bare ``import fitlug``
-_PACKAGES = ("io", "vision", "model", "posterior", "report", "plot", "sim", "cli")
+_PACKAGES = ("fit", "explain", "campaign", "io", "vision", "model", "posterior", "report",
+             "plot", "sim", "cli")
 
 
 def __getattr__(name: str):
-    if name in _VERBS or name in _PACKAGES:
+    if name in _PACKAGES:
         value = importlib.import_module(f".{name}", __name__)
         globals()[name] = value
         return value
@@ -54,4 +53,4 @@ def __getattr__(name: str):
 
 
 def __dir__():
-    return sorted(set(globals()) | set(_LAZY) | set(_VERBS) | set(_PACKAGES))
+    return sorted(set(globals()) | set(_LAZY) | set(_PACKAGES))
