@@ -121,6 +121,7 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
                          target_ess=target_ess, progress=progress)
     t2 = time.perf_counter()
     samples = _derived_samples(res, names, chain.flat())
+    _slip_term(samples, res, rng)
     mass_prior(samples, priors, rng)
     estimates = {k: _estimate(samples[k]) for k in REPORTED if k in samples}
     unident = not_identifiable(samples, names)
@@ -135,8 +136,10 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     if headline:  # a nuisance taken out, a free speed profile: the fit is another model's
         how += "; " + res.robust["uncertainty_method"]
         if temper["factor"] > 1.01:  # an error 0.5 % wider or more
-            how += (f"; likelihood stretched (slip error x {math.sqrt(temper['factor']):.3g}) "
-                    "to carry the nuisance's own uncertainty")
+            what = ("the family term's" if res.robust.get("method") == "family term"
+                    else "the nuisance's own")
+            how += (f"; likelihood stretched (steady-slip error x "
+                    f"{math.sqrt(temper['factor']):.3g}) to carry {what} uncertainty")
     elif temper["factor"] > 1.0:
         how += (f", likelihood tempered (stretched) to the {temper['method']} covariance "
                 f"({temper['note']}; slip error x {math.sqrt(temper['factor']):.3g} the "
@@ -195,3 +198,19 @@ def _start(marg: _Marginal, walkers: int, rng) -> np.ndarray:
     raise FitError("the least-squares solution lies outside the prior (beta > 0, s0 >= 0, "
                    f"C_rr >= {C_RR_MIN:g}): no walker could be started")
 
+
+
+def _slip_term(samples: dict, res, rng) -> None:
+    """A family term that moves the headline slip (a slip law in the speed: fitlug.explain
+    .families) is not in the sampled model: its change g of the slip is drawn beside each
+    sample from its Gaussian given the sample's steady slip (their joint covariance from
+    the extended fit, res.robust["slip_term"]) and added to the slip."""
+    term = (getattr(res, "robust", None) or {}).get("slip_term")
+    if not term or "slip" not in samples:
+        return
+    s = np.asarray(samples["slip"], float)
+    b = term["cov_with_slip"] / term["slip_var"] if term["slip_var"] > 0 else 0.0
+    rest = max(term["var"] - b * term["cov_with_slip"], 0.0)
+    g = term["value"] + b * (s - term["steady_slip"]) + np.sqrt(rest) * rng.standard_normal(
+        s.shape)
+    samples["slip"] = s + g

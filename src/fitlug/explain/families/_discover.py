@@ -26,11 +26,12 @@ from ._exact import refine
 from ._extend import extended
 from ._ground import GroundProfile
 from ._solve import Projector, chooses
+from ._slip import SlipLaw
 from ._speed import SpeedModulation
 from ._vibration import SegmentVibration
 
 #: MODEL.md §5's families that the search knows, in its table's order
-FAMILIES = (SpeedModulation, BodyMotion, GroundProfile, SegmentVibration)
+FAMILIES = (SpeedModulation, SlipLaw, BodyMotion, GroundProfile, SegmentVibration)
 MAX_TERMS = 2
 #: at most this share of the samples may be set aside as glitches after the terms
 GLITCH_SHARE = 1e-3
@@ -157,7 +158,10 @@ def discover(res, parts: list, det, J=None) -> Discovery:
                                          np.arange(i, i + m))
             break
         i += m
-    final = extended(res, ctx, proj0, B_all, joint.c, joint.cov, k_all, flat, r_ex)
+    slip_h = np.concatenate([t.choice.extra.get("slip_headline",
+                                                np.zeros(t.choice.fitted.B.shape[1]))
+                             for t in kept])
+    final = extended(res, ctx, proj0, B_all, joint.c, joint.cov, k_all, flat, r_ex, slip_h)
     final, glitches = _glitches(final, ctx)
     i = 0
     for t in kept:  # each term's coefficients from the joint fit

@@ -22,23 +22,14 @@ from ._solve import _pinv
 MAX_STEPS = 5
 
 
-def speed_residuals(res, ctx, coord: str, f: float, n: int):
-    """A function (flat, c) -> weighted residuals (S,) of `res`'s model with the speed
-    modulation m = sum_k c_k sin(2 pi k f u) + c_{n+k} cos(...), u = t or psi / v_t,cruise."""
+def residuals_with(res, rates):
+    """A function (flat, c) -> weighted residuals (S,) of `res`'s model whose speed v and
+    belt rate d psi / dt at the integration nodes (grid and midpoints) are
+    `rates(p, v0, a0, c)` -> (v, dpsi) from the base speed v0 and acceleration a0."""
     prob = res.problem
     lay, obs = prob.lay, prob.obs
     grid = np.asarray(lay.grid)
     h = float(lay.h)
-    mid = grid[:-1] + h / 2
-    vt = float(np.max(np.abs(ctx.vt_nodes)))
-    psi_b = np.interp(np.r_[grid, mid], ctx.grid, ctx.psi_nodes)
-    vt_b = np.interp(np.r_[grid, mid], ctx.grid, ctx.vt_nodes)
-    u = np.r_[grid, mid] if coord == "t" else psi_b / vt
-    du = np.ones_like(u) if coord == "t" else vt_b / vt
-    k = np.arange(1, n + 1)
-    ph = 2 * np.pi * f * np.outer(u, k)
-    S, C = np.sin(ph), np.cos(ph)
-    W = 2 * np.pi * f * k[None, :] * du[:, None]
     packing = res.packing
     fixed = {q: jnp.asarray(v, float) for q, v in res.params.items() if q not in packing.names}
     G = len(grid)
@@ -46,13 +37,7 @@ def speed_residuals(res, ctx, coord: str, f: float, n: int):
     def fn(flat, c):
         p = packing.unpack(jnp.asarray(flat), fixed)
         v0n, a0n, v0m, a0m = (np.asarray(q) for q in speed_basis_values(lay, p["v"]))
-        v0, a0 = np.r_[v0n, v0m], np.r_[a0n, a0m]
-        m = S @ c[:n] + C @ c[n:]
-        dm = (W * C) @ c[:n] - (W * S) @ c[n:]
-        v = v0 * (1 + m)
-        a = a0 * (1 + m) + v0 * dm
-        s = np.asarray(slip_law(p, lay, jnp.asarray(a)))
-        dpsi = v / (1 - s)
+        v, dpsi = rates(p, np.r_[v0n, v0m], np.r_[a0n, a0m], np.asarray(c))
         out = []
         for y in (v, dpsi):  # Simpson on the node grid, then X = psi = 0 at t_ref
             yn, ym = y[:G], y[G:]
@@ -67,6 +52,39 @@ def speed_residuals(res, ctx, coord: str, f: float, n: int):
         return np.asarray(_weighted(positions(p, lay, Xl, Pl, Xb, Pb), obs))
 
     return fn
+
+
+def nodes(res) -> np.ndarray:
+    """The integration nodes of `res`'s model: its grid, then the midpoints."""
+    lay = res.problem.lay
+    grid = np.asarray(lay.grid)
+    return np.r_[grid, grid[:-1] + float(lay.h) / 2]
+
+
+def speed_residuals(res, ctx, coord: str, f: float, n: int):
+    """A function (flat, c) -> weighted residuals (S,) of `res`'s model with the speed
+    modulation m = sum_k c_k sin(2 pi k f u) + c_{n+k} cos(...), u = t or psi / v_t,cruise."""
+    lay = res.problem.lay
+    tn = nodes(res)
+    vt = float(np.max(np.abs(ctx.vt_nodes)))
+    psi_b = np.interp(tn, ctx.grid, ctx.psi_nodes)
+    vt_b = np.interp(tn, ctx.grid, ctx.vt_nodes)
+    u = tn if coord == "t" else psi_b / vt
+    du = np.ones_like(u) if coord == "t" else vt_b / vt
+    k = np.arange(1, n + 1)
+    ph = 2 * np.pi * f * np.outer(u, k)
+    S, C = np.sin(ph), np.cos(ph)
+    W = 2 * np.pi * f * k[None, :] * du[:, None]
+
+    def rates(p, v0, a0, c):
+        m = S @ c[:n] + C @ c[n:]
+        dm = (W * C) @ c[:n] - (W * S) @ c[n:]
+        v = v0 * (1 + m)
+        a = a0 * (1 + m) + v0 * dm
+        s = np.asarray(slip_law(p, lay, jnp.asarray(a)))
+        return v, v / (1 - s)
+
+    return residuals_with(res, rates)
 
 
 def refine(proj, ctx, B, c, exact, idx) -> tuple:
