@@ -49,7 +49,19 @@ def test_the_set_is_complete():
     assert sum(c["disturbance"] is not None for c in cases) >= 2
 
 
-@pytest.mark.parametrize("folder", FOLDERS)
+#: recordings whose exact case tests/test_explain_independent.py checks on an independent
+#: implementation's recording (a stronger check): left out of the blind run to keep .ci/run
+#: under its 20 minutes (issue 28's family tests took their time)
+CHECKED_INDEPENDENTLY = {"ripple+sag", "wheel_runout", "lens_distortion", "camera_tilt"}
+
+
+def _case(folder):
+    with open(os.path.join(ROOT, folder, "truth.json")) as fh:
+        return json.load(fh)["concealed"]["case"]
+
+
+@pytest.mark.parametrize("folder", [f for f in FOLDERS
+                                    if _case(f) not in CHECKED_INDEPENDENTLY])
 def test_blind_explanation(folder):
     csv = os.path.join(ROOT, folder, "trajectories.csv")
     rig = find_rig(csv)
