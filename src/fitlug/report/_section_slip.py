@@ -25,7 +25,9 @@ def _slip_section(fj, st) -> str:
         + (", too narrow to see at this scale. " if half < 0.01 * np.ptp(st["fine_s"]) else ". ")
         + "Look for the slip rising while the robot "
         "accelerates and falling while it brakes; at rest the slip is undefined (grey)."
-        + (" Under lug_sliding the law is nonlinear." if _sliding(fj) else "")))
+        + (" Under lug_sliding the law is nonlinear." if _sliding(fj) else "")
+        + (" The slip law term found beyond the catalog is added: s(t) = s₀ + β·a(t) + g."
+           if st.get("meta", {}).get("slip_law_term") else "")))
     fig, ax = _fig(FIG_W, 4.2)
     plot_slip_force(st, fj, ax=ax[0, 0])
     m = (fj.get("rig") or {}).get("mass_kg")
@@ -319,7 +321,19 @@ def plot_slip_force(st: dict, fj: dict | None = None, ax=None, bins: int = 14):
                     es.append(np.std(s[sel][q]) / np.sqrt(q.sum()))
             ax.errorbar(xs, ys, yerr=es, fmt="o", ms=4, color=col, lw=1, capsize=2,
                         label=f"lug markers, {name}")
-    ax.plot(Fm[o], st["fine_s"][moving][o], "-", color="k", lw=1.5, label="fitted law s(F)")
+    law = st.get("meta", {}).get("slip_law_term")
+    if law and "fine_s_linear" in st and law["form"] != "F":
+        # a slip law in the speed: the law in F at the cruise in view, not s(t) sorted by F
+        from ..explain.families._slip import slip_change
+
+        s_lin = st["fine_s_linear"][moving][o]
+        s_law = s_lin + slip_change(law, np.full(len(s_lin), law["v_ref_mm_s"]), s_lin,
+                                    law["steady_slip"])
+        ax.plot(Fm[o], s_law, "-", color="k", lw=1.5,
+                label=f"fitted law s(F) at {law['v_ref_mm_s']:.0f} mm/s")
+    else:
+        ax.plot(Fm[o], st["fine_s"][moving][o], "-", color="k", lw=1.5,
+                label="fitted law s(F)")
     ax.set_xlabel(f"traction load F = m(a + C_rr g) ({unit})")
     ax.set_ylabel("slip s")
     ax.ticklabel_format(axis="y", useOffset=False)

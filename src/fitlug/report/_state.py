@@ -9,6 +9,7 @@ The file holds plain numpy arrays (no pickles) plus one JSON string `meta`. Keys
   lug_res_x, lug_res_y, body_res_x, body_res_y;
 - curve_t, curve_i, curve_x, curve_y: the model's lug paths on a 4x finer time grid;
 - fine_t, fine_X, fine_v, fine_psi, fine_vt, fine_s: kinematics on a fine grid (mm, mm/s);
+  fine_s holds a slip-law family term (fine_s_linear: the linear law's part, then);
 - body_X_data: body reference position from each body sample (x - c_x), mm;
 - post_samples (n, k) and post_names in meta, when a posterior is given; post_chain
   (draws, walkers) of the first sampled parameter, for a trace plot;
@@ -147,6 +148,13 @@ def state_arrays(res, posterior=None, explanation=None) -> tuple[dict, dict]:
     a.update({"fine_t": fine, "fine_X": np.asarray(kin["X"]), "fine_v": np.asarray(kin["v"]),
               "fine_psi": np.asarray(kin["psi"]), "fine_vt": np.asarray(kin["v_t"]),
               "fine_s": np.asarray(kin["s"])})
+    law = ((getattr(res, "robust", None) or {}).get("slip_term") or {}).get("law")
+    if law:  # a slip-law family term (fitlug.explain.families): the model's slip holds it
+        from ..explain.families._slip import slip_change
+
+        s0 = float(res.robust["slip_term"]["steady_slip"])
+        a["fine_s_linear"] = a["fine_s"]
+        a["fine_s"] = a["fine_s"] + slip_change(law, a["fine_v"], a["fine_s"], s0)
     a["body_X_data"] = a["body_x"] - np.asarray(p["cx"])[a["body_j"]]
     cx, cy = m["curve"]
     a.update({"curve_t": ct, "curve_i": ci, "curve_x": np.asarray(cx), "curve_y": np.asarray(cy)})
@@ -156,7 +164,9 @@ def state_arrays(res, posterior=None, explanation=None) -> tuple[dict, dict]:
             "belt_length_mm": P, "n_belt": int(lay.n_belt), "n_contact": int(lay.n_contact),
             "L_mm": float(lay.L), "noise_mm": {k: float(v) for k, v in prob.noise.items()},
             "mass_kg": prob.rig.mass_kg, "chi2_per_dof": float(res.chi2_per_dof),
-            "least_squares": {k: e.as_dict() for k, e in res.quantities.items()}}
+            "least_squares": {k: e.as_dict() for k, e in res.quantities.items()},
+            "slip_law_term": ({**law, "steady_slip": float(res.robust["slip_term"][
+                "steady_slip"])} if law else None)}
     corr = _scalar_correlation(res)
     if corr is not None:
         meta["corr_names"], a["lsq_corr"] = corr

@@ -162,6 +162,14 @@ def discover(res, parts: list, det, J=None) -> Discovery:
                                                 np.zeros(t.choice.fitted.B.shape[1]))
                              for t in kept])
     final = extended(res, ctx, proj0, B_all, joint.c, joint.cov, k_all, flat, r_ex, slip_h)
+    i = 0
+    for t in kept:  # the slip law's form, for whoever draws the model's slip (the report)
+        m = t.choice.fitted.B.shape[1]
+        law = t.choice.extra.get("slip_law")
+        if law and (final.robust or {}).get("slip_term") is not None:
+            final.robust["slip_term"]["law"] = {**law, "coefficients":
+                                                [float(q) for q in joint.c[i:i + m]]}
+        i += m
     final, glitches = _glitches(final, ctx)
     i = 0
     for t in kept:  # each term's coefficients from the joint fit

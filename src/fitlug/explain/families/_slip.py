@@ -88,7 +88,8 @@ class SlipLaw(Family):
         rivals = [q for q in found if q[0] != form]
         close = [q for q in rivals if q[2].delta_bic - fitted.delta_bic < AMBIGUOUS_DBIC]
         coord = FORMS[form]
-        unit = "mm/s" if form != "F" else "traction change (fraction of the largest in view)"
+        unit = ("mm/s: the body speed v, at steady traction" if form != "F" else
+                "traction change (fraction of the largest in view)")
         xs = np.linspace(0.0, v_ref, 41) if form != "F" else np.linspace(-1.0, 1.0, 41)
 
         def g_of(x, c):  # the slip change at zero acceleration (v forms), or at F (F form)
@@ -138,11 +139,25 @@ class SlipLaw(Family):
                       rows=sel_x if sel_x.any() else sel, row_coord=v_rows,
                       row_coord_name="body speed (mm/s), lug x",
                       exact=_exact(ctx.res, form, n, v_ref, ds),
-                      extra={"slip_headline": h, "v_ref_mm_s": v_ref})
+                      extra={"slip_headline": h, "v_ref_mm_s": v_ref,
+                             "slip_law": {"form": form, "v_ref_mm_s": v_ref, "ds": ds}})
 
 
 _FORM_TEXT = {"v": "s = s_lin + g(v)", "Fv": "s = s_lin (1 + g(v) / s0)",
               "F": "s = s_lin + g(F)"}
+
+
+def slip_change(law: dict, v, s_lin, s0: float) -> np.ndarray:
+    """The term's slip change g at body speeds v (mm/s) where the linear law gives s_lin,
+    s0 its steady slip; `law`: {"form", "v_ref_mm_s", "ds", "coefficients"} (a FitResult's
+    robust["slip_term"]["law"]): what the report draws as the model's slip."""
+    c = np.asarray(law["coefficients"], float)
+    k = np.arange(1, len(c) + 1)
+    v, s_lin = np.asarray(v, float), np.asarray(s_lin, float)
+    if law["form"] == "F":
+        return (((s_lin - s0) / law["ds"])[..., None] ** (k + 1)) @ c
+    g = ((np.abs(v) / law["v_ref_mm_s"])[..., None] ** k) @ c
+    return g * (s_lin / s0) if law["form"] == "Fv" else g
 
 
 def _exact(res, form: str, n: int, v_ref: float, ds: float):
