@@ -166,9 +166,9 @@ def _exact(res, form: str, n: int, v_ref: float, ds: float):
     k = np.arange(1, n + 1)
 
     def rates(p, v0, a0, c):
-        s_lin = np.asarray(slip_law(p, lay, jnp.asarray(a0)))
-        s0 = float(np.asarray(slip_law(p, lay, jnp.asarray(0.0))))
-        u = np.abs(v0) / v_ref
+        s_lin = slip_law(p, lay, a0)
+        s0 = slip_law(p, lay, jnp.asarray(0.0))
+        u = jnp.abs(v0) / v_ref
         if form == "v":
             g = (u[:, None] ** k) @ c
         elif form == "Fv":
