@@ -147,3 +147,52 @@ def test_a_term_fitted_jointly_with_the_fit_equals_the_joint_least_squares():
     np.testing.assert_allclose(f.cov[:2, :2], cov, rtol=1e-7)
     moved = proj.moved(B, f.c)
     np.testing.assert_allclose((r + moved)[valid], r[valid] + A @ sol, atol=1e-9)
+
+
+def test_the_headline_of_a_slip_term_has_the_joint_least_squares_variance():
+    """extended()'s variance of s0 + h . c (a slip law in the speed moves the headline)
+    against the inverse of the joint normal matrix [J B]'[J B] computed by numpy."""
+    import numpy as np
+
+    from fitlug.explain.families._extend import joint_variances
+    from fitlug.explain.families._solve import Projector
+
+    rng = np.random.default_rng(5)
+    n, k, m = 300, 5, 2
+    J = rng.normal(size=(n, k))
+    B = 0.7 * J[:, :1] + rng.normal(size=(n, m))  # correlated with the fit's parameters
+    valid = np.ones(n, bool)
+    proj = Projector(J, np.zeros(n), valid)
+    f = proj.fit(B)
+    K = proj.solve(B)
+    cov = np.linalg.inv(J.T @ J) + K @ f.cov @ K.T
+    gs, h = rng.normal(size=k), np.array([1.0, 1.0])
+    var_s, var_g, cov_sg = joint_variances(gs, cov, K, f.cov, h)
+    full = np.linalg.inv(np.hstack([J, B]).T @ np.hstack([J, B]))
+    w = np.r_[gs, h]
+    assert var_s + var_g + 2 * cov_sg == pytest.approx(w @ full @ w, rel=1e-9)
+    assert cov_sg == pytest.approx(gs @ full[:k, k:] @ h, rel=1e-9)
+
+
+def test_the_posterior_draws_a_slip_term_beside_its_samples():
+    """posterior._slip_term: the slip samples gain the term's change drawn from its
+    Gaussian given each sample's steady slip: mean and variance of the sum as the joint
+    Gaussian's (var_s + var_g + 2 cov), and the term's correlation with s0 kept."""
+    import types
+
+    import numpy as np
+
+    from fitlug.posterior._sample import _slip_term
+
+    rng = np.random.default_rng(7)
+    s_hat, var_s, g, var_g, cov_sg = 0.04, 4e-10, 0.012, 9e-10, -3e-10
+    s = s_hat + np.sqrt(var_s) * rng.standard_normal(200_000)
+    res = types.SimpleNamespace(robust={"slip_term": {
+        "value": g, "var": var_g, "cov_with_slip": cov_sg, "slip_var": var_s,
+        "steady_slip": s_hat}})
+    samples = {"slip": s.copy()}
+    _slip_term(samples, res, np.random.default_rng(8))
+    out = samples["slip"]
+    assert np.mean(out) == pytest.approx(s_hat + g, abs=5 * np.sqrt(var_s + var_g) / 400)
+    assert np.var(out) == pytest.approx(var_s + var_g + 2 * cov_sg, rel=0.02)
+    assert np.cov(out - s, s)[0, 1] == pytest.approx(cov_sg, rel=0.05)

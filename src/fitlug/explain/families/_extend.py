@@ -74,13 +74,19 @@ def _slip_moved(q, p, packing, flat, cov, K, C, c, h, prob, fixed_np):
                                     jnp.asarray(pull or 0.0, float), mass is not None,
                                     bool(pull))
     gs = np.asarray(jac["slip"], float)
-    var_s = float(gs @ cov @ gs)
+    var_s, var_g, cov_sg = joint_variances(gs, cov, K, C, h)
     g = float(h @ c)
-    var_g = float(h @ C @ h)
-    cov_sg = float(-(gs @ K) @ C @ h)
     est = q["slip"]
     std = float(np.sqrt(max(var_s + var_g + 2 * cov_sg, 0.0)))
     out = dict(q)
     out["slip"] = dataclasses.replace(est, value=float(est.value) + g, std=std, ci95=None)
     return out, {"value": g, "var": var_g, "cov_with_slip": cov_sg, "slip_var": var_s,
                  "steady_slip": float(est.value)}
+
+
+def joint_variances(gs, cov, K, C, h) -> tuple:
+    """(Var(gs . theta), Var(h . c), Cov(gs . theta, h . c)) under the joint covariance of
+    the fit's parameters theta and a term's coefficients c: Cov(theta) = `cov` (the fit's
+    plus K C K'), Cov(c) = C, Cov(theta, c) = -K C (the block inverse of the extended
+    normal matrix, K = J^+ B)."""
+    return (float(gs @ cov @ gs), float(h @ C @ h), float(-(gs @ K) @ C @ h))
