@@ -49,7 +49,7 @@ from ._engine import Engine
 from ._explanation import Explanation, Step
 from ._final import final_fit, polished_theta
 from ._locate import locate
-from ._robust import nuisance_result, robust_result
+from ._robust import nuisance_result, partial_shift, robust_result
 from ._sliding_direct import direct_candidate
 from ._systematics import tracker_systematics
 from ._table import geometry, structured_misfit
@@ -215,7 +215,7 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
         if how == "modelled":
             return Explanation("modelled", res, final, [], loc0.parts, [], det0, det_f, loc0,
                                loc_f, rounds, _method(final), timing, geo, sysb, disc)
-        final, method = robust_result(res, geo, alpha)
+        final, method = partial_shift(*robust_result(res, geo, alpha), disc)
         return Explanation("unexplained", res, final, [], loc0.parts, [], det0, det0, loc0,
                            loc0, rounds, method, timing, geo, sysb, disc)
 
@@ -243,7 +243,7 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
                 verdict, located, method = "modelled", loc0.parts, _method(final)
             else:
                 verdict, located = "unexplained", loc1.parts
-                final, method = robust_result(final, geo, alpha)
+                final, method = partial_shift(*robust_result(final, geo, alpha), disc)
     timing["total"] = time.perf_counter() - t_start
     return Explanation(verdict, res, final, list(accepted), located, steps, det0, det1, loc0,
                        loc1, rounds, method, timing, geo, sysb, disc)
