@@ -329,7 +329,8 @@ def partial_shift(res, method: str, disc):
     its error says: on a cogging the sandwich widened the slip's error by 1.4 while the
     partial term moved it by 2 of them (bench_discovery). Returns (result, method)."""
     alt = getattr(disc, "final", None)
-    if alt is None or not getattr(disc, "terms", None) or (res.robust or {}).get("headline"):
+    if alt is None or not getattr(disc, "terms", None) or (res.robust or {}).get("headline") \
+            or not alt.chi2 < res.chi2:  # a term that did not lower chi^2 is no reading
         return res, method  # a nuisance or a free speed profile that holds the whole misfit
         # is the headline: the partial term is then a worse reading of it
     out, shift = {}, {}

@@ -28,7 +28,7 @@ from ...model import hermite, positions, slip_law
 from ...model._model import speed_basis_values
 
 MAX_STEPS = 30
-START_SCALES = (1.0, 0.5, 0.25)
+START_SCALES = (1.0, 0.5, 0.25, 0.0)  # 0: the fit itself, never worse than it
 LM_LAMBDA0 = 1e-3
 LM_TRIES = 6
 RELINEARISE = 30  # steps that recompute the Jacobians first (each one: the exact ones are cheap)
