@@ -31,7 +31,6 @@ MAX_STEPS = 30
 START_SCALES = (1.0, 0.5, 0.25, 0.0)  # 0: the fit itself, never worse than it
 LM_LAMBDA0 = 1e-3
 LM_TRIES = 6
-RELINEARISE = 30  # steps that recompute the Jacobians first (each one: the exact ones are cheap)
 
 
 def residuals_with(res, rates):
@@ -112,9 +111,9 @@ def refine(proj, ctx, B, c, exact, idx) -> tuple:
     """Gauss-Newton on exact residuals from the linear solution: (flat, c, residuals).
 
     `exact(flat, c[idx])` gives the residuals of the fit's model with the exact term of
-    coefficients c[idx]; the other columns of B add linearly. For the first RELINEARISE
-    steps the model's Jacobian and the exact term's columns are recomputed where the
-    parameters now are (central differences for the term), then kept."""
+    coefficients c[idx] (a function of :func:`residuals_with`, which carries its exact
+    Jacobian); the other columns of B add linearly. Every step recomputes the extended
+    model's Jacobian where the parameters now are."""
     others = np.setdiff1d(np.arange(B.shape[1]), idx)
     B0 = B
 
@@ -134,29 +133,20 @@ def refine(proj, ctx, B, c, exact, idx) -> tuple:
             best = (chi2, scale, r)
     chi2, scale, r = best
     flat, c = flat0 - scale * step, scale * c
-    res = ctx.res
-    fixed = {k: v for k, v in res.params.items() if k not in res.packing.names}
     v = proj.valid
     lam = LM_LAMBDA0
-    for it in range(MAX_STEPS):
-        if it < RELINEARISE:  # the model's Jacobian and the term's where they now are
-            from .._engine import jacobian_of
-
-            if hasattr(exact, "jacobian"):  # the extended model's own, exactly
-                Jf, Jc = (np.asarray(q) for q in exact.jacobian(jnp.asarray(flat, float),
-                                                               jnp.asarray(c[idx], float)))
-                J = Jf[v]
-                B = B.copy()
-                B[:, idx] = Jc
-            else:
-                J = np.asarray(jacobian_of(flat, fixed, res.packing, res.problem.lay,
-                                           res.problem.obs))[v]
-                B = _term_columns(resid, flat, c, B, idx)
-            A = np.hstack([J, B[v]])
-            d = np.sqrt(np.sum(A * A, 0))
-            d = np.where(d > 0, d, 1.0)
-            As = A / d
-            N = As.T @ As
+    for _ in range(MAX_STEPS):
+        # the extended model's own Jacobian where the parameters now are, exactly
+        Jf, Jc = (np.asarray(q) for q in exact.jacobian(jnp.asarray(flat, float),
+                                                       jnp.asarray(c[idx], float)))
+        J = Jf[v]
+        B = B.copy()
+        B[:, idx] = Jc
+        A = np.hstack([J, B[v]])
+        d = np.sqrt(np.sum(A * A, 0))
+        d = np.where(d > 0, d, 1.0)
+        As = A / d
+        N = As.T @ As
         grad = As.T @ r[v]
         n_p = J.shape[1]
         for _ in range(LM_TRIES):  # Levenberg-Marquardt: a step the model can follow
@@ -175,15 +165,3 @@ def refine(proj, ctx, B, c, exact, idx) -> tuple:
             break
     return flat, c, r
 
-
-def _term_columns(resid, flat, c, B, idx) -> np.ndarray:
-    """B with its exact term's columns replaced by central differences of the exact
-    residuals at (flat, c): the term's own response is not linear in its coefficients (the
-    slip's answer to a modulated acceleration has a mean over a cycle, second order)."""
-    out = B.copy()
-    for j in idx:
-        h = max(1e-3 * float(np.max(np.abs(c[idx]))), 1e-7)
-        e = np.zeros_like(c)
-        e[j] = h
-        out[:, j] = (resid(flat, c + e) - resid(flat, c - e)) / (2 * h)
-    return out

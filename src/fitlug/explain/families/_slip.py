@@ -138,7 +138,7 @@ class SlipLaw(Family):
                       label=f"{_FORM_TEXT[form]}, {n} power(s)", ambiguity=amb,
                       rows=sel_x if sel_x.any() else sel, row_coord=v_rows,
                       row_coord_name="body speed (mm/s), lug x",
-                      exact=_exact(ctx.res, form, n, v_ref, ds),
+                      exact=_exact(ctx.res, form, v_ref, ds),
                       extra={"slip_headline": h, "v_ref_mm_s": v_ref,
                              "slip_law": {"form": form, "v_ref_mm_s": v_ref, "ds": ds}})
 
@@ -147,34 +147,32 @@ _FORM_TEXT = {"v": "s = s_lin + g(v)", "Fv": "s = s_lin (1 + g(v) / s0)",
               "F": "s = s_lin + g(F)"}
 
 
+def _change(form: str, u, s_lin, s0, ds: float, c):
+    """g for coefficients c at speeds u = |v| / v_ref and linear-law slips s_lin (numpy or
+    JAX arrays alike: the exact refit differentiates it)."""
+    k = np.arange(1, len(c) + 1)
+    if form == "F":
+        return (((s_lin - s0) / ds)[..., None] ** (k + 1)) @ c
+    g = (u[..., None] ** k) @ c
+    return g * (s_lin / s0) if form == "Fv" else g
+
+
 def slip_change(law: dict, v, s_lin, s0: float) -> np.ndarray:
     """The term's slip change g at body speeds v (mm/s) where the linear law gives s_lin,
     s0 its steady slip; `law`: {"form", "v_ref_mm_s", "ds", "coefficients"} (a FitResult's
     robust["slip_term"]["law"]): what the report draws as the model's slip."""
-    c = np.asarray(law["coefficients"], float)
-    k = np.arange(1, len(c) + 1)
-    v, s_lin = np.asarray(v, float), np.asarray(s_lin, float)
-    if law["form"] == "F":
-        return (((s_lin - s0) / law["ds"])[..., None] ** (k + 1)) @ c
-    g = ((np.abs(v) / law["v_ref_mm_s"])[..., None] ** k) @ c
-    return g * (s_lin / s0) if law["form"] == "Fv" else g
+    return _change(law["form"], np.abs(np.asarray(v, float)) / law["v_ref_mm_s"],
+                   np.asarray(s_lin, float), s0, law["ds"],
+                   np.asarray(law["coefficients"], float))
 
 
-def _exact(res, form: str, n: int, v_ref: float, ds: float):
+def _exact(res, form: str, v_ref: float, ds: float):
     """(flat, c) -> weighted residuals of `res`'s model with the slip term exactly."""
     lay = res.problem.lay
-    k = np.arange(1, n + 1)
 
     def rates(p, v0, a0, c):
         s_lin = slip_law(p, lay, a0)
         s0 = slip_law(p, lay, jnp.asarray(0.0))
-        u = jnp.abs(v0) / v_ref
-        if form == "v":
-            g = (u[:, None] ** k) @ c
-        elif form == "Fv":
-            g = (s_lin / s0) * ((u[:, None] ** k) @ c)
-        else:
-            g = (((s_lin - s0) / ds)[:, None] ** (k + 1)) @ c
-        return v0, v0 / (1.0 - (s_lin + g))
+        return v0, v0 / (1.0 - (s_lin + _change(form, jnp.abs(v0) / v_ref, s_lin, s0, ds, c)))
 
     return residuals_with(res, rates)
