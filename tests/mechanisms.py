@@ -39,7 +39,19 @@ Mechanisms (family and coordinate as MODEL.md §5 names them):
   lug tips), s = s_lin (1 + c v), c v_cruise 0.1-0.4;
 - `idler_wobble` (body motion; psi at the wheel's period): the rear (idler) wheel is
   eccentric, its axle height varies by w sin(psi / R + phi), w 0.02-0.15 mm, so the
-  body heaves and pitches about the front wheel once per wheel turn.
+  body heaves and pitches about the front wheel once per wheel turn;
+- `carrier_roller` (path shape; xi on the top run): a support roller under the top run at
+  xi_r 0.3-0.7 lifts it by h 0.1-0.6 mm; the belt runs straight from each wheel to the
+  roller (a tent, not belt_sag's parabola);
+- `lug_splay` (path shape; place along the arcs): the lugs splay outward as the belt bends
+  round a wheel, the markers on each arc 0.05-0.4 mm farther out (each wheel its own,
+  ramping in over the first 0-30 % of the arc);
+- `keystone` (image map; image position q): the camera does not face the track squarely
+  (yawed and pitched 0.1-1 degree at 0.6-1.5 m), a projective warp q -> c + (q - c) /
+  (1 + p.(q - c)) about the window's centre c, on every marker;
+- `frame_jitter` (time map; t): the frames are stamped on a clock that jitters (a
+  host-timestamped camera), the true time of frame k is t_k + tau_k, tau_k Gaussian with
+  sd 0.03-0.25 ms (a third of the draws: every other frame late by that much instead).
 
 Also `null` (the base model) and catalog recordings (`wheel_runout`, `belt_sag`,
 `lug_ripple`, `body_bounce`) from `fitlug.sim.simulate` with the same rigs and faults.
@@ -77,6 +89,10 @@ FAMILIES = {
     "bump": ("ground profile", "x"),
     "slip_speed": ("slip law", "F,v"),
     "idler_wobble": ("body motion", "psi"),
+    "carrier_roller": ("path shape", "xi"),
+    "lug_splay": ("path shape", "xi"),
+    "keystone": ("image map", "q"),
+    "frame_jitter": ("time map", "t"),
 }
 #: catalog recordings this generator also makes (no family term may be kept on them)
 CATALOG_CASES = ("wheel_runout", "belt_sag", "lug_ripple", "body_bounce")
@@ -167,14 +183,19 @@ def _kinematics(sc: Scenario, speed_mod=None, slip_of=None):
     return np.arange(nf) / sc.fps, X[idx], P[idx], A[idx]
 
 
-def _clean(sc: Scenario, speed_mod=None, slip_of=None):
+def _clean(sc: Scenario, speed_mod=None, slip_of=None, tau=None):
     """Noise-free positions of every marker at every frame, plus what the marker-only
-    mechanisms need: dict with the layout's sample arrays."""
+    mechanisms need: dict with the layout's sample arrays. `tau` (per frame, s): the frame's
+    true time is its stamp + tau (X and psi moved to it to second order)."""
     from fitlug.model import make_layout
     from fitlug.model._model import ctx_of, positions
     from fitlug.model._path import stadium
 
     t, X, psi, a = _kinematics(sc, speed_mod, slip_of)
+    if tau is not None:  # X and psi at the true times (Taylor to tau^2: tau < 1 ms)
+        v, vt = np.gradient(X, t), np.gradient(psi, t)
+        X = X + v * tau + 0.5 * np.gradient(v, t) * tau ** 2
+        psi = psi + vt * tau + 0.5 * np.gradient(vt, t) * tau ** 2
     nl, nb = sc.lug_markers, len(sc.body_markers)
     f_l, i_l = np.repeat(np.arange(len(t)), nl), np.tile(np.arange(nl), len(t))
     f_b, j_b = np.repeat(np.arange(len(t)), nb), np.tile(np.arange(nb), len(t))
@@ -318,6 +339,62 @@ def _idler_wobble(sc, c, rng, size):
     return {"w_mm": w, "phi_rad": phi, "pivot": "front wheel"}
 
 
+def _carrier_roller(sc, c, rng, size):
+    h = _uniform(rng, 0.1, 0.6, size)
+    xr = float(rng.uniform(0.3, 0.7))
+    top = c["seg"] == 2
+    xi = np.clip((c["u"] - c["D"] - np.pi * c["R"]) / c["D"], 0, 1)
+    lift = np.where(xi < xr, h * xi / xr, h * (1 - xi) / (1 - xr))
+    c["ly"] = c["ly"] + np.where(top, lift, 0.0)
+    return {"h_mm": h, "xi_roller": xr, "form": "tent: straight from each wheel to the roller"}
+
+
+def _lug_splay(sc, c, rng, size):
+    d = [_uniform(rng, 0.05, 0.4, size), float(rng.uniform(0.05, 0.4))]
+    if rng.random() < 0.5:
+        d = d[::-1]
+    ramp = [float(rng.uniform(0.0, 0.3)) for _ in range(2)]
+    D, R = c["D"], c["R"]
+    out = {"delta_rear_mm": d[0], "delta_front_mm": d[1], "ramp_rear": ramp[0],
+           "ramp_front": ramp[1], "form": "radial, ramping in over the arc's first part"}
+    for k, (seg, start, sgn) in enumerate(((1, D, -1.0), (3, 2 * D + np.pi * R, 1.0))):
+        on = c["seg"] == seg
+        phi = np.clip((c["u"] - start) / R, 0, np.pi)
+        frac = phi / np.pi
+        g = d[k] * np.clip(frac / max(ramp[k], 1e-9), 0, 1)
+        c["lx"] = c["lx"] + np.where(on, sgn * g * np.sin(phi), 0.0)
+        c["ly"] = c["ly"] + np.where(on, sgn * g * np.cos(phi), 0.0)
+    return out
+
+
+def _keystone(sc, c, rng, size, centre):
+    ang = _uniform(rng, 0.1, 1.0, size)  # degrees, the larger of the two
+    Z = float(rng.uniform(600, 1500))
+    a = np.radians([ang, float(rng.uniform(-1, 1)) * ang])
+    if rng.random() < 0.5:
+        a = a[::-1]
+    p = np.tan(a) * rng.choice([-1.0, 1.0], 2) / Z
+    for xk, yk in (("lx", "ly"), ("bx", "by")):
+        dx, dy = c[xk] - centre[0], c[yk] - centre[1]
+        den = 1 + p[0] * dx + p[1] * dy
+        c[xk], c[yk] = centre[0] + dx / den, centre[1] + dy / den
+    return {"p_per_mm": p.tolist(), "angles_deg": np.degrees(a).tolist(), "Z_mm": Z,
+            "centre_mm": [float(v) for v in centre],
+            "form": "q -> c + (q - c) / (1 + p.(q - c))"}
+
+
+def _jitter_draw(sc, rng, size):
+    sd = _uniform(rng, 0.03e-3, 0.25e-3, size * 1e-3 if size else None)
+    nf = int(round(sc.duration_s * sc.fps))
+    if rng.random() < 1 / 3:
+        tau = sd * (np.arange(nf) % 2)
+        form = "every other frame late"
+    else:
+        tau = rng.normal(0, sd, nf)
+        form = "Gaussian per frame"
+    return {"sd_ms": sd * 1e3, "form": form}, tau
+
+
 _CATALOG_DRAW = {
     "wheel_runout": lambda rng, s: _ab("runout", _uniform(rng, 0.003, 0.01, s), rng),
     "lug_ripple": lambda rng, s: _ab("ripple", _uniform(rng, 0.002, 0.01, s), rng),
@@ -347,7 +424,7 @@ def make(mechanism: str, seed: int, *, size: float | None = None, faults: bool =
         raise ValueError(f"unknown mechanism {mechanism!r}; known: {', '.join(ALL)}")
     sc = scenario(seed)
     rng = np.random.default_rng([seed, 28, ALL.index(mechanism)])
-    speed_mod = slip_of = None
+    speed_mod = slip_of = tau = None
     slip_true = sc.slip
     params: dict = {}
     if mechanism in CATALOG_CASES or mechanism == "null":
@@ -367,7 +444,9 @@ def make(mechanism: str, seed: int, *, size: float | None = None, faults: bool =
                       "form": "s = s_lin (1 + c v)"}
             slip_of = lambda s_lin, v: s_lin * (1 + cc * v)  # noqa: E731
             slip_true = sc.slip * (1 + cv)
-        c = _clean(sc, speed_mod, slip_of)
+        elif mechanism == "frame_jitter":
+            params, tau = _jitter_draw(sc, rng, size)
+        c = _clean(sc, speed_mod, slip_of, tau)
         if mechanism == "squat":
             params = _squat(sc, c, rng, size)
         elif mechanism == "flap":
@@ -376,10 +455,22 @@ def make(mechanism: str, seed: int, *, size: float | None = None, faults: bool =
             params = {"_pending": True}
         elif mechanism == "idler_wobble":
             params = _idler_wobble(sc, c, rng, size)
-        if mechanism != "bump":
+        elif mechanism == "carrier_roller":
+            params = _carrier_roller(sc, c, rng, size)
+        elif mechanism == "lug_splay":
+            params = _lug_splay(sc, c, rng, size)
+        if mechanism not in ("bump", "keystone"):
             rec = _recording(sc, c, seed)
     window = None
     info = {}
+    if mechanism == "keystone":  # about the window's centre (drawn from a warp-free draw)
+        base = _recording(sc, c, seed)
+        if faults:
+            _, info = realism.drive_through(base, seed=seed, need_motion=True, faults=False)
+            window = info["window"]
+        lo, hi = window if window is not None else (0.0, sc.travel_mm)
+        params = _keystone(sc, c, rng, size, (0.5 * (lo + hi), sc.y_off_mm + sc.R_mm))
+        rec = _recording(sc, c, seed)
     if mechanism == "bump":
         # the window first (from a bump-free draw), then the bump inside it
         base = _recording(sc, c, seed)

@@ -32,6 +32,12 @@ CASES = {
     # two of our own: a slip growing with speed (s_lin (1 + c v)), an eccentric idler
     "slip_speed": (SEED, 0.3, "slip law", ("F,v", "v")),
     "idler_wobble": (SEED, 0.1, "body motion", "psi"),
+    # MODEL.md §5's other three families: a support roller under the top run, lugs that
+    # splay round the wheels, a camera not square to the track, a jittering clock
+    "carrier_roller": (SEED, 0.3, "path shape", "xi"),
+    "lug_splay": (SEED, 0.2, "path shape", "xi"),
+    "keystone": (SEED, 0.5, "image map", "q"),
+    "frame_jitter": (SEED, 0.15, "time map", "t"),
 }
 
 
@@ -83,6 +89,21 @@ def test_a_mechanism_outside_the_catalog_is_modelled_by_its_family(mechanism, tm
         assert abs(before.value - truth["slip"]) > 10 * before.std
     elif mechanism == "idler_wobble":
         assert "once per wheel turn" in t["reading"]
+    elif mechanism == "carrier_roller":  # a tent on the top run: its height and place
+        assert t["segment"] == "top"
+        assert p["peak_mm"] == pytest.approx(q["h_mm"], rel=0.15)
+        assert p["at_xi"] == pytest.approx(q["xi_roller"], abs=0.08)
+    elif mechanism == "lug_splay":  # the mean radial offset round each wheel
+        for wheel in ("rear", "front"):
+            want = q[f"delta_{wheel}_mm"] * (1 - q[f"ramp_{wheel}"] / 2)
+            assert p["mean_radial_mm"][wheel] == pytest.approx(want, rel=0.2, abs=0.02)
+    elif mechanism == "keystone":  # a projective warp is quadratic at first order
+        assert p["degree"] >= 2 and "squarely" in t["reading"]
+    elif mechanism == "frame_jitter":
+        if q["form"] == "every other frame late":
+            assert abs(p["late_ms"]) == pytest.approx(q["sd_ms"], rel=0.15)
+        else:
+            assert p["rms_ms"] == pytest.approx(q["sd_ms"], rel=0.25)
     if mechanism == "flap":  # the report draws it, the terminal line reads it
         _report_shows_the_term(ex, tmp_path)
 

@@ -244,9 +244,46 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
             else:
                 verdict, located = "unexplained", loc1.parts
                 final, method = partial_shift(*robust_result(final, geo, alpha), disc)
+    alt = _family_instead(res, geo, loc0, det0, sig_est, alpha, final, accepted, verdict)
+    if alt is not None:
+        _, final, det1, loc1, disc = alt
+        verdict, located, method, accepted, steps = "modelled", loc0.parts, _method(final), [], []
     timing["total"] = time.perf_counter() - t_start
     return Explanation(verdict, res, final, list(accepted), located, steps, det0, det1, loc0,
                        loc1, rounds, method, timing, geo, sysb, disc)
+
+
+#: the catalog's image effects: MODEL.md §5's image map holds each of them
+IMAGE_EFFECTS = ("lens_distortion", "camera_tilt", "marker_depth")
+
+
+def _family_instead(res, geo, loc0, det0, sig_est, alpha, final, accepted, verdict):
+    """Catalog entries that one family term does better (issue 28).
+
+    When the catalog took an image effect and needed another effect (or a family term)
+    beside it, or still left a mismatch, the warp may be one that no entry has (a keystone:
+    the camera not square to the track) and that the entries only imitate, with the slip
+    off. The families are then tried on the
+    base fit instead, and win when they model the recording (chi^2/dof to the noise) with
+    a BIC lower by more than the catalog's threshold. Returns after_catalog's tuple, or
+    None when the catalog's answer stands."""
+    if not any(e in IMAGE_EFFECTS for e in accepted) or \
+            (len(accepted) < 2 and verdict == "explained"):
+        return None
+    fam = after_catalog(res, geo, loc0.parts, det0, sig_est, alpha)
+    if fam[0] != "modelled":
+        return None
+    alt = fam[1]
+    lnN = math.log(res.n_data)
+    bic_cat = float(final.chi2) + (res.n_data - final.dof) * lnN
+    bic_alt = float(alt.chi2) + (res.n_data - alt.dof) * lnN
+    if not bic_alt < bic_cat + BIC_THRESHOLD:
+        return None
+    fam[-1].tried.append({"catalog": list(accepted), "delta_bic": bic_cat - bic_alt,
+                          "rejected_because": (f"the family term(s) model the recording "
+                                               f"with a BIC {bic_cat - bic_alt:.0f} lower "
+                                               f"than these catalog entries together")})
+    return fam
 
 
 def _method(res) -> str:

@@ -93,13 +93,14 @@ class Family:
         raise NotImplementedError
 
 
-def best_size(proj, builds) -> tuple | None:
-    """The (size, Fitted) of least Delta BIC among `builds` = [(size, columns, n_extra)]."""
+def best_size(proj, builds, rank: bool = False) -> tuple | None:
+    """The (size, Fitted) of least Delta BIC among `builds` = [(size, columns, n_extra)]
+    (`rank`: see :meth:`Projector.fit`)."""
     best = None
     for size, B, n_extra in builds:
         if B is None or not np.any(B):
             continue
-        f = proj.fit(B, n_extra)
+        f = proj.fit(B, n_extra, rank=rank)
         if best is None or f.delta_bic < best[1].delta_bic:
             best = (size, f)
     return best

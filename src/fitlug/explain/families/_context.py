@@ -4,7 +4,8 @@ The families are linear extensions of a converged fit (:mod:`._solve`): each add
 B (d weighted residual / d coefficient) next to the fit's own Jacobian J. This module
 gathers, for the residual vector of a :class:`fitlug.fit.FitResult` (order [lug_x, lug_y,
 body_x, body_y]), where and when each row was taken in the natural coordinates of
-MODEL.md §5: time t, acceleration a, belt travel psi, the lug's place on the top run xi,
+MODEL.md §5: time t (and the frame), acceleration a, belt travel psi, the lug's place on
+the stadium u (and on the top run, xi), the observed image point q,
 its ground position x, the body's X and the body marker's offset c_x, and the derivatives
 of the weighted residual by X and psi (for speed modulations).
 """
@@ -38,6 +39,10 @@ class Context:
     segment: np.ndarray  # 0 bottom, 1 rear arc, 2 top, 3 front arc, 4 body
     marker: np.ndarray  # index into markers (the recording's)
     xi: np.ndarray  # place along the top run, 0 (rear wheel) .. 1 (front wheel); nan off it
+    u: np.ndarray  # lug rows: belt coordinate on the stadium, sigma mod P (nan for the body)
+    qx: np.ndarray  # the model's point (image position in the ground frame, mm): x
+    qy: np.ndarray  # and y (both for the x and the y row of a sample)
+    frame: np.ndarray  # index of the sample's time stamp among the recording's (frames)
     x_ground: np.ndarray  # ground x of the sample (lug: its model x; body: X + x_off)
     X: np.ndarray  # body reference position at t, mm
     cx: np.ndarray  # body marker's x offset (0 for lugs)
@@ -52,6 +57,7 @@ class Context:
     D: float
     R: float
     pitch: float
+    P: float
     x_off: float
     n_body: int
     markers: tuple
@@ -102,6 +108,12 @@ def context(res, J: np.ndarray) -> Context:
     tl, tb = np.asarray(lay.lug_t), np.asarray(lay.body_t)
     t = np.concatenate([tl, tl, tb, tb])
     w = np.concatenate([np.asarray(obs["lug_w"])] * 2 + [np.asarray(obs["body_w"])] * 2)
+    # the model's points, not the observed ones: a warp evaluated at the data would hold
+    # the residuals themselves (q_obs = q_model - r / w)
+    mlx, mly, mbx, mby = (np.asarray(q) for q in positions(p, lay, Xl, psil, Xb, psib))
+    qx = np.concatenate([mlx, mlx, mbx, mbx])
+    qy = np.concatenate([mly, mly, mby, mby])
+    _, frame = np.unique(np.round(t * 1e7), return_inverse=True)
     lug_marker = np.asarray(prob.lug_ids)[np.asarray(lay.lug_i)]
     body_marker = np.asarray(prob.body_ids)[np.asarray(lay.body_j)]
     return Context(
@@ -113,6 +125,8 @@ def context(res, J: np.ndarray) -> Context:
         segment=np.concatenate([seg_l, seg_l, np.full(2 * n_b, 4)]),
         marker=np.concatenate([lug_marker, lug_marker, body_marker, body_marker]),
         xi=np.concatenate([xi_l, xi_l, np.full(2 * n_b, np.nan)]),
+        u=np.concatenate([um, um, np.full(2 * n_b, np.nan)]), qx=qx, qy=qy,
+        frame=frame.ravel(),
         x_ground=np.concatenate([lug_xg, lug_xg, X_b + float(p["x_off"]),
                                  X_b + float(p["x_off"])]),
         X=np.concatenate([X_l, X_l, X_b, X_b]),
@@ -120,5 +134,5 @@ def context(res, J: np.ndarray) -> Context:
         a=np.interp(t, grid, a_n),
         dr_dX=np.asarray(dr_dX), dr_dpsi=np.asarray(dr_dpsi), grid=grid, v_nodes=v_n,
         vt_nodes=vt_n, psi_nodes=psi_n, t_ref=float(lay.t_ref), D=D, R=R,
-        pitch=P / lay.n_belt, x_off=float(p["x_off"]), n_body=lay.n_body, markers=tuple(prob.rec.markers))
+        pitch=P / lay.n_belt, P=P, x_off=float(p["x_off"]), n_body=lay.n_body, markers=tuple(prob.rec.markers))
 

@@ -25,13 +25,17 @@ from ._context import context
 from ._exact import refine
 from ._extend import extended
 from ._ground import GroundProfile
+from ._image import ImageMap
+from ._path import PathShape
 from ._solve import Projector, chooses
 from ._slip import SlipLaw
 from ._speed import SpeedModulation
+from ._time import TimeMap
 from ._vibration import SegmentVibration
 
 #: MODEL.md §5's families that the search knows, in its table's order
-FAMILIES = (SpeedModulation, SlipLaw, BodyMotion, GroundProfile, SegmentVibration)
+FAMILIES = (SpeedModulation, SlipLaw, PathShape, BodyMotion, GroundProfile, SegmentVibration,
+            ImageMap, TimeMap)
 MAX_TERMS = 2
 #: at most this share of the samples may be set aside as glitches after the terms
 GLITCH_SHARE = 1e-3
@@ -148,7 +152,9 @@ def discover(res, parts: list, det, J=None) -> Discovery:
             break
     if not kept:
         return Discovery([], None, tried)
-    joint = proj0.fit(B_all, k_all - B_all.shape[1])
+    # a term counted by its rank (an image or time map) is solved with its near-gauge
+    # directions left out in the joint fit too
+    joint = proj0.fit(B_all, 0, rank=any(t.choice.extra.get("rank") for t in kept))
     flat = r_ex = None
     i = 0
     for t in kept:  # a term with an exact (nonlinear) form is refitted in it
@@ -162,6 +168,11 @@ def discover(res, parts: list, det, J=None) -> Discovery:
                                                 np.zeros(t.choice.fitted.B.shape[1]))
                              for t in kept])
     final = extended(res, ctx, proj0, B_all, joint.c, joint.cov, k_all, flat, r_ex, slip_h)
+    if not final.chi2 < 1.5 * chi2_cur + 10.0 * math.sqrt(2.0 * dof):
+        # the exact model did not hold the linear prediction: no term is reported
+        return Discovery([], None, tried, why_not=(
+            f"the extended model's chi2/dof {final.chi2 / final.dof:.3g} did not hold its "
+            f"linear prediction {chi2_cur / dof_cur:.3g}"))
     i = 0
     for t in kept:  # the slip law's form, for whoever draws the model's slip (the report)
         m = t.choice.fitted.B.shape[1]

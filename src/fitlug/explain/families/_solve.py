@@ -94,13 +94,15 @@ class Projector:
         G, g, _ = self._normal(B)
         return float(g @ _pinv(G) @ g)
 
-    def fit(self, B: np.ndarray, n_extra: int = 0) -> Fitted:
-        """The term of columns B fitted jointly with the fit (see the module)."""
+    def fit(self, B: np.ndarray, n_extra: int = 0, rank: bool = False) -> Fitted:
+        """The term of columns B fitted jointly with the fit (see the module). `rank`: the
+        criterion counts the directions the data see (the rank of B_perp), not B's columns
+        (a warp or a time map whose lowest orders the fit's own parameters already are)."""
         G, g, _ = self._normal(B)
-        cov = _pinv(G)
+        cov, n_seen = _pinv(G, with_rank=True) if rank else (_pinv(G), B.shape[1])
         c = -cov @ g
         dchi2 = float(g @ cov @ g)
-        k = B.shape[1] + n_extra
+        k = (n_seen if rank else B.shape[1]) + n_extra
         return Fitted(B=B, c=c, cov=cov, dchi2=dchi2, k=k,
                       delta_bic=-dchi2 + k * self.lnN)
 
@@ -119,19 +121,23 @@ class Projector:
         return out
 
 
-def _pinv(A: np.ndarray) -> np.ndarray:
+def _pinv(A: np.ndarray, with_rank: bool = False):
     """Pseudo-inverse of a symmetric positive semi-definite matrix (diagonal scaled first;
-    eigenvalues below 1e-14 of the largest dropped)."""
+    eigenvalues below 1e-14 of the largest dropped), and with `with_rank` its rank."""
     out = np.zeros_like(A)
     live = np.flatnonzero(np.diag(A) > 1e-300)  # a column no datum touches: no direction
     if live.size == 0:
-        return out
+        return (out, 0) if with_rank else out
     As = A[np.ix_(live, live)]
     d = np.sqrt(np.diag(As))
     w, V = np.linalg.eigh(As / np.outer(d, d))
-    keep = w > 1e-14 * max(w.max(), 1e-300)
+    # counting the rank: a direction the fit's own parameters all but hold (a gauge, or
+    # one that only the slip's small dependence on the acceleration breaks) is left out
+    # below 1e-7 of the largest (else it takes a coefficient far past where the linear
+    # step holds), not only at round-off
+    keep = w > (1e-7 if with_rank else 1e-14) * max(w.max(), 1e-300)
     out[np.ix_(live, live)] = (V[:, keep] / w[keep]) @ V[:, keep].T / np.outer(d, d)
-    return out
+    return (out, int(keep.sum())) if with_rank else out
 
 
 def best_frequency(proj: Projector, columns, f0: float, span: float, T: float,

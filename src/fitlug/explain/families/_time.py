@@ -1,0 +1,147 @@
+"""Time map: the frames' true times are their stamps plus tau (MODEL.md §5; frame_drop is
+its catalog case). Every marker of a frame then sits where the model puts it tau later:
+its weighted residual moves by tau (v dr/dX + v_t dr/dpsi). A smooth tau(t) is the speed
+profile's own freedom (X(t) absorbs it), so what a recording can show is a tau that
+changes from frame to frame:
+
+- every other frame late (an interlaced or double-buffered recorder): one parameter;
+- a free tau per frame (a camera stamped by a host's clock that jitters): one per frame,
+  counted by the directions the data see (frames with the robot at rest see none), shown
+  and read less its smooth trend (the part of it the speed profile could hold).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ._base import Choice, Family, best_size, names
+
+#: the per-frame form's columns are dense: at most this many cells (S x frames)
+MAX_CELLS = 6e7
+
+
+class TimeMap(Family):
+    """tau per frame: alternating, or free."""
+
+    name = "time map"
+
+    @classmethod
+    def applies(cls, part):
+        return part.get("axis") in ("x", "y")
+
+    @classmethod
+    def fit(cls, ctx, proj, parts):
+        sel = ctx.valid
+        if sel.sum() < 100:
+            return None
+        v = np.interp(ctx.t, ctx.grid, ctx.v_nodes)
+        vt = np.interp(ctx.t, ctx.grid, ctx.vt_nodes)
+        d = np.where(sel, ctx.dr_dX * v + ctx.dr_dpsi * vt, 0.0)  # d r / d tau, per s
+        frames, fi = np.unique(ctx.frame, return_inverse=True)
+        nf = len(frames)
+        stamps = np.zeros(nf)
+        stamps[fi] = ctx.t
+        order = np.argsort(stamps)
+        rank_of = np.empty(nf, int)
+        rank_of[order] = np.arange(nf)
+        k = rank_of[fi]  # 0, 1, 2 ... in time
+        fps = 1.0 / float(np.median(np.diff(np.sort(stamps))))
+        # the frame number from the stamp (a stamp's parity, robust to missing frames)
+        num = np.round((ctx.t - stamps.min()) * fps).astype(int)
+        builds = [("alternate", (d * (num % 2))[:, None] * 1e-3, 0)]  # tau in ms
+        # a frame sees its tau only through the markers' motion: frames where they barely
+        # move (the robot at rest) get no column (their tau is not seen, not fitted)
+        strength = np.bincount(k, weights=d * d, minlength=nf)
+        live = strength > 1e-2 * np.median(strength[strength > 0]) if np.any(strength > 0) \
+            else np.zeros(nf, bool)
+        col = np.cumsum(live) - 1
+        n_live = int(live.sum())
+        if n_live and len(ctx.r) * n_live <= MAX_CELLS:
+            B = np.zeros((len(ctx.r), n_live))
+            on = live[k]
+            B[np.flatnonzero(on), col[k[on]]] = d[on] * 1e-3
+            builds.append(("free", B, 0))
+        found = best_size(proj, builds, rank=True)
+        if found is None:
+            return None
+        form, fitted = found
+        ts = np.sort(stamps)
+        detrend = None
+        if form == "free":
+            v_f = np.interp(ts[live], ctx.grid, ctx.v_nodes)
+            detrend = _detrender(ts[live], np.diag(fitted.cov), v_f,
+                                 np.asarray(ctx.res.problem.lay.breaks, float))
+
+        def tau(x, c):  # ms at stamp times x
+            x = np.asarray(x, float)
+            if form == "alternate":
+                return c[0] * (np.round((x - ts[0]) * fps).astype(int) % 2)
+            j = np.clip(np.searchsorted(ts, x), 0, nf - 1)
+            full = np.full(nf, np.nan)
+            full[live] = detrend(np.asarray(c, float))
+            return full[j]
+
+        seen = np.diag(fitted.cov) > 0
+
+        def describe(c):
+            if form == "alternate":
+                params = {"form": form, "late_ms": float(c[0]),
+                          "late_std_ms": float(math.sqrt(max(fitted.cov[0, 0], 0.0)))}
+                text = (f"every other frame is {'late' if c[0] > 0 else 'early'} by "
+                        f"{abs(c[0]):.2g} ms against its stamp: an interlaced or "
+                        f"double-buffered recorder")
+                return params, text
+            # the frames that see their offset well (error within twice the median: not
+            # those where the markers barely move), their scatter, and the same less what
+            # each offset's own error adds
+            var = np.diag(fitted.cov)
+            err = np.sqrt(np.where(seen, var, np.inf))
+            good = seen & (err <= 2.0 * np.median(err[seen])) if seen.any() else seen
+            cs = detrend(np.asarray(c, float))[good]
+            rms = float(np.sqrt(np.mean((cs - np.mean(cs)) ** 2))) if cs.size else 0.0
+            sd = math.sqrt(max(rms ** 2 - float(np.mean(var[good])), 0.0)) if cs.size else 0.0
+            params = {"form": form, "rms_ms": rms, "sd_ms": sd, "frames_seen": int(seen.sum()),
+                      "frames_well_seen": int(good.sum()),
+                      "max_abs_ms": float(np.max(np.abs(cs))) if cs.size else 0.0}
+            text = (f"the frames' true times scatter by {rms:.2g} ms about their stamps "
+                    f"(rms of the fitted offsets over the {int(good.sum())} frames that see "
+                    f"them best): the camera's clock or a host's time stamps jitter")
+            return params, text
+
+        xs = ts[live] if form == "free" else ts[:min(nf, 200)]
+        return Choice(cls.name, "t", fitted, names(ctx, sel), None, None, None, tau, xs,
+                      "ms", "s (frame stamp)", describe,
+                      label=("every other frame late" if form == "alternate" else
+                             f"a free offset per frame ({nf} frames)"),
+                      rows=sel & (ctx.axis == 0), row_coord=ctx.t,
+                      row_coord_name="time stamp (s), x rows",
+                      extra={"rank": True},
+                      ambiguity=("a recording with the frame times from the camera's own "
+                                 "clock (or a strobe in view) would tell a clock's error "
+                                 "from the motion's"))
+
+
+def _detrender(ts, var, v, breaks):
+    """c -> c less what the fit's own X(t) could hold: a tau that changes slowly moves the
+    body by v tau, which X's spline (degree 4 on the speed spline's breaks) takes up. So
+    v c is fitted by that spline (weighted by 1 / (v^2 var)) and the rest, divided by v,
+    is the clock's (frames where v is ~0 are left as they are)."""
+    from scipy.interpolate import BSpline
+
+    lo, hi = float(ts[0]), float(ts[-1])
+    br = np.unique(np.clip(np.r_[lo, breaks, hi], lo, hi))
+    deg = 4
+    knots = np.r_[[lo] * deg, br, [hi] * deg]
+    S = BSpline.design_matrix(np.clip(ts, lo, hi), knots, deg).toarray()
+    vs = np.where(np.abs(v) > 1e-9, v, 1e-9)
+    w = 1.0 / np.sqrt(np.maximum(vs * vs * var, 1e-300))
+    w = w / np.max(w)
+    Sw = S * w[:, None]
+
+    def detrend(c):
+        y = vs * c
+        coef = np.linalg.lstsq(Sw, y * w, rcond=None)[0]
+        return (y - S @ coef) / vs
+    return detrend
