@@ -224,6 +224,16 @@ def _read_log(path):
     return out
 
 
+def _stop_workers_on_term(ex) -> None:
+    """On SIGTERM (kill, pkill) stop the spawned workers too: they are processes of their
+    own and would go on fitting after the parent is gone."""
+    def stop(signum, frame):
+        for proc in list(getattr(ex, "_processes", {}).values()):
+            proc.terminate()
+        raise SystemExit(128 + signum)
+    signal.signal(signal.SIGTERM, stop)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=20, help="recordings per mechanism")
@@ -281,6 +291,7 @@ def main(argv=None):
                                            "intra_op_parallelism_threads=1")
         ctx = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(workers, mp_context=ctx) as ex:
+            _stop_workers_on_term(ex)
             futures = {ex.submit(one, t): t for t in todo}
             for f in as_completed(futures):
                 try:

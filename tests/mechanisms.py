@@ -51,7 +51,10 @@ Mechanisms (family and coordinate as MODEL.md §5 names them):
   (1 + p.(q - c)) about the window's centre c, on every marker;
 - `frame_jitter` (time map; t): the frames are stamped on a clock that jitters (a
   host-timestamped camera), the true time of frame k is t_k + tau_k, tau_k Gaussian with
-  sd 0.03-0.25 ms (a third of the draws: every other frame late by that much instead).
+  sd 0.03-0.25 ms (a third of the draws: every other frame late by that much instead);
+- `clock_wobble` (time map; t): the camera's frame clock wobbles, tau(t) = A sin(2 pi f t
+  + phi), A 0.1-0.6 ms, f 3-25 Hz (and < 0.3 fps): to the data nearly a speed modulation
+  in time, but the robot's motion (and its slip) is untouched.
 
 Also `null` (the base model) and catalog recordings (`wheel_runout`, `belt_sag`,
 `lug_ripple`, `body_bounce`) from `fitlug.sim.simulate` with the same rigs and faults.
@@ -93,6 +96,7 @@ FAMILIES = {
     "lug_splay": ("path shape", "xi"),
     "keystone": ("image map", "q"),
     "frame_jitter": ("time map", "t"),
+    "clock_wobble": ("time map", "t"),
 }
 #: catalog recordings this generator also makes (no family term may be kept on them)
 CATALOG_CASES = ("wheel_runout", "belt_sag", "lug_ripple", "body_bounce")
@@ -383,6 +387,15 @@ def _keystone(sc, c, rng, size, centre):
             "form": "q -> c + (q - c) / (1 + p.(q - c))"}
 
 
+def _wobble_draw(sc, rng, size):
+    A = _uniform(rng, 0.1e-3, 0.6e-3, size * 1e-3 if size else None)
+    f = float(rng.uniform(3.0, min(25.0, 0.3 * sc.fps)))
+    phi = float(rng.uniform(0, 2 * np.pi))
+    t = np.arange(int(round(sc.duration_s * sc.fps))) / sc.fps
+    return ({"A_ms": A * 1e3, "f_Hz": f, "phi_rad": phi, "form": "A sin(2 pi f t + phi)"},
+            A * np.sin(2 * np.pi * f * t + phi))
+
+
 def _jitter_draw(sc, rng, size):
     sd = _uniform(rng, 0.03e-3, 0.25e-3, size * 1e-3 if size else None)
     nf = int(round(sc.duration_s * sc.fps))
@@ -446,6 +459,8 @@ def make(mechanism: str, seed: int, *, size: float | None = None, faults: bool =
             slip_true = sc.slip * (1 + cv)
         elif mechanism == "frame_jitter":
             params, tau = _jitter_draw(sc, rng, size)
+        elif mechanism == "clock_wobble":
+            params, tau = _wobble_draw(sc, rng, size)
         c = _clean(sc, speed_mod, slip_of, tau)
         if mechanism == "squat":
             params = _squat(sc, c, rng, size)

@@ -38,6 +38,9 @@ CASES = {
     "lug_splay": (SEED, 0.2, "path shape", "xi"),
     "keystone": (SEED, 0.5, "image map", "q"),
     "frame_jitter": (SEED, 0.15, "time map", "t"),
+    # a clock that wobbles at 10.8 Hz: a speed modulation in time would fit it too, but
+    # the slip would answer a modulated speed; the criterion must tell them apart
+    "clock_wobble": (SEED, 0.3, "time map", "t"),
 }
 
 
@@ -99,6 +102,9 @@ def test_a_mechanism_outside_the_catalog_is_modelled_by_its_family(mechanism, tm
             assert p["mean_radial_mm"][wheel] == pytest.approx(want, rel=0.2, abs=0.02)
     elif mechanism == "keystone":  # a projective warp is quadratic at first order
         assert p["degree"] >= 2 and "squarely" in t["reading"]
+    elif mechanism == "clock_wobble":
+        assert t["frequency_hz"] == pytest.approx(q["f_Hz"], abs=0.02)
+        assert p["amplitude_ms"] == pytest.approx(q["A_ms"], rel=0.1)
     elif mechanism == "frame_jitter":
         if q["form"] == "every other frame late":
             assert abs(p["late_ms"]) == pytest.approx(q["sd_ms"], rel=0.15)

@@ -19,10 +19,10 @@ import numpy as np
 from ..._errors import FitlugError
 from .._detect import detect
 from .._locate import locate
-from .._criterion import MODELLED_CHI2, STRONG_MISFIT_Z
+from .._criterion import BIC_THRESHOLD, MODELLED_CHI2, STRONG_MISFIT_Z
 from ._body import BodyMotion
 from ._context import context
-from ._exact import refine
+from ._exact import base_residuals, refine
 from ._extend import extended
 from ._ground import GroundProfile
 from ._image import ImageMap
@@ -121,6 +121,7 @@ def discover(res, parts: list, det, J=None) -> Discovery:
     r_cur, chi2_cur, dof_cur = ctx.r, chi2, dof
     for _ in range(MAX_TERMS):
         best = None
+        passed = []
         for F in fams:
             if any(t.choice.family == F.name for t in kept):
                 continue
@@ -132,10 +133,19 @@ def discover(res, parts: list, det, J=None) -> Discovery:
             tried.append({"family": F.name, "coordinate": ch.coordinate, "form": ch.label,
                           "delta_bic": ch.fitted.delta_bic, "delta_chi2": ch.fitted.dchi2,
                           "rejected_because": why})
+            if why is None:
+                passed.append(ch)
             if why is None and (best is None or ch.fitted.delta_bic < best.fitted.delta_bic):
                 best = ch
         if best is None:
             break
+        close = [ch for ch in passed if ch is not best
+                 and ch.fitted.delta_bic - best.fitted.delta_bic < -BIC_THRESHOLD]
+        if close:  # the criterion cannot tell them apart: say so (issue 28, point 3)
+            alt = "; ".join(f"a {ch.family} in {ch.coordinate}" for ch in close)
+            best.ambiguity = "; ".join(q for q in (
+                best.ambiguity, f"this recording reads almost as well as {alt} "
+                                f"(delta BIC within {-BIC_THRESHOLD:g})") if q)
         f = best.fitted
         r_new = r_cur + proj.moved(f.B, f.c)
         chi2_new = chi2_cur - f.dchi2
@@ -168,7 +178,16 @@ def discover(res, parts: list, det, J=None) -> Discovery:
                                                 np.zeros(t.choice.fitted.B.shape[1]))
                              for t in kept])
     final = extended(res, ctx, proj0, B_all, joint.c, joint.cov, k_all, flat, r_ex, slip_h)
-    if not final.chi2 < 1.5 * chi2_cur + 10.0 * math.sqrt(2.0 * dof):
+    held = 1.5 * chi2_cur + 10.0 * math.sqrt(2.0 * dof)
+    if not final.chi2 < held and flat is None:
+        # the linear step moved the fit's weakly held parameters where its Jacobian no
+        # longer holds (a time map's lugs: chi2/dof 2.4 for a predicted 1.0): the terms,
+        # linear in their coefficients, refitted with the fit's own exact model
+        flat, joint.c, r_ex = refine(proj0, ctx, B_all, joint.c, base_residuals(res),
+                                     np.arange(0))
+        final = extended(res, ctx, proj0, B_all, joint.c, joint.cov, k_all, flat, r_ex,
+                         slip_h)
+    if not final.chi2 < held:
         # the exact model did not hold the linear prediction: no term is reported
         return Discovery([], None, tried, why_not=(
             f"the extended model's chi2/dof {final.chi2 / final.dof:.3g} did not hold its "

@@ -107,6 +107,17 @@ def speed_residuals(res, ctx, coord: str, f: float, n: int):
     return residuals_with(res, rates)
 
 
+def base_residuals(res):
+    """The fit's own model as :func:`residuals_with` writes it (no term of its own): for
+    refitting terms that are linear in their coefficients (``idx`` empty in :func:`refine`)."""
+    lay = res.problem.lay
+
+    def rates(p, v0, a0, c):
+        return v0, v0 / (1 - slip_law(p, lay, a0))
+
+    return residuals_with(res, rates)
+
+
 def refine(proj, ctx, B, c, exact, idx) -> tuple:
     """Gauss-Newton on exact residuals from the linear solution: (flat, c, residuals).
 

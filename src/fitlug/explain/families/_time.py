@@ -5,6 +5,8 @@ profile's own freedom (X(t) absorbs it), so what a recording can show is a tau t
 changes from frame to frame:
 
 - every other frame late (an interlaced or double-buffered recorder): one parameter;
+- a periodic tau at a free frequency, 1-3 harmonics (a clock that wobbles: told from a
+  speed modulation in time by the slip, which answers a modulated speed and not a clock);
 - a free tau per frame (a camera stamped by a host's clock that jitters): one per frame,
   counted by the directions the data see (frames with the robot at rest see none), shown
   and read less its smooth trend (the part of it the speed profile could hold).
@@ -17,6 +19,7 @@ import math
 import numpy as np
 
 from ._base import Choice, Family, best_size, names
+from ._solve import best_frequency, peak_frequency
 
 #: the per-frame form's columns are dense: at most this many cells (S x frames)
 MAX_CELLS = 6e7
@@ -63,10 +66,32 @@ class TimeMap(Family):
             on = live[k]
             B[np.flatnonzero(on), col[k[on]]] = d[on] * 1e-3
             builds.append(("free", B, 0))
+        # a periodic tau at a free frequency (a clock that wobbles): to the data nearly a
+        # speed modulation in time, but the robot's own motion is untouched (no slip
+        # answering a modulated acceleration), which is how the criterion tells them apart
+        T = float(np.ptp(ctx.t[sel]))
+        body = sel & (ctx.segment == 4) & (ctx.axis == 0)
+        seeds = [p["frequency_hz"] for p in parts if p.get("frequency_hz")]
+        if body.sum() > 20:
+            seeds.append(peak_frequency(ctx.t[body], ctx.r[body], fps / 2, T))
+        seeds = [f for f in seeds if np.isfinite(f) and f > 2.0 / T]
+        seeds = [f for i, f in enumerate(seeds) if all(abs(f - g) > 0.06 * g
+                                                       for g in seeds[:i])][:3]
+
+        def periodic(f, n=1):
+            ph = 2 * np.pi * f * np.outer(ctx.t, np.arange(1, n + 1))
+            return d[:, None] * np.concatenate([np.sin(ph), np.cos(ph)], 1) * 1e-3
+
+        f_per = None
+        if seeds:
+            f_per = max((best_frequency(proj, periodic, f0, max(2.0 / T, 0.06 * f0), T)
+                         for f0 in seeds), key=lambda q: q[1])[0]
+            builds += [(f"periodic{n}", periodic(f_per, n), 1) for n in (1, 2, 3)]
         found = best_size(proj, builds, rank=True)
         if found is None:
             return None
         form, fitted = found
+        n_harm = int(form[-1]) if form.startswith("periodic") else 0
         ts = np.sort(stamps)
         detrend = None
         if form == "free":
@@ -74,8 +99,11 @@ class TimeMap(Family):
             detrend = _detrender(ts[live], np.diag(fitted.cov), v_f,
                                  np.asarray(ctx.res.problem.lay.breaks, float))
 
-        def tau(x, c):  # ms at stamp times x
+        def tau(x, c):  # ms at stamp times x (for the periodic form: cycle fraction x)
             x = np.asarray(x, float)
+            if n_harm:
+                ph = 2 * np.pi * np.outer(x, np.arange(1, n_harm + 1))
+                return np.sin(ph) @ c[:n_harm] + np.cos(ph) @ c[n_harm:]
             if form == "alternate":
                 return c[0] * (np.round((x - ts[0]) * fps).astype(int) % 2)
             j = np.clip(np.searchsorted(ts, x), 0, nf - 1)
@@ -86,6 +114,14 @@ class TimeMap(Family):
         seen = np.diag(fitted.cov) > 0
 
         def describe(c):
+            if n_harm:
+                amp = float(np.max(np.abs(tau(np.linspace(0, 1, 61), c))))
+                params = {"form": "periodic", "frequency_hz": f_per, "harmonics": n_harm,
+                          "amplitude_ms": amp, "coefficients_ms": [float(q) for q in c]}
+                text = (f"the frames' true times swing by {amp:.2g} ms about their stamps "
+                        f"at {f_per:.2f} Hz, every marker displaced along its own motion "
+                        f"and the robot's motion untouched: the camera's clock wobbles")
+                return params, text
             if form == "alternate":
                 params = {"form": form, "late_ms": float(c[0]),
                           "late_std_ms": float(math.sqrt(max(fitted.cov[0, 0], 0.0)))}
@@ -110,17 +146,25 @@ class TimeMap(Family):
                     f"them best): the camera's clock or a host's time stamps jitter")
             return params, text
 
-        xs = ts[live] if form == "free" else ts[:min(nf, 200)]
-        return Choice(cls.name, "t", fitted, names(ctx, sel), None, None, None, tau, xs,
-                      "ms", "s (frame stamp)", describe,
-                      label=("every other frame late" if form == "alternate" else
+        xs = (np.linspace(0.0, 1.0, 61) if n_harm else
+              ts[live] if form == "free" else ts[:min(nf, 200)])
+        return Choice(cls.name, "t", fitted, names(ctx, sel), None, None,
+                      f_per if n_harm else None, tau, xs,
+                      "ms", "cycle fraction" if n_harm else "s (frame stamp)", describe,
+                      label=(f"{n_harm} harmonic(s) at {f_per:.2f} Hz" if n_harm else
+                             "every other frame late" if form == "alternate" else
                              f"a free offset per frame ({nf} frames)"),
-                      rows=sel & (ctx.axis == 0), row_coord=ctx.t,
-                      row_coord_name="time stamp (s), x rows",
+                      rows=sel & (ctx.axis == 0),
+                      row_coord=np.mod(f_per * ctx.t, 1.0) if n_harm else ctx.t,
+                      row_coord_name=(f"phase of the {f_per:.3g} Hz cycle (fraction), x rows"
+                                      if n_harm else "time stamp (s), x rows"),
                       extra={"rank": True},
                       ambiguity=("a recording with the frame times from the camera's own "
                                  "clock (or a strobe in view) would tell a clock's error "
-                                 "from the motion's"))
+                                 "from the motion's" + (
+                                     ", and one that accelerates harder would tell it from a "
+                                     "speed modulation in time (the slip answers a modulated "
+                                     "speed, not a clock)" if n_harm else "")))
 
 
 def _detrender(ts, var, v, breaks):
