@@ -260,15 +260,18 @@ IMAGE_EFFECTS = ("lens_distortion", "camera_tilt", "marker_depth")
 def _family_instead(res, geo, loc0, det0, sig_est, alpha, final, accepted, verdict):
     """Catalog entries that one family term does better (issue 28).
 
-    When the catalog took an image effect and needed another effect (or a family term)
-    beside it, or still left a mismatch, the warp may be one that no entry has (a keystone:
-    the camera not square to the track) and that the entries only imitate, with the slip
-    off. The families are then tried on the
+    When the catalog's entries needed a family term beside them, or still left a
+    mismatch, they may only imitate physics that no entry has (a squat taken in part for
+    body_bounce and camera_tilt; lugs that splay round the wheels, in part for belt_sag);
+    and a stack of image effects, even one that explains the recording, may imitate a warp
+    none of them is (a keystone: the camera not square to the track, read as
+    lens_distortion + camera_tilt + marker_depth with the slip 4.7 sigma off). The
+    families are then tried on the
     base fit instead, and win when they model the recording (chi^2/dof to the noise) with
     a BIC lower by more than the catalog's threshold. Returns after_catalog's tuple, or
     None when the catalog's answer stands."""
-    if not any(e in IMAGE_EFFECTS for e in accepted) or \
-            (len(accepted) < 2 and verdict == "explained"):
+    image_stack = len(accepted) >= 2 and any(e in IMAGE_EFFECTS for e in accepted)
+    if not accepted or (verdict == "explained" and not image_stack):
         return None
     fam = after_catalog(res, geo, loc0.parts, det0, sig_est, alpha)
     if fam[0] != "modelled":

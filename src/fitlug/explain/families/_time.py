@@ -65,6 +65,12 @@ class TimeMap(Family):
             B = np.zeros((len(ctx.r), n_live))
             on = live[k]
             B[np.flatnonzero(on), col[k[on]]] = d[on] * 1e-3
+            # less the slow taus, which are the fit's own X(t) (v tau in X's spline):
+            # left in, their near-degenerate directions only spread the slip's error
+            ts_live = np.sort(stamps)[live]
+            G = _slow_basis(ts_live, np.interp(ts_live, ctx.grid, ctx.v_nodes),
+                            np.asarray(ctx.res.problem.lay.breaks, float))
+            B -= (B @ G) @ np.linalg.pinv(G)
             builds.append(("free", B, 0))
         # a periodic tau at a free frequency (a clock that wobbles): to the data nearly a
         # speed modulation in time, but the robot's own motion is untouched (no slip
@@ -165,6 +171,20 @@ class TimeMap(Family):
                                      ", and one that accelerates harder would tell it from a "
                                      "speed modulation in time (the slip answers a modulated "
                                      "speed, not a clock)" if n_harm else "")))
+
+
+def _slow_basis(ts, v, breaks):
+    """(frames, m) the taus that X(t) takes up: X's spline (degree 4 on the speed
+    spline's breaks) over v, at the frames `ts` (their speed v)."""
+    from scipy.interpolate import BSpline
+
+    lo, hi = float(ts[0]), float(ts[-1])
+    br = np.unique(np.clip(np.r_[lo, breaks, hi], lo, hi))
+    knots = np.r_[[lo] * 4, br, [hi] * 4]
+    S = BSpline.design_matrix(np.clip(ts, lo, hi), knots, 4).toarray()
+    S = S[:, np.any(S != 0, 0)]
+    G = S / np.where(np.abs(v) > 1e-9, v, 1e-9)[:, None]
+    return G / np.linalg.norm(G, axis=0)
 
 
 def _detrender(ts, var, v, breaks):
