@@ -93,6 +93,21 @@ class Family:
         raise NotImplementedError
 
 
+class Everywhere(Family):
+    """A family that acts on every sample (the image, the clock): any located part points
+    at it, and it needs the samples of the whole recording."""
+
+    MIN_SAMPLES: ClassVar[int] = 100
+
+    @classmethod
+    def applies(cls, part):
+        return part.get("axis") in ("x", "y")
+
+    @classmethod
+    def enough(cls, ctx) -> bool:
+        return int(ctx.valid.sum()) >= cls.MIN_SAMPLES
+
+
 def best_size(proj, builds, rank: bool = False) -> tuple | None:
     """The (size, Fitted) of least Delta BIC among `builds` = [(size, columns, n_extra)]
     (`rank`: see :meth:`Projector.fit`)."""

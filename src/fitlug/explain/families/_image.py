@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._base import Choice, Family, best_size, names
+from ._base import Choice, Everywhere, best_size, names
 
 DEGREES = (1, 2, 3)
 
@@ -19,20 +19,16 @@ def _monomials(u, v, d):
     return np.stack([u ** i * v ** (k - i) for k in range(1, d + 1) for i in range(k + 1)], 1)
 
 
-class ImageMap(Family):
+class ImageMap(Everywhere):
     """A smooth warp of every point of the image (the same for lugs and body)."""
 
     name = "image map"
 
     @classmethod
-    def applies(cls, part):
-        return part.get("axis") in ("x", "y")
-
-    @classmethod
     def fit(cls, ctx, proj, parts):
-        sel = ctx.valid
-        if sel.sum() < 100:
+        if not cls.enough(ctx):
             return None
+        sel = ctx.valid
         qx, qy = np.nan_to_num(ctx.qx), np.nan_to_num(ctx.qy)
         cx, cy = float(np.mean(qx[sel])), float(np.mean(qy[sel]))
         h = float(max(np.ptp(qx[sel]), np.ptp(qy[sel]))) / 2 or 1.0

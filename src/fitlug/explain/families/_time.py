@@ -18,27 +18,23 @@ import math
 
 import numpy as np
 
-from ._base import Choice, Family, best_size, names
+from ._base import Choice, Everywhere, best_size, names
 from ._solve import best_frequency, peak_frequency
 
 #: the per-frame form's columns are dense: at most this many cells (S x frames)
 MAX_CELLS = 6e7
 
 
-class TimeMap(Family):
-    """tau per frame: alternating, or free."""
+class TimeMap(Everywhere):
+    """tau per frame: alternating, periodic, or free."""
 
     name = "time map"
 
     @classmethod
-    def applies(cls, part):
-        return part.get("axis") in ("x", "y")
-
-    @classmethod
     def fit(cls, ctx, proj, parts):
-        sel = ctx.valid
-        if sel.sum() < 100:
+        if not cls.enough(ctx):
             return None
+        sel = ctx.valid
         v = np.interp(ctx.t, ctx.grid, ctx.v_nodes)
         vt = np.interp(ctx.t, ctx.grid, ctx.vt_nodes)
         d = np.where(sel, ctx.dr_dX * v + ctx.dr_dpsi * vt, 0.0)  # d r / d tau, per s
