@@ -52,6 +52,10 @@ Mechanisms (family and coordinate as MODEL.md §5 names them):
 - `frame_jitter` (time map; t): the frames are stamped on a clock that jitters (a
   host-timestamped camera), the true time of frame k is t_k + tau_k, tau_k Gaussian with
   sd 0.03-0.25 ms (a third of the draws: every other frame late by that much instead);
+- `frame_vibration` (body motion; t): the frame vibrates at a fixed frequency (a motor or
+  the rig's resonance), body y += (A + B c_x) sin(2 pi f t + phi); A 0.01-0.06 mm, pitch
+  length A/B 100-400 mm of either sign, f 4-30 Hz (and < 0.3 fps), away from the
+  lug-passing and wheel frequencies at cruise;
 - `clock_wobble` (time map; t): the camera's frame clock wobbles, tau(t) = A sin(2 pi f t
   + phi), A 0.1-0.6 ms, f 3-25 Hz (and < 0.3 fps): to the data nearly a speed modulation
   in time, but the robot's motion (and its slip) is untouched.
@@ -97,6 +101,7 @@ FAMILIES = {
     "keystone": ("image map", "q"),
     "frame_jitter": ("time map", "t"),
     "clock_wobble": ("time map", "t"),
+    "frame_vibration": ("body motion", "t"),
 }
 #: catalog recordings this generator also makes (no family term may be kept on them)
 CATALOG_CASES = ("wheel_runout", "belt_sag", "lug_ripple", "body_bounce")
@@ -343,6 +348,23 @@ def _idler_wobble(sc, c, rng, size):
     return {"w_mm": w, "phi_rad": phi, "pivot": "front wheel"}
 
 
+def _frame_vibration(sc, c, rng, size):
+    A = _uniform(rng, 0.01, 0.06, size)
+    lp = float(rng.uniform(100, 400)) * float(rng.choice([-1.0, 1.0]))
+    lug_f = sc.v_cruise / (1 - sc.slip) / sc.pitch
+    wheel_f = lug_f * sc.pitch / (2 * np.pi * sc.R_mm)
+    for _ in range(1000):
+        f = float(rng.uniform(4.0, min(30.0, 0.3 * sc.fps)))
+        if all(abs(f / g - round(f / g)) > 0.1 or round(f / g) == 0 for g in (lug_f, wheel_f)):
+            break
+    phi = float(rng.uniform(0, 2 * np.pi))
+    tb = c["t"][c["f_b"]]
+    cx = c["cx"][c["j_b"]]
+    c["by"] = c["by"] + A * (1 + cx / lp) * np.sin(2 * np.pi * f * tb + phi)
+    return {"A_mm": A, "B_per_mm": A / lp, "f_Hz": f, "phi_rad": phi,
+            "form": "(A + B c_x) sin(2 pi f t + phi)"}
+
+
 def _carrier_roller(sc, c, rng, size):
     h = _uniform(rng, 0.1, 0.6, size)
     xr = float(rng.uniform(0.3, 0.7))
@@ -470,6 +492,8 @@ def make(mechanism: str, seed: int, *, size: float | None = None, faults: bool =
             params = {"_pending": True}
         elif mechanism == "idler_wobble":
             params = _idler_wobble(sc, c, rng, size)
+        elif mechanism == "frame_vibration":
+            params = _frame_vibration(sc, c, rng, size)
         elif mechanism == "carrier_roller":
             params = _carrier_roller(sc, c, rng, size)
         elif mechanism == "lug_splay":

@@ -41,6 +41,8 @@ CASES = {
     # a clock that wobbles at 10.8 Hz: a speed modulation in time would fit it too, but
     # the slip would answer a modulated speed; the criterion must tell them apart
     "clock_wobble": (SEED, 0.3, "time map", "t"),
+    # the frame vibrating at a fixed frequency: body motion in time, not in belt travel
+    "frame_vibration": (SEED, 0.04, "body motion", "t"),
 }
 
 
@@ -102,6 +104,9 @@ def test_a_mechanism_outside_the_catalog_is_modelled_by_its_family(mechanism, tm
             assert p["mean_radial_mm"][wheel] == pytest.approx(want, rel=0.2, abs=0.02)
     elif mechanism == "keystone":  # a projective warp is quadratic at first order
         assert p["degree"] >= 2 and "squarely" in t["reading"]
+    elif mechanism == "frame_vibration":
+        assert t["frequency_hz"] == pytest.approx(q["f_Hz"], abs=0.02)
+        assert "vibrates" in t["reading"]
     elif mechanism == "clock_wobble":
         assert t["frequency_hz"] == pytest.approx(q["f_Hz"], abs=0.02)
         assert p["amplitude_ms"] == pytest.approx(q["A_ms"], rel=0.1)

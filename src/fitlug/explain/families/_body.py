@@ -1,7 +1,8 @@
 """Body motion: body-marker y += A(.) + B(.) c_x (heave and pitch) in acceleration a (the
-suspension squats under acceleration and dives under braking) or in belt travel psi with a
-free period (a wheel, a sprocket or a lug pattern lifting the frame once per turn); the
-coordinate with the lower Delta BIC is kept (MODEL.md §5). body_bounce is the catalog's
+suspension squats under acceleration and dives under braking), in belt travel psi with a
+free period (a wheel, a sprocket or a lug pattern lifting the frame once per turn) or in
+time t at a free frequency (the frame vibrates); the coordinate with the lower Delta BIC
+is kept (MODEL.md §5). body_bounce is the catalog's
 case at the lug pitch."""
 
 from __future__ import annotations
@@ -27,24 +28,32 @@ class BodyMotion(Family):
 
     @classmethod
     def fit(cls, ctx, proj, parts):
-        found = [c for c in (cls.fit_a(ctx, proj), cls.fit_psi(ctx, proj, parts)) if c]
+        found = [c for c in (cls.fit_a(ctx, proj), cls.fit_psi(ctx, proj, parts),
+                             cls.fit_psi(ctx, proj, parts, "t")) if c]
         return min(found, key=lambda c: c.fitted.delta_bic) if found else None
 
     @classmethod
-    def fit_psi(cls, ctx, proj, parts):
-        """Heave and pitch periodic in belt travel, the period free (seeded by the located
-        frequency at cruise)."""
+    def fit_psi(cls, ctx, proj, parts, coord="psi"):
+        """Heave and pitch periodic in belt travel (or, coord 't', in time: a frame that
+        vibrates at a fixed frequency), the period free (seeded by the located frequency
+        at cruise)."""
         sel = (ctx.role == 1) & (ctx.axis == 1) & ctx.valid
         if sel.sum() < 20:
             return None
         T = float(np.ptp(ctx.t[sel]))
         fps = 1.0 / float(np.median(np.diff(np.unique(ctx.t))))
-        seeds = [p["frequency_hz"] for p in parts if cls.applies(p) and p.get("frequency_hz")]
-        f0 = seeds[0] if seeds else peak_frequency(ctx.t[sel], ctx.r[sel], fps / 2, T)
-        if not np.isfinite(f0) or f0 * T < 3:
-            return None
         vt = float(np.max(np.abs(ctx.vt_nodes)))
-        u = np.interp(ctx.t, ctx.grid, ctx.psi_nodes) / vt  # belt travel in s at cruise
+        # belt travel in s at cruise, or time
+        u = np.interp(ctx.t, ctx.grid, ctx.psi_nodes) / vt if coord == "psi" else ctx.t
+        # seeds: the located parts' lines and the strongest line of the body's y residuals
+        # in this coordinate (a part's line can be another one)
+        seeds = [p["frequency_hz"] for p in parts if cls.applies(p) and p.get("frequency_hz")]
+        seeds.append(peak_frequency(u[sel], ctx.r[sel], fps / 2, T))
+        seeds = [f for f in seeds if np.isfinite(f) and f * T >= 3]
+        seeds = [f for i, f in enumerate(seeds)
+                 if all(abs(f - g) > 0.03 * g for g in seeds[:i])][:3]
+        if not seeds:
+            return None
         pitch = ctx.n_body >= 2 and np.ptp(ctx.cx[sel]) > 1.0
 
         def cols(f, n=1):
@@ -55,7 +64,8 @@ class BodyMotion(Family):
                     out += [g, g * ctx.cx] if pitch else [g]
             return np.stack(out, 1)
 
-        f, _ = best_frequency(proj, cols, f0, max(2.0 / T, 0.06 * f0), T)
+        f = max((best_frequency(proj, cols, f0, max(2.0 / T, 0.06 * f0), T)
+                 for f0 in seeds), key=lambda q: q[1])[0]
         found = best_size(proj, [(n, cols(f, n), 1) for n in range(1, MAX_HARMONICS + 1)])
         if found is None:
             return None
@@ -63,7 +73,7 @@ class BodyMotion(Family):
         f_std = _frequency_std(proj, lambda g: cols(g, n), f, T)
         per = 2 if pitch else 1
         cmid = float(np.mean(np.unique(ctx.cx[sel]))) if pitch else 0.0
-        period = vt / f
+        period = vt / f if coord == "psi" else 1.0 / f  # mm of belt travel, or s
         xs = np.linspace(0.0, period, 61)
 
         def series(x, c, j):  # j = 0: heave at c_x = 0, 1: pitch (rad)
@@ -77,18 +87,25 @@ class BodyMotion(Family):
         def describe(c):
             grid = np.linspace(0, period, 241)
             amp = 0.5 * float(np.ptp(heave(grid, c)))
-            params = {"period_mm": period, "frequency_hz": f, "frequency_std_hz": f_std,
+            params = {"frequency_hz": f, "frequency_std_hz": f_std,
                       "harmonics": n, "heave_amplitude_mm": amp,
                       "at_body_x_offset_mm": cmid,
                       "coefficients": [float(v) for v in c]}
-            text = (f"body y heaves {amp:.2g} mm once per {period:.3g} mm of belt travel "
-                    f"({f:.2f} Hz at cruise)")
+            if coord == "psi":
+                params["period_mm"] = period
+                text = (f"body y heaves {amp:.2g} mm once per {period:.3g} mm of belt "
+                        f"travel ({f:.2f} Hz at cruise)")
+            else:
+                text = f"body y heaves {amp:.2g} mm at {f:.2f} Hz, a fixed frequency in time"
             if pitch:
                 pa = 0.5 * float(np.ptp(series(grid, c, 1)))
                 params["pitch_amplitude_rad"] = pa
                 text += f" and pitches {pa:.2g} rad"
             wheel = 2 * np.pi * ctx.R
-            if abs(period / wheel - 1) < 0.03:
+            if coord == "t":
+                text += (": the frame vibrates (a motor, a gearbox or the rig's own "
+                         "resonance)")
+            elif abs(period / wheel - 1) < 0.03:
                 text += ": once per wheel turn, an eccentric wheel or idler lifts the frame"
             elif abs(period / ctx.pitch - 1) < 0.03:
                 text += ": once per lug, the lugs lift the frame as they pass the wheels"
@@ -97,11 +114,14 @@ class BodyMotion(Family):
                          "wheel turn) lifts the frame")
             return params, text
 
-        return Choice(cls.name, "psi", fitted, names(ctx, sel), "y", "body", f, heave, xs,
-                      "mm", "mm of belt travel", describe,
-                      label=f"{n} harmonic(s) in psi, period {period:.3g} mm", rows=sel,
+        unit = "mm of belt travel" if coord == "psi" else "s"
+        return Choice(cls.name, coord, fitted, names(ctx, sel), "y", "body", f, heave, xs,
+                      "mm", unit, describe,
+                      label=f"{n} harmonic(s) in {coord}, period {period:.3g} "
+                            f"{'mm' if coord == 'psi' else 's'}", rows=sel,
                       row_coord=np.mod(f * u, 1.0),
-                      row_coord_name=f"phase of the {period:.3g} mm cycle (fraction)",
+                      row_coord_name=(f"phase of the {period:.3g} {unit.split()[0]} cycle "
+                                      "(fraction)"),
                       ambiguity=("a recording at another speed would tell a motion locked "
                                  "to the belt from one at a fixed frequency in time"))
 
