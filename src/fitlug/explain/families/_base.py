@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from typing import Callable, ClassVar
 
 import numpy as np
+from scipy.interpolate import BSpline
 
 from ._solve import Fitted
 
@@ -106,6 +107,15 @@ class Everywhere(Family):
     @classmethod
     def enough(cls, ctx) -> bool:
         return int(ctx.valid.sum()) >= cls.MIN_SAMPLES
+
+
+def bspline(x, lo: float, hi: float, n_int: int) -> np.ndarray:
+    """(len(x), n_int + 3) cubic B-spline basis on [lo, hi] in n_int equal intervals (x
+    clipped to it)."""
+    inner = np.linspace(lo, hi, n_int + 1)
+    knots = np.r_[[lo] * 3, inner, [hi] * 3]
+    xc = np.clip(np.asarray(x, float), lo, hi)
+    return BSpline.design_matrix(xc, knots, 3).toarray()
 
 
 def best_size(proj, builds, rank: bool = False) -> tuple | None:

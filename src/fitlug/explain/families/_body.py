@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._base import Choice, Family, best_size, names
-from ._solve import best_frequency, peak_frequency
+from ._solve import best_of_seeds, distinct, peak_frequency
 from ._vibration import _frequency_std
 
 MAX_POWER = 3
@@ -28,12 +28,12 @@ class BodyMotion(Family):
 
     @classmethod
     def fit(cls, ctx, proj, parts):
-        found = [c for c in (cls.fit_a(ctx, proj), cls.fit_psi(ctx, proj, parts),
-                             cls.fit_psi(ctx, proj, parts, "t")) if c]
+        found = [c for c in (cls.fit_a(ctx, proj), cls.fit_periodic(ctx, proj, parts),
+                             cls.fit_periodic(ctx, proj, parts, "t")) if c]
         return min(found, key=lambda c: c.fitted.delta_bic) if found else None
 
     @classmethod
-    def fit_psi(cls, ctx, proj, parts, coord="psi"):
+    def fit_periodic(cls, ctx, proj, parts, coord="psi"):
         """Heave and pitch periodic in belt travel (or, coord 't', in time: a frame that
         vibrates at a fixed frequency), the period free (seeded by the located frequency
         at cruise)."""
@@ -49,9 +49,7 @@ class BodyMotion(Family):
         # in this coordinate (a part's line can be another one)
         seeds = [p["frequency_hz"] for p in parts if cls.applies(p) and p.get("frequency_hz")]
         seeds.append(peak_frequency(u[sel], ctx.r[sel], fps / 2, T))
-        seeds = [f for f in seeds if np.isfinite(f) and f * T >= 3]
-        seeds = [f for i, f in enumerate(seeds)
-                 if all(abs(f - g) > 0.03 * g for g in seeds[:i])][:3]
+        seeds = distinct([f for f in seeds if f * T >= 3], 0.03)
         if not seeds:
             return None
         pitch = ctx.n_body >= 2 and np.ptp(ctx.cx[sel]) > 1.0
@@ -64,8 +62,7 @@ class BodyMotion(Family):
                     out += [g, g * ctx.cx] if pitch else [g]
             return np.stack(out, 1)
 
-        f = max((best_frequency(proj, cols, f0, max(2.0 / T, 0.06 * f0), T)
-                 for f0 in seeds), key=lambda q: q[1])[0]
+        f = best_of_seeds(proj, cols, seeds, 0.06, T)
         found = best_size(proj, [(n, cols(f, n), 1) for n in range(1, MAX_HARMONICS + 1)])
         if found is None:
             return None

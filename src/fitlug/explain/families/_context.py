@@ -42,7 +42,7 @@ class Context:
     u: np.ndarray  # lug rows: belt coordinate on the stadium, sigma mod P (nan for the body)
     qx: np.ndarray  # the model's point (image position in the ground frame, mm): x
     qy: np.ndarray  # and y (both for the x and the y row of a sample)
-    frame: np.ndarray  # index of the sample's time stamp among the recording's (frames)
+    frame: np.ndarray  # index of the sample's time stamp among the recording's, in time order
     x_ground: np.ndarray  # ground x of the sample (lug: its model x; body: X + x_off)
     X: np.ndarray  # body reference position at t, mm
     cx: np.ndarray  # body marker's x offset (0 for lugs)
@@ -57,7 +57,6 @@ class Context:
     D: float
     R: float
     pitch: float
-    P: float
     x_off: float
     n_body: int
     markers: tuple
@@ -134,6 +133,6 @@ def context(res, J: np.ndarray) -> Context:
         a=np.interp(t, grid, a_n),
         dr_dX=np.asarray(dr_dX), dr_dpsi=np.asarray(dr_dpsi), grid=grid, v_nodes=v_n,
         vt_nodes=vt_n, psi_nodes=psi_n, t_ref=float(lay.t_ref), D=D, R=R,
-        pitch=P / lay.n_belt, P=P, x_off=float(p["x_off"]), n_body=lay.n_body,
+        pitch=P / lay.n_belt, x_off=float(p["x_off"]), n_body=lay.n_body,
         markers=tuple(prob.rec.markers))
 

@@ -6,20 +6,11 @@ the two wheels (y_body += mean of y_g under the wheels + c_x times their slope).
 from __future__ import annotations
 
 import numpy as np
-from scipy.interpolate import BSpline
 
-from ._base import Choice, Family, best_size, names
+from ._base import Choice, Family, best_size, bspline, names
 
 INTERVALS = (2, 4, 8, 16, 32, 64)
 MIN_SPACING_MM = 4.0
-
-
-def _design(x, lo, hi, n_int):
-    """(len(x), n_int + 3) cubic B-spline basis on [lo, hi], n_int equal intervals."""
-    inner = np.linspace(lo, hi, n_int + 1)
-    knots = np.r_[[lo] * 3, inner, [hi] * 3]
-    xc = np.clip(np.asarray(x, float), lo, hi)
-    return BSpline.design_matrix(xc, knots, 3).toarray()
 
 
 class GroundProfile(Family):
@@ -47,10 +38,10 @@ class GroundProfile(Family):
         def cols(n_int, mode):
             nb = n_int + 3
             B = np.zeros((len(ctx.r), nb * (2 if mode == "separate" else 1)))
-            B[lug, :nb] = ctx.w[lug, None] * _design(ctx.x_ground[lug], lo, hi, n_int)
+            B[lug, :nb] = ctx.w[lug, None] * bspline(ctx.x_ground[lug], lo, hi, n_int)
             if mode != "lugs" and body.any():
-                gf = _design(front[body], lo, hi, n_int)
-                gr = _design(rear[body], lo, hi, n_int)
+                gf = bspline(front[body], lo, hi, n_int)
+                gr = bspline(rear[body], lo, hi, n_int)
                 # the frame rests on the two wheels: a marker at x = X + c_x sits on the
                 # line through them, (c_x - x_off + D/2) / D of the way from the rear one
                 q = ((ctx.cx[body] - ctx.x_off + ctx.D / 2) / ctx.D)[:, None]
@@ -76,8 +67,8 @@ class GroundProfile(Family):
         # relative to its straight line through the data's ends
 
         def profile(x, c):
-            y = _design(x, lo, hi, n_int) @ c[:nb]
-            ends = _design(np.array([lo, hi]), lo, hi, n_int) @ c[:nb]
+            y = bspline(x, lo, hi, n_int) @ c[:nb]
+            ends = bspline(np.array([lo, hi]), lo, hi, n_int) @ c[:nb]
             return y - (ends[0] + (ends[1] - ends[0]) * (np.asarray(x) - lo) / (hi - lo))
 
         def describe(c):

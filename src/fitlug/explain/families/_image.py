@@ -46,7 +46,7 @@ class ImageMap(Everywhere):
         if found is None:
             return None
         d, fitted = found
-        m = _monomials(np.zeros(1), np.zeros(1), d).shape[1]
+        m = fitted.B.shape[1] // 2  # monomials per component
         lo_x, hi_x = float(np.min(qx[sel])), float(np.max(qx[sel]))
         lo_y, hi_y = float(np.min(qy[sel])), float(np.max(qy[sel]))
         xs = np.linspace(lo_x, hi_x, 81)

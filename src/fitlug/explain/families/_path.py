@@ -13,9 +13,7 @@ ground_sinkage are its catalog cases):
 from __future__ import annotations
 
 import numpy as np
-from scipy.interpolate import BSpline
-
-from ._base import Choice, Family, best_size, names
+from ._base import Choice, Family, best_size, bspline, names
 
 RUN_INTERVALS = (1, 2, 4, 8, 16)
 ARC_INTERVALS = (0, 1, 2, 4, 8, 16)  # 0: a constant per wheel
@@ -24,12 +22,9 @@ PARTS = {"top": 2, "bottom": 0, "rear_arc": 1, "front_arc": 3}
 
 def _design(x, n_int):
     """(len(x), n_int + 3) cubic B-spline basis on [0, 1] (a constant for n_int = 0)."""
-    xc = np.clip(np.asarray(x, float), 0.0, 1.0)
     if n_int == 0:
-        return np.ones((len(xc), 1))
-    inner = np.linspace(0.0, 1.0, n_int + 1)
-    knots = np.r_[[0.0] * 3, inner, [1.0] * 3]
-    return BSpline.design_matrix(xc, knots, 3).toarray()
+        return np.ones((len(np.asarray(x)), 1))
+    return bspline(x, 0.0, 1.0, n_int)
 
 
 class PathShape(Family):

@@ -168,6 +168,21 @@ def best_frequency(proj: Projector, columns, f0: float, span: float, T: float,
     return float(best[0]), float(best[1])
 
 
+def distinct(seeds, rel: float, most: int = 3) -> list:
+    """The finite frequencies of `seeds`, in order, each more than `rel` (relative) from
+    every one kept before it; at most `most`."""
+    seeds = [f for f in seeds if np.isfinite(f)]
+    return [f for i, f in enumerate(seeds)
+            if all(abs(f - g) > rel * g for g in seeds[:i])][:most]
+
+
+def best_of_seeds(proj: Projector, columns, seeds, rel_span: float, T: float) -> float:
+    """The frequency that :func:`best_frequency` finds around each seed f0 (within
+    max(2 / T, rel_span f0)) that removes the most chi^2."""
+    return max((best_frequency(proj, columns, f0, max(2.0 / T, rel_span * f0), T)
+                for f0 in seeds), key=lambda q: q[1])[0]
+
+
 def peak_frequency(t: np.ndarray, r: np.ndarray, f_max: float, T: float) -> float:
     """The strongest line of series r(t) (irregular samples allowed) between 2/T and
     f_max: the periodogram of a sine-cosine fit on a grid of 1/(4T)."""

@@ -10,7 +10,7 @@ import numpy as np
 
 from ._base import Choice, Family, best_size, names
 from ._exact import speed_residuals
-from ._solve import best_frequency, peak_frequency
+from ._solve import best_of_seeds, distinct, peak_frequency
 from ._vibration import _frequency_std
 
 MAX_HARMONICS = 3
@@ -39,9 +39,7 @@ class SpeedModulation(Family):
         if body.sum() > 20:
             seeds += [peak_frequency(ctx.t[body], ctx.r[body], fps / 2, T),
                       peak_frequency(u_rows[body], ctx.r[body], fps / 2, T)]
-        seeds = [f for f in seeds if np.isfinite(f)]
-        seeds = [f for i, f in enumerate(seeds)  # distinct ones, in order
-                 if all(abs(f - g) > 0.06 * g for g in seeds[:i])][:3]
+        seeds = distinct(seeds, 0.06)
         if not seeds:
             return None
         v, vtn = ctx.v_nodes, ctx.vt_nodes
@@ -67,8 +65,7 @@ class SpeedModulation(Family):
                 return np.where(ctx.valid[:, None],
                                 ctx.dr_dX[:, None] * dX + ctx.dr_dpsi[:, None] * dpsi, 0.0)
 
-            f = max((best_frequency(proj, cols, f0, max(2.0 / T, 0.06 * f0), T)
-                     for f0 in seeds), key=lambda q: q[1])[0]
+            f = best_of_seeds(proj, cols, seeds, 0.06, T)
             found = best_size(proj, [(n, cols(f, n), 1) for n in range(1, MAX_HARMONICS + 1)])
             if found is not None:
                 out.append((coord, f, found, cols))

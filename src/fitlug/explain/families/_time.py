@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from ._base import Choice, Everywhere, best_size, names
-from ._solve import best_frequency, peak_frequency
+from ._solve import best_of_seeds, distinct, peak_frequency
 
 #: the per-frame form's columns are dense: at most this many cells (S x frames)
 MAX_CELLS = 6e7
@@ -38,17 +38,13 @@ class TimeMap(Everywhere):
         v = np.interp(ctx.t, ctx.grid, ctx.v_nodes)
         vt = np.interp(ctx.t, ctx.grid, ctx.vt_nodes)
         d = np.where(sel, ctx.dr_dX * v + ctx.dr_dpsi * vt, 0.0)  # d r / d tau, per s
-        frames, fi = np.unique(ctx.frame, return_inverse=True)
-        nf = len(frames)
-        stamps = np.zeros(nf)
-        stamps[fi] = ctx.t
-        order = np.argsort(stamps)
-        rank_of = np.empty(nf, int)
-        rank_of[order] = np.arange(nf)
-        k = rank_of[fi]  # 0, 1, 2 ... in time
-        fps = 1.0 / float(np.median(np.diff(np.sort(stamps))))
+        k = ctx.frame  # 0, 1, 2 ... in time (the sorted stamps' index)
+        nf = int(k.max()) + 1
+        ts = np.zeros(nf)
+        ts[k] = ctx.t  # the stamps, in order
+        fps = 1.0 / float(np.median(np.diff(ts)))
         # the frame number from the stamp (a stamp's parity, robust to missing frames)
-        num = np.round((ctx.t - stamps.min()) * fps).astype(int)
+        num = np.round((ctx.t - ts[0]) * fps).astype(int)
         builds = [("alternate", (d * (num % 2))[:, None] * 1e-3, 0)]  # tau in ms
         # a frame sees its tau only through the markers' motion: frames where they barely
         # move (the robot at rest) get no column (their tau is not seen, not fitted)
@@ -57,14 +53,14 @@ class TimeMap(Everywhere):
             else np.zeros(nf, bool)
         col = np.cumsum(live) - 1
         n_live = int(live.sum())
+        G = None
         if n_live and len(ctx.r) * n_live <= MAX_CELLS:
             B = np.zeros((len(ctx.r), n_live))
             on = live[k]
             B[np.flatnonzero(on), col[k[on]]] = d[on] * 1e-3
             # less the slow taus, which are the fit's own X(t) (v tau in X's spline):
             # left in, their near-degenerate directions only spread the slip's error
-            ts_live = np.sort(stamps)[live]
-            G = _slow_basis(ts_live, np.interp(ts_live, ctx.grid, ctx.v_nodes),
+            G = _slow_basis(ts[live], np.interp(ts[live], ctx.grid, ctx.v_nodes),
                             np.asarray(ctx.res.problem.lay.breaks, float))
             B -= (B @ G) @ np.linalg.pinv(G)
             builds.append(("free", B, 0))
@@ -76,9 +72,7 @@ class TimeMap(Everywhere):
         seeds = [p["frequency_hz"] for p in parts if p.get("frequency_hz")]
         if body.sum() > 20:
             seeds.append(peak_frequency(ctx.t[body], ctx.r[body], fps / 2, T))
-        seeds = [f for f in seeds if np.isfinite(f) and f > 2.0 / T]
-        seeds = [f for i, f in enumerate(seeds) if all(abs(f - g) > 0.06 * g
-                                                       for g in seeds[:i])][:3]
+        seeds = distinct([f for f in seeds if f > 2.0 / T], 0.06)
 
         def periodic(f, n=1):
             ph = 2 * np.pi * f * np.outer(ctx.t, np.arange(1, n + 1))
@@ -86,20 +80,14 @@ class TimeMap(Everywhere):
 
         f_per = None
         if seeds:
-            f_per = max((best_frequency(proj, periodic, f0, max(2.0 / T, 0.06 * f0), T)
-                         for f0 in seeds), key=lambda q: q[1])[0]
+            f_per = best_of_seeds(proj, periodic, seeds, 0.06, T)
             builds += [(f"periodic{n}", periodic(f_per, n), 1) for n in (1, 2, 3)]
         found = best_size(proj, builds, rank=True)
         if found is None:
             return None
         form, fitted = found
         n_harm = int(form[-1]) if form.startswith("periodic") else 0
-        ts = np.sort(stamps)
-        detrend = None
-        if form == "free":
-            v_f = np.interp(ts[live], ctx.grid, ctx.v_nodes)
-            detrend = _detrender(ts[live], np.diag(fitted.cov), v_f,
-                                 np.asarray(ctx.res.problem.lay.breaks, float))
+        detrend = _detrender(G, np.diag(fitted.cov)) if form == "free" else None
 
         def tau(x, c):  # ms at stamp times x (for the periodic form: cycle fraction x)
             x = np.asarray(x, float)
@@ -183,25 +171,13 @@ def _slow_basis(ts, v, breaks):
     return G / np.linalg.norm(G, axis=0)
 
 
-def _detrender(ts, var, v, breaks):
-    """c -> c less what the fit's own X(t) could hold: a tau that changes slowly moves the
-    body by v tau, which X's spline (degree 4 on the speed spline's breaks) takes up. So
-    v c is fitted by that spline (weighted by 1 / (v^2 var)) and the rest, divided by v,
-    is the clock's (frames where v is ~0 are left as they are)."""
-    from scipy.interpolate import BSpline
-
-    lo, hi = float(ts[0]), float(ts[-1])
-    br = np.unique(np.clip(np.r_[lo, breaks, hi], lo, hi))
-    deg = 4
-    knots = np.r_[[lo] * deg, br, [hi] * deg]
-    S = BSpline.design_matrix(np.clip(ts, lo, hi), knots, deg).toarray()
-    vs = np.where(np.abs(v) > 1e-9, v, 1e-9)
-    w = 1.0 / np.sqrt(np.maximum(vs * vs * var, 1e-300))
+def _detrender(G, var):
+    """c -> c less what the fit's own X(t) could hold: v c fitted by X's spline, i.e. c by
+    the slow taus G (:func:`_slow_basis`), weighted by 1 / var; the rest is the clock's."""
+    w = 1.0 / np.sqrt(np.maximum(var, 1e-300))
     w = w / np.max(w)
-    Sw = S * w[:, None]
+    Gw = G * w[:, None]
 
     def detrend(c):
-        y = vs * c
-        coef = np.linalg.lstsq(Sw, y * w, rcond=None)[0]
-        return (y - S @ coef) / vs
+        return c - G @ np.linalg.lstsq(Gw, c * w, rcond=None)[0]
     return detrend

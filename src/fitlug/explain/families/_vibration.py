@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from ._base import Choice, Family, best_size, names
-from ._solve import best_frequency, peak_frequency
+from ._solve import best_of_seeds, distinct, peak_frequency
 
 MAX_MODES = 3
 ORDINAL = {1: "first", 2: "second", 3: "third"}
@@ -37,9 +37,7 @@ class SegmentVibration(Family):
         # flap the parts said 33.8 and 30.2 Hz, the top run's periodogram 28.3)
         seeds = [p["frequency_hz"] for p in parts if cls.applies(p) and p.get("frequency_hz")]
         seeds.append(peak_frequency(t[sel], proj_resid(ctx, sel), fps / 2, T))
-        seeds = [f for f in seeds if np.isfinite(f)]
-        seeds = [f for i, f in enumerate(seeds)  # distinct ones, in order
-                 if all(abs(f - g) > 0.03 * g for g in seeds[:i])][:3]
+        seeds = distinct(seeds, 0.03)
         if not seeds:
             return None
 
@@ -50,8 +48,7 @@ class SegmentVibration(Family):
                 out += [m * np.sin(2 * np.pi * f * t), m * np.cos(2 * np.pi * f * t)]
             return np.stack(out, 1)
 
-        f = max((best_frequency(proj, cols, f0, max(2.0 / T, 0.03 * f0), T)
-                 for f0 in seeds), key=lambda q: q[1])[0]
+        f = best_of_seeds(proj, cols, seeds, 0.03, T)
         found = best_size(proj, [(n, cols(f, n), 1) for n in range(1, MAX_MODES + 1)])
         if found is None:
             return None
