@@ -502,23 +502,19 @@ def make(mechanism: str, seed: int, *, size: float | None = None, faults: bool =
             rec = _recording(sc, c, seed)
     window = None
     info = {}
-    if mechanism == "keystone":  # about the window's centre (drawn from a warp-free draw)
+    if mechanism in ("keystone", "bump"):
+        # the window first (from a draw without the mechanism), then the mechanism in it:
+        # the keystone about the window's centre, the bump inside it
         base = _recording(sc, c, seed)
         if faults:
             _, info = realism.drive_through(base, seed=seed, need_motion=True, faults=False)
             window = info["window"]
         lo, hi = window if window is not None else (0.0, sc.travel_mm)
-        params = _keystone(sc, c, rng, size, (0.5 * (lo + hi), sc.y_off_mm + sc.R_mm))
-        rec = _recording(sc, c, seed)
-    if mechanism == "bump":
-        # the window first (from a bump-free draw), then the bump inside it
-        base = _recording(sc, c, seed)
-        if faults:
-            _, info = realism.drive_through(base, seed=seed, need_motion=True, faults=False)
-            window = info["window"]
-        lo, hi = window if window is not None else (0.0, sc.travel_mm)
-        params = _bump(sc, c, rng, size, window=(lo + 40.0, hi - 40.0) if hi - lo > 100
-                       else (lo, hi))
+        if mechanism == "keystone":
+            params = _keystone(sc, c, rng, size, (0.5 * (lo + hi), sc.y_off_mm + sc.R_mm))
+        else:
+            params = _bump(sc, c, rng, size, window=(lo + 40.0, hi - 40.0) if hi - lo > 100
+                           else (lo, hi))
         rec = _recording(sc, c, seed)
     if faults:
         rec, info = realism.drive_through(rec, seed=seed, need_motion=True, window=window)
