@@ -221,11 +221,16 @@ def lug_geometry(rec, lug_ids, tX, X):
 SPREAD_SAMPLES = 20_000
 
 
-def slip_and_phases(rel, geom, tX, X, P):
-    """(s, sigma0 per lug marker) by a 1-D search on the belt-coordinate consistency."""
+def slip_and_phases(rel, geom, tX, X, P, inside=None, s=None):
+    """(s, sigma0 per lug marker) by a 1-D search on the belt-coordinate consistency.
+
+    `inside`: per marker, the samples to read (where X is measured); a marker with fewer
+    than 3 of them gets sigma0 NaN. `s`: a slip already read (the phases alone)."""
     us = []
-    for _, t, xr, y in rel:
+    for j, (_, t, xr, y) in enumerate(rel):
         u = _project(xr - geom["x_off"], y - geom["y_off"], geom["R"], geom["D"], geom["e"])
+        if inside is not None:
+            t, u = t[inside[j]], u[inside[j]]
         us.append((t, u))
 
     # belt travel at each sample; a long recording's markers evenly thinned to SPREAD_SAMPLES
@@ -243,6 +248,9 @@ def slip_and_phases(rel, geom, tX, X, P):
         tot = np.zeros(s.shape[0])
         phases = []
         for u, xt in Xt:
+            if len(u) == 0:  # a marker seen only where X is not measured
+                phases.append(np.full(s.shape[0], np.nan))
+                continue
             mz = np.empty(s.shape[0], complex)
             step = max(1, 2_000_000 // max(len(u), 1))  # bounded memory on long recordings
             for a in range(0, s.shape[0], step):
@@ -253,13 +261,16 @@ def slip_and_phases(rel, geom, tX, X, P):
             phases.append(np.angle(mz))
         return tot, phases
 
-    grid = np.linspace(-0.1, 0.5, 241)
-    k = int(np.argmin(spread(grid)[0]))
-    lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
-    fine = np.linspace(lo, hi, 41)
-    s = float(fine[int(np.argmin(spread(fine)[0]))])
+    if s is None:
+        grid = np.linspace(-0.1, 0.5, 241)
+        k = int(np.argmin(spread(grid)[0]))
+        lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
+        fine = np.linspace(lo, hi, 41)
+        s = float(fine[int(np.argmin(spread(fine)[0]))])
     phases = [p[0] for p in spread(s)[1]]
     sigma0 = np.mod(np.array(phases) * P / (2 * np.pi), P)
+    if inside is not None:
+        sigma0 = np.where([len(u) >= 3 for _, u in us], sigma0, np.nan)
     return s, sigma0
 
 
@@ -274,3 +285,93 @@ def infer_n_belt(P: float, pitch: float | None, sigma0: np.ndarray) -> int:
         if np.all(np.abs(np.mod(d * N / P + 0.5, 1) - 0.5) < 0.08):
             return N
     return max(int(round(P / 18.0)), 1)
+
+
+def _stadium_np(u, R, D, e, P):
+    """(px, py) of belt coordinate u on the stadium, relative to (x_off, y_off): numpy,
+    the start's forward map (the model's own is :func:`fitlug.model.stadium`)."""
+    u = np.mod(u, P)
+    re = R + e
+    b1, b2, b3 = D, D + np.pi * R, 2.0 * D + np.pi * R
+    x = np.where(u < b1, D / 2 - u,
+                 np.where(u < b2, -D / 2 - re * np.sin((u - D) / R),
+                          np.where(u < b3, -D / 2 + (u - b2), D / 2 + re * np.sin((u - b3) / R))))
+    y = np.where(u < b1, -e,
+                 np.where(u < b2, R - re * np.cos((u - D) / R),
+                          np.where(u < b3, 2.0 * R + e, R + re * np.cos((u - b3) / R))))
+    return x, y
+
+
+#: a frame's X is followed where moving it by STANDIN_PROBE_MM raises the frame's squared
+#: misfit by at least STANDIN_SHARP_MM2 (a lug on the bottom run alone moves only s / (1 - s)
+#: as much as X: not followed), and kept as a stand-in where its rms misfit per lug is
+#: below STANDIN_MAX_MM (the start's geometry is a few mm off on the arcs: 4.5 mm rms was
+#: seen on a right X; a sample off by more than 5 mm, a reflection, costs 5 mm)
+STANDIN_PROBE_MM, STANDIN_SHARP_MM2, STANDIN_MAX_MM = 1.0, 0.1, 4.5
+
+
+def lug_standins(rec, lug_ids, geom, P, s, sigma0, tX, X, margin: float = 0.02):
+    """X(t) where no body marker is seen, from the lug markers whose phase is known.
+
+    A robot driving into the picture shows its front arc (or leaving, its rear arc) for a
+    second or more before (after) any body marker; the body reference only extrapolates
+    there. With the geometry, slip and phases read where X is measured, each such frame's
+    lug samples fix X: a lug at belt coordinate sigma0 + X / (1 - s) sits at
+    X + x_off + stadium(.), so X moves the point along the belt and in x at once. X is
+    followed frame by frame outward from the body reference's end, each frame searched
+    within what the speed allows of the last (a search over all X found the mirror image of
+    two arc lugs 140 mm away). Returns (t, X) of the frames whose X is sharply determined
+    (see STANDIN_*), sorted."""
+    R, D, e, x_off, y_off = (float(geom[k]) for k in ("R", "D", "e", "x_off", "y_off"))
+    t_all, x_all, y_all, sg = [], [], [], []
+    for m, s0 in zip(lug_ids, sigma0):
+        if not np.isfinite(s0):
+            continue
+        sel = (rec.marker_index == m) & np.isfinite(rec.x) & np.isfinite(rec.y)
+        t = rec.t[sel]
+        out = (t < tX[0] - margin) | (t > tX[-1] + margin)
+        t_all.append(t[out]), x_all.append(rec.x[sel][out]), y_all.append(rec.y[sel][out])
+        sg.append(np.full(int(out.sum()), s0))
+    empty = np.zeros(0), np.zeros(0)
+    if not t_all or not sum(len(t) for t in t_all) or len(tX) < 2:
+        return empty
+    t_all, x_all, y_all, sg = (np.concatenate(a) for a in (t_all, x_all, y_all, sg))
+    frames, inv = np.unique(np.round(t_all * 1e6).astype(np.int64), return_inverse=True)
+    tf = frames / 1e6
+    order = np.argsort(inv, kind="stable")
+    bounds = np.searchsorted(inv[order], np.arange(len(tf) + 1))
+    span = max(float(tX[-1] - tX[0]), 1e-6)
+    rate = np.abs(np.diff(X) / np.maximum(np.diff(tX), 1e-9)) if len(tX) > 2 else np.zeros(1)
+    v_max = max(float(np.percentile(rate, 99)), abs(float(X[-1] - X[0])) / span, 10.0)
+    k = 1.0 / (1.0 - s)
+    cap = 25.0  # mm^2: a sample 5 mm off (a reflection) costs no more than that
+
+    def cost(f, Xc):  # frame f's summed capped squared misfit at the X values Xc
+        rows = order[bounds[f]:bounds[f + 1]]
+        px, py = _stadium_np(sg[rows, None] + k * Xc[None, :], R, D, e, P)
+        r2 = (x_all[rows, None] - Xc[None, :] - x_off - px) ** 2 \
+            + (y_all[rows, None] - y_off - py) ** 2
+        return np.minimum(r2, cap).sum(axis=0), len(rows)
+
+    t_out, X_out = [], []
+    for side in (np.flatnonzero(tf < tX[0])[::-1], np.flatnonzero(tf > tX[-1])):
+        if not len(side):
+            continue
+        t_prev = float(tX[0] if tf[side[0]] < tX[0] else tX[-1])
+        X_prev = float(X_at(np.array([t_prev]), tX, X)[0])
+        for f in side:
+            half = 1.5 * v_max * abs(tf[f] - t_prev) + 2.0
+            grid = X_prev + np.linspace(-half, half, int(np.ceil(2 * half / 0.05)) + 1)
+            c, n = cost(f, grid)
+            Xb = float(grid[int(np.argmin(c))])
+            c0 = float(cost(f, np.array([Xb]))[0][0])
+            cp = cost(f, np.array([Xb - STANDIN_PROBE_MM, Xb + STANDIN_PROBE_MM]))[0]
+            if float(np.min(cp)) - c0 >= STANDIN_SHARP_MM2:  # followed; kept if it fits
+                t_prev, X_prev = float(tf[f]), Xb
+                if c0 / n < STANDIN_MAX_MM ** 2:
+                    t_out.append(tf[f]), X_out.append(Xb)
+    if not t_out:
+        return empty
+    t_out, X_out = np.array(t_out), np.array(X_out)
+    o = np.argsort(t_out)
+    return t_out[o], X_out[o]

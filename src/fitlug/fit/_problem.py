@@ -9,7 +9,7 @@ import numpy as np
 
 from .._errors import InputError
 from ..model import belt_length, make_layout, param_names, place_knots
-from ..model._knots import top_run_tracks
+from ..model._knots import merge_thin_intervals, top_run_tracks
 from ..model._model import BASE_SCALARS, default_params
 from ..model.effects import CATALOG
 from . import _fragments, _init
@@ -113,7 +113,7 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
     if joined:
         body_ids, lug_ids = _ids(rec)
         tX, X, cx, cy = _init.body_reference(rec, body_ids, t_ref=t_first)
-    geom, P, s, sigma0, N = _start_geometry(rec, lug_ids, tX, X, rig.lug_pitch_mm)
+    geom, P, s, sigma0, N, standin = _start_geometry(rec, lug_ids, tX, X, rig.lug_pitch_mm)
     # tracker fragments of one lug marker: belt coordinates equal modulo P (a whole
     # number of pitches apart is another lug), spans that do not overlap
     groups = _fragments.lug_groups(lug_ids, _fragments.spans_of(rec, lug_ids), sigma0, P,
@@ -125,7 +125,8 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
     if joined_l:
         body_ids, lug_ids = _ids(rec)
         tX, X, cx, cy = _init.body_reference(rec, body_ids, t_ref=t_first)
-        geom, P, s, sigma0, N = _start_geometry(rec, lug_ids, tX, X, rig.lug_pitch_mm)
+        geom, P, s, sigma0, N, standin = _start_geometry(rec, lug_ids, tX, X,
+                                                         rig.lug_pitch_mm)
     joined = joined + joined_l
     valid = np.isfinite(rec.x) & np.isfinite(rec.y)
 
@@ -161,6 +162,7 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
     while len(breaks) > 2 and np.count_nonzero((frames_v > t_first_s)
                                                & (frames_v <= breaks[1])) < END_FRAMES:
         breaks = np.delete(breaks, 1)
+    breaks = merge_thin_intervals(breaks, frames_v)
 
     lug_rows = _rows(rec, lug_ids)
     body_rows = _rows(rec, body_ids)
@@ -207,7 +209,18 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
     }
     obs = {k: jnp.asarray(v, float) for k, v in obs.items()}
 
-    coef, cx = _init_speed(lay, obs, cx)
+    cx_ref = np.asarray(cx, float)
+    coef, cx = _init_speed(lay, obs, cx, standin=standin)
+    # the speed spline's X(t_ref) = 0 where no body marker is seen at t_ref (the robot
+    # drives into the picture) is its own extrapolation, not the body reference's: the
+    # gauge moves by delta (X - delta, offsets + delta). The geometry and phases were read
+    # in the body reference's gauge; moved with it (left, x_off and sigma0 were 44 mm off
+    # the body offsets on a drive-in seen 1.3 s after the first lug, and LM stopped at
+    # chi2/dof 7e5 with the slip 0.14 for 0.083)
+    delta = float(np.mean(np.asarray(cx, float) - cx_ref))
+    if np.isfinite(delta) and delta != 0.0:
+        geom = {**geom, "x_off": float(geom["x_off"]) + delta}
+        sigma0 = np.mod(np.asarray(sigma0, float) + delta / (1.0 - s), P)
     p0 = {"v": coef, "s0": s, "beta": 0.0, **geom, "sigma0": sigma0, "cx": cx, "cy": cy}
     p0 = {k: jnp.asarray(v, float) for k, v in p0.items()}
     p0.update(default_params(lay))
@@ -227,8 +240,38 @@ def _start_geometry(rec, lug_ids, tX, X, pitch):
     """The data-derived geometry, belt length P, slip, marker phases sigma0 and lug count N."""
     geom, rel = _init.lug_geometry(rec, lug_ids, tX, X)
     P = float(belt_length(geom["R"], geom["D"]))
-    s, sigma0 = _init.slip_and_phases(rel, geom, tX, X, P)
-    return geom, P, s, sigma0, _init.infer_n_belt(P, pitch, sigma0)
+    inside = [(t >= tX[0] - STANDIN_MARGIN_S) & (t <= tX[-1] + STANDIN_MARGIN_S)
+              for _, t, _, _ in rel]
+    n_in, n_all = sum(int(k.sum()) for k in inside), sum(len(k) for k in inside)
+    standin = (np.zeros(0), np.zeros(0))
+    if n_in == n_all or n_in < 0.2 * n_all:
+        s, sigma0 = _init.slip_and_phases(rel, geom, tX, X, P)
+    else:
+        # lug markers seen where no body marker is (the robot driving in or out): the
+        # slip and phases read where X is measured, X there found from the lugs
+        # (_init.lug_standins), the phases of every marker read on the extended X
+        s, sigma0 = _init.slip_and_phases(rel, geom, tX, X, P, inside=inside)
+        standin = _init.lug_standins(rec, lug_ids, geom, P, s, sigma0, tX, X,
+                                     margin=STANDIN_MARGIN_S)
+        ts, Xs = standin
+        tX2, X2 = np.concatenate([tX, ts]), np.concatenate([X, Xs])
+        order = np.argsort(tX2, kind="stable")
+        tX2, X2 = tX2[order], X2[order]
+        known = np.round(ts * 1e6).astype(np.int64)
+        rel2, inside2 = [], []
+        for (m, t, xr, y), k in zip(rel, inside):
+            xr2 = xr + _init.X_at(t, tX, X) - _init.X_at(t, tX2, X2)
+            rel2.append((m, t, xr2, y))
+            inside2.append(k | np.isin(np.round(t * 1e6).astype(np.int64), known))
+        _, sigma0 = _init.slip_and_phases(rel2, geom, tX2, X2, P, inside=inside2, s=s)
+        if not np.all(np.isfinite(sigma0)):  # seen only where X is extrapolated
+            _, every = _init.slip_and_phases(rel2, geom, tX2, X2, P, s=s)
+            sigma0 = np.where(np.isfinite(sigma0), sigma0, every)
+    return geom, P, s, sigma0, _init.infer_n_belt(P, pitch, sigma0), standin
+
+
+#: lug samples within this of the body reference's span count as measured (s)
+STANDIN_MARGIN_S = 0.02
 
 
 def _ids(rec):
@@ -257,12 +300,30 @@ def _fps(rec, frames):
     return fps
 
 
-def _init_speed(lay, obs, cx0):
-    """Speed-spline coefficients and cx by linear least squares on the body x samples."""
+def _init_speed(lay, obs, cx0, standin=None):
+    """Speed-spline coefficients and cx by linear least squares on the body x samples.
+
+    `standin`: (t, X) found from the lug markers where no body marker is seen
+    (:func:`_init.lug_standins`, in the gauge of the offsets `cx0`), taken as samples of
+    the first body marker at a tenth of its weight: a robot driving in shows its front arc
+    for a second or more before any body marker, and the speed there was otherwise the
+    spline's extrapolation of the first body samples (a drive-in seen 1.3 s before its body,
+    at rest and then in its ramp, ended at chi2/dof 7e5 with the slip 0.14 for 0.083)."""
+    ts, Xs = (np.zeros(0), np.zeros(0)) if standin is None else standin
+    j0 = int(np.flatnonzero(np.isfinite(cx0))[0]) if np.isfinite(cx0).any() else 0
+    w_b = np.asarray(obs["body_w"])
+    w_s = 0.1 * float(np.median(w_b[w_b > 0])) if (w_b > 0).any() else 0.0
+    if len(ts) and w_s > 0:
+        obs = {**obs, "body_x": np.concatenate([np.asarray(obs["body_x"]), Xs + cx0[j0]]),
+               "body_w": np.concatenate([w_b, np.full(len(ts), w_s)])}
+        lay_t = np.concatenate([np.asarray(lay.body_t), ts])
+        lay_j = np.concatenate([np.asarray(lay.body_j), np.full(len(ts), j0)])
+    else:
+        lay_t, lay_j = np.asarray(lay.body_t), np.asarray(lay.body_j)
     if lay.grid.shape[0] * lay.n_coef > _DENSE_INIT_ENTRIES:  # long recordings: by chunks
         from ..model._model import fit_body_speed
 
-        return fit_body_speed(lay, lay.body_t, lay.body_j, obs["body_x"], obs["body_w"],
+        return fit_body_speed(lay, lay_t, lay_j, obs["body_x"], obs["body_w"],
                               smooth=SPEED_START_SMOOTH)
     Bn, _, Bm, _ = lay.dense_bases()
     h = lay.h
@@ -278,13 +339,12 @@ def _init_speed(lay, obs, cx0):
         return ((2 * t3 - 3 * t2 + 1) * I[i] + (t3 - 2 * t2 + tau) * h * Bn[i]
                 + (-2 * t3 + 3 * t2) * I[i + 1] + (t3 - t2) * h * Bn[i + 1])
 
-    tb = np.asarray(lay.body_t)
-    A = herm(tb) - herm(np.full(1, float(lay.t_ref)))
+    A = herm(lay_t) - herm(np.full(1, float(lay.t_ref)))
     w = np.asarray(obs["body_w"])
-    J = np.asarray(lay.body_j)
-    C = np.zeros((len(tb), lay.n_body))
-    C[np.arange(len(tb)), J] = 1.0
+    C = np.zeros((len(lay_t), lay.n_body))
+    C[np.arange(len(lay_t)), lay_j] = 1.0
     M = np.hstack([A, C]) * w[:, None]
+    rhs_b = np.asarray(obs["body_x"]) * w
     # body positions fix only the integral of the speed: where no body marker is seen for a
     # few knot intervals (one has left the picture, the other is occluded) the coefficients
     # there were free to cancel in pairs (+-3e7 mm/s, seen in bench_realism's fov row); a
@@ -293,11 +353,11 @@ def _init_speed(lay, obs, cx0):
     from ..model._model import second_differences
 
     K = A.shape[1]
-    D2 = np.hstack([second_differences(K), np.zeros((max(K - 2, 0), lay.n_body))])
+    D2 = np.hstack([second_differences(K), np.zeros((max(K - 2, 0), M.shape[1] - K))])
     M = np.vstack([M, D2 / SPEED_START_SMOOTH])
-    rhs = np.concatenate([np.asarray(obs["body_x"]) * w, np.zeros(D2.shape[0])])
+    rhs = np.concatenate([rhs_b, np.zeros(D2.shape[0])])
     sol = np.linalg.lstsq(M, rhs, rcond=None)[0]
-    return sol[:K], sol[K:]
+    return sol[:K], sol[K:K + lay.n_body]
 
 
 SPEED_START_SMOOTH = 10.0  # mm/s of second difference of the start's speed coefficients

@@ -277,3 +277,35 @@ def place_knots(t: np.ndarray, X: np.ndarray, *, t_lo: float, t_hi: float, R: fl
     if len(br) >= 3 and br[-1] - br[-2] < 0.25 * fine_s:  # no sliver interval at the end
         br = np.delete(br, -2)
     return br
+
+
+#: frames with data each interval of the speed spline holds (its ends: fit._problem.END_FRAMES)
+MIN_INTERVAL_FRAMES = 2
+
+
+def merge_thin_intervals(breaks: np.ndarray, frames: np.ndarray,
+                         min_frames: int = MIN_INTERVAL_FRAMES) -> np.ndarray:
+    """`breaks` with every interval holding fewer than `min_frames` frames of data merged
+    into its thinner neighbour.
+
+    Ramp spacing where almost nothing is seen (a drive-in's first lug samples, then 0.2 s
+    with no marker before the body enters) left runs of empty intervals whose speed
+    coefficients only the few samples around them held: LM swung them to +-700 mm/s, the
+    slip law reached s = 0.99 between samples, the Jacobian's s0 column grew to 1e12 and
+    the slip's standard error to 2e-9 (z = -2.6e7)."""
+    breaks = np.asarray(breaks, float)
+    while len(breaks) > 3:
+        n = np.histogram(frames, bins=breaks)[0]
+        thin = np.flatnonzero(n < min_frames)
+        if not len(thin):
+            break
+        k = int(thin[np.argmin(n[thin])])
+        # merge interval k with the neighbour holding fewer frames (delete the break between)
+        if k == 0:
+            j = 1
+        elif k == len(n) - 1:
+            j = k
+        else:
+            j = k if n[k - 1] <= n[k + 1] else k + 1
+        breaks = np.delete(breaks, j)
+    return breaks
