@@ -91,20 +91,32 @@ def test_a_catalog_effect_is_named_alone(effect, params, key, size):
     assert got["params"][key] == pytest.approx(size, rel=0.1), got
 
 
-def test_lugs_seen_long_before_the_body_a_fit_from_the_arc():
-    """The front arc in view at rest and through most of the ramp, 1.3 s before any body
-    marker (tests/mechanisms.py's null draw 1010: 200 fps, window 55-533 mm, the tracker's
-    faults). The start's gauge and speed came from the body markers' extrapolation alone:
-    LM stopped at chi2/dof 7e5 with the slip 0.143 for 0.083. Now X is followed from the
-    arc lugs there (fit._init.lug_standins)."""
+@pytest.mark.parametrize("seed", [1010, 1033, 1041, 1077])
+def test_lugs_seen_without_the_body_at_the_ends(seed):
+    """Null recordings (tests/mechanisms.py's draws, the tracker's faults) whose ends show
+    lug markers and no body marker; each failed before:
+    1010, the front arc in view at rest and through most of the ramp, 1.3 s before any
+    body marker: the start's gauge and speed were the body markers' extrapolation, LM
+    stopped at chi2/dof 7e5 with the slip 0.143 for 0.083 (X is now followed from the arc
+    lugs there, fit._init.lug_standins);
+    1033, one bottom-run lug in view for 1.4 s after the body has left, the robot stopping:
+    its phase read on the extrapolated X joined it to another lug's fragment, 60-280 mm off
+    at the start, chi2/dof 10 and z 5.8 (phases read there join nothing);
+    1041, one rear-arc lug the last thing in view for 0.08 s: the ramp-spaced knots there let
+    the speed swing to 445 mm/s and the slip law to s = 2 between samples, chi2/dof 2.3 (an
+    interval holds 3 frames, a frame with one marker counting half);
+    1077, the robot at rest for 0.6 s with only its bottom run in view (a lug there moves
+    s / (1 - s) as much as X): X there was not followed, the start's extrapolation was
+    650 mm off and LM stopped at chi2/dof 2.8e7 with the slip -2.8."""
     import mechanisms as M
 
-    rec, rig, truth = M.make("null", 1010)
+    rec, rig, truth = M.make("null", seed)
     ok = np.isfinite(rec.x)
     body = ok & np.isin(rec.marker_index, [m for m, r in enumerate(rec.roles) if r == "body"])
-    assert rec.t[body].min() - rec.t[ok].min() > 1.0  # the case is what it says
+    # the case is what it says: lugs seen where no body marker is
+    assert rec.t[body].min() - rec.t[ok].min() > 1.0 or rec.t[ok].max() - rec.t[body].max() > 0.05
     res = fit(rec, rig)
-    assert res.converged and res.chi2_per_dof < 1.3, res.chi2_per_dof
+    assert res.converged and res.chi2_per_dof < 1.1, res.chi2_per_dof
     z = (res.slip.value - truth["slip"]) / res.slip.std
     assert abs(z) < 4, (res.slip, truth["slip"])
 

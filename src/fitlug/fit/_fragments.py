@@ -71,12 +71,13 @@ def group(ids, spans, dist, tol: float) -> list[Group]:
 
 
 def lug_groups(ids, spans, sigma0, P: float, pitch: float) -> list[Group]:
-    """Lug fragments whose belt coordinates agree modulo P (within 0.3 pitch)."""
+    """Lug fragments whose belt coordinates agree modulo P (within 0.3 pitch); a NaN
+    sigma0 (a fragment seen only where X is not measured) joins nothing."""
     s = np.asarray(sigma0, float)
 
     def dist(i, j):
         d = np.mod(s[i] - s[j] + P / 2, P) - P / 2
-        return abs(float(d))
+        return abs(float(d)) if np.isfinite(d) else np.inf
 
     return group(list(ids), spans, dist, 0.3 * pitch)
 

@@ -303,11 +303,13 @@ def _stadium_np(u, R, D, e, P):
 
 
 #: a frame's X is followed where moving it by STANDIN_PROBE_MM raises the frame's squared
-#: misfit by at least STANDIN_SHARP_MM2 (a lug on the bottom run alone moves only s / (1 - s)
-#: as much as X: not followed), and kept as a stand-in where its rms misfit per lug is
+#: misfit by at least STANDIN_SHARP_MM2 (a lug on the bottom run moves s / (1 - s) as much
+#: as X: two of them at s = 0.1 are followed, 0.025 mm^2, and the robot at rest with only
+#: its bottom run in view is held; at s = 0.02 they are not), and kept as a stand-in where
+#: its rms misfit per lug is
 #: below STANDIN_MAX_MM (the start's geometry is a few mm off on the arcs: 4.5 mm rms was
 #: seen on a right X; a sample off by more than 5 mm, a reflection, costs 5 mm)
-STANDIN_PROBE_MM, STANDIN_SHARP_MM2, STANDIN_MAX_MM = 1.0, 0.1, 4.5
+STANDIN_PROBE_MM, STANDIN_SHARP_MM2, STANDIN_MAX_MM = 1.0, 0.01, 4.5
 
 
 def lug_standins(rec, lug_ids, geom, P, s, sigma0, tX, X, margin: float = 0.02):

@@ -284,9 +284,10 @@ MIN_INTERVAL_FRAMES = 2
 
 
 def merge_thin_intervals(breaks: np.ndarray, frames: np.ndarray,
-                         min_frames: int = MIN_INTERVAL_FRAMES) -> np.ndarray:
-    """`breaks` with every interval holding fewer than `min_frames` frames of data merged
-    into its thinner neighbour.
+                         min_frames: float = MIN_INTERVAL_FRAMES,
+                         weights: np.ndarray | None = None) -> np.ndarray:
+    """`breaks` with every interval holding fewer than `min_frames` frames of data (each
+    frame counted with its weight, default 1) merged into its thinner neighbour.
 
     Ramp spacing where almost nothing is seen (a drive-in's first lug samples, then 0.2 s
     with no marker before the body enters) left runs of empty intervals whose speed
@@ -295,7 +296,7 @@ def merge_thin_intervals(breaks: np.ndarray, frames: np.ndarray,
     the slip's standard error to 2e-9 (z = -2.6e7)."""
     breaks = np.asarray(breaks, float)
     while len(breaks) > 3:
-        n = np.histogram(frames, bins=breaks)[0]
+        n = np.histogram(frames, bins=breaks, weights=weights)[0]
         thin = np.flatnonzero(n < min_frames)
         if not len(thin):
             break
