@@ -157,6 +157,16 @@ def _rate(t, v):
     return r
 
 
+#: lug samples within this of the body reference's span (s) are where X is measured
+MEASURED_MARGIN_S = 0.02
+
+
+def measured_samples(rel, tX, margin: float = MEASURED_MARGIN_S) -> list:
+    """Per lug marker of `rel` ((m, t, x rel, y) each), its samples where X is measured:
+    within `margin` s of the body reference's span tX."""
+    return [(t >= tX[0] - margin) & (t <= tX[-1] + margin) for _, t, _, _ in rel]
+
+
 def lug_geometry(rec, lug_ids, tX, X):
     """Estimates R, D, e, x_off, y_off from the lug tracks (mm)."""
     rel = []
@@ -167,7 +177,7 @@ def lug_geometry(rec, lug_ids, tX, X):
     # the extents from the samples the body reference covers: a robot entering or leaving
     # the picture shows lug markers for a while before and after any body marker, where X
     # is only extrapolated
-    inside = [(t >= tX[0] - 0.02) & (t <= tX[-1] + 0.02) for _, t, _, _ in rel]
+    inside = measured_samples(rel, tX)
     if sum(int(k.sum()) for k in inside) < 0.5 * sum(len(k) for k in inside):
         inside = [np.ones(len(k), bool) for k in inside]
     allx = np.concatenate([r[2][k] for r, k in zip(rel, inside)])
@@ -312,7 +322,8 @@ def _stadium_np(u, R, D, e, P):
 STANDIN_PROBE_MM, STANDIN_SHARP_MM2, STANDIN_MAX_MM = 1.0, 0.01, 4.5
 
 
-def lug_standins(rec, lug_ids, geom, P, s, sigma0, tX, X, margin: float = 0.02):
+def lug_standins(rec, lug_ids, geom, P, s, sigma0, tX, X,
+                 margin: float = MEASURED_MARGIN_S):
     """X(t) where no body marker is seen, from the lug markers whose phase is known.
 
     A robot driving into the picture shows its front arc (or leaving, its rear arc) for a

@@ -158,7 +158,7 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
     # coefficient trading with the offsets (X(t) shifted by a constant after it): a null
     # direction of the Jacobian that made effect parameters look unidentifiable. Each end
     # interval holds at least END_FRAMES frames with data besides its end sample.
-    frames_v = np.unique(t_all)
+    frames_v, n_seen = np.unique(t_all, return_counts=True)
     t_first_s, t_last_s = float(t_all.min()), float(t_all.max())
     while len(breaks) > 2 and np.count_nonzero((frames_v >= breaks[-2])
                                                & (frames_v < t_last_s)) < END_FRAMES:
@@ -170,8 +170,7 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
     # thing in view as the robot leaves, let the end's ramp-spaced speed swing to 445 mm/s
     # and the slip law to s = 2 between its samples, chi2/dof 2.3 on a null recording;
     # a long end seen by one marker, the robot stopping, keeps its knots)
-    fr, n_seen = np.unique(t_all, return_counts=True)
-    breaks = merge_thin_intervals(breaks, fr, min_frames=THIN_FRAMES,
+    breaks = merge_thin_intervals(breaks, frames_v, min_frames=THIN_FRAMES,
                                   weights=np.where(n_seen >= 2, 1.0, 0.5))
 
     lug_rows = _rows(rec, lug_ids)
@@ -250,8 +249,7 @@ def _start_geometry(rec, lug_ids, tX, X, pitch):
     """The data-derived geometry, belt length P, slip, marker phases sigma0 and lug count N."""
     geom, rel = _init.lug_geometry(rec, lug_ids, tX, X)
     P = float(belt_length(geom["R"], geom["D"]))
-    inside = [(t >= tX[0] - STANDIN_MARGIN_S) & (t <= tX[-1] + STANDIN_MARGIN_S)
-              for _, t, _, _ in rel]
+    inside = _init.measured_samples(rel, tX)
     n_in, n_all = sum(int(k.sum()) for k in inside), sum(len(k) for k in inside)
     standin = (np.zeros(0), np.zeros(0))
     measured = np.ones(len(rel), bool)  # whose phase is read where X is known
@@ -262,8 +260,7 @@ def _start_geometry(rec, lug_ids, tX, X, pitch):
         # slip and phases read where X is measured, X there found from the lugs
         # (_init.lug_standins), the phases of every marker read on the extended X
         s, sigma0 = _init.slip_and_phases(rel, geom, tX, X, P, inside=inside)
-        standin = _init.lug_standins(rec, lug_ids, geom, P, s, sigma0, tX, X,
-                                     margin=STANDIN_MARGIN_S)
+        standin = _init.lug_standins(rec, lug_ids, geom, P, s, sigma0, tX, X)
         ts, Xs = standin
         tX2, X2 = np.concatenate([tX, ts]), np.concatenate([X, Xs])
         order = np.argsort(tX2, kind="stable")
@@ -280,10 +277,6 @@ def _start_geometry(rec, lug_ids, tX, X, pitch):
             _, every = _init.slip_and_phases(rel2, geom, tX2, X2, P, s=s)
             sigma0 = np.where(np.isfinite(sigma0), sigma0, every)
     return geom, P, s, sigma0, _init.infer_n_belt(P, pitch, sigma0), standin, measured
-
-
-#: lug samples within this of the body reference's span count as measured (s)
-STANDIN_MARGIN_S = 0.02
 
 
 def _ids(rec):
@@ -356,7 +349,6 @@ def _init_speed(lay, obs, cx0, standin=None):
     C = np.zeros((len(lay_t), lay.n_body))
     C[np.arange(len(lay_t)), lay_j] = 1.0
     M = np.hstack([A, C]) * w[:, None]
-    rhs_b = np.asarray(obs["body_x"]) * w
     # body positions fix only the integral of the speed: where no body marker is seen for a
     # few knot intervals (one has left the picture, the other is occluded) the coefficients
     # there were free to cancel in pairs (+-3e7 mm/s, seen in bench_realism's fov row); a
@@ -365,11 +357,11 @@ def _init_speed(lay, obs, cx0, standin=None):
     from ..model._model import second_differences
 
     K = A.shape[1]
-    D2 = np.hstack([second_differences(K), np.zeros((max(K - 2, 0), M.shape[1] - K))])
+    D2 = np.hstack([second_differences(K), np.zeros((max(K - 2, 0), lay.n_body))])
     M = np.vstack([M, D2 / SPEED_START_SMOOTH])
-    rhs = np.concatenate([rhs_b, np.zeros(D2.shape[0])])
+    rhs = np.concatenate([np.asarray(obs["body_x"]) * w, np.zeros(D2.shape[0])])
     sol = np.linalg.lstsq(M, rhs, rcond=None)[0]
-    return sol[:K], sol[K:K + lay.n_body]
+    return sol[:K], sol[K:]
 
 
 SPEED_START_SMOOTH = 10.0  # mm/s of second difference of the start's speed coefficients
