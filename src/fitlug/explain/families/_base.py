@@ -38,6 +38,10 @@ class Choice:
     row_coord: np.ndarray | None = None  # their coordinate for the before/after figure
     row_coord_name: str = ""
     exact: Callable | None = None  # (flat, c) -> residuals of the exact (nonlinear) term
+    #: Context -> the term's columns B evaluated at that context's fit (for relinearising
+    #: a term whose place moves with the fit's parameters: a lug's segment and u, the
+    #: ground x); None where the columns are kept as first built
+    columns: Callable | None = None
     extra: dict = field(default_factory=dict)
 
     def binned(self, r_before, r_after, w, n_bins: int = 40) -> dict | None:

@@ -27,6 +27,7 @@ from ._extend import extended
 from ._ground import GroundProfile
 from ._image import ImageMap
 from ._path import PathShape
+from ._relin import relinearised
 from ._solve import Projector, chooses
 from ._slip import SlipLaw
 from ._speed import SpeedModulation
@@ -179,15 +180,27 @@ def discover(res, parts: list, det, J=None) -> Discovery:
                              for t in kept])
     final = extended(res, ctx, proj0, B_all, joint.c, joint.cov, k_all, flat, r_ex, slip_h)
     held = 1.5 * chi2_cur + 10.0 * math.sqrt(2.0 * dof)
+    if flat is None and any(t.choice.columns is not None for t in kept):
+        # a term whose place moves with the fit (segment, u, ground x): Gauss-Newton with
+        # its columns rebuilt where the fit has moved
+        final, relin = relinearised(res, kept, B_all, final, k_all, slip_h,
+                                    any(t.choice.extra.get("rank") for t in kept))
+        if relin is not None:
+            joint = relin
     if not final.chi2 < chi2_cur + 3.0 * math.sqrt(2.0 * dof) and flat is None:
         # the linear step moved the fit's weakly held parameters where its Jacobian no
         # longer holds (a time map's lugs: chi2/dof 2.4 for a predicted 1.0; a keystone's
         # warp 1.36 for a predicted 1.3): the terms, linear in their coefficients, refitted
         # with the fit's own exact model
-        flat, joint.c, r_ex = refine(proj0, ctx, B_all, joint.c, base_residuals(res),
+        c0 = joint.c
+        flat, joint.c, r_ex = refine(proj0, ctx, B_all, c0, base_residuals(res),
                                      np.arange(0))
-        final = extended(res, ctx, proj0, B_all, joint.c, joint.cov, k_all, flat, r_ex,
+        again = extended(res, ctx, proj0, B_all, joint.c, joint.cov, k_all, flat, r_ex,
                          slip_h)
+        if again.chi2 < final.chi2:
+            final = again
+        else:
+            joint.c = c0
     if not final.chi2 < held:
         # the exact model did not hold the linear prediction: no term is reported
         return Discovery([], None, tried, why_not=(

@@ -36,17 +36,7 @@ class GroundProfile(Family):
             hi = max(hi, float(np.max(front[body])))
 
         def cols(n_int, mode):
-            nb = n_int + 3
-            B = np.zeros((len(ctx.r), nb * (2 if mode == "separate" else 1)))
-            B[lug, :nb] = ctx.w[lug, None] * bspline(ctx.x_ground[lug], lo, hi, n_int)
-            if mode != "lugs" and body.any():
-                gf = bspline(front[body], lo, hi, n_int)
-                gr = bspline(rear[body], lo, hi, n_int)
-                # the frame rests on the two wheels: a marker at x = X + c_x sits on the
-                # line through them, (c_x - x_off + D/2) / D of the way from the rear one
-                q = ((ctx.cx[body] - ctx.x_off + ctx.D / 2) / ctx.D)[:, None]
-                B[body, nb * (mode == "separate"):] = ctx.w[body, None] * (gr + q * (gf - gr))
-            return B
+            return _cols(ctx, lo, hi, n_int, mode)
 
         sizes = [n for n in INTERVALS if (hi - lo) / n >= MIN_SPACING_MM]
         best = None
@@ -108,4 +98,25 @@ class GroundProfile(Family):
                       row_coord_name="ground x of the bottom-run lugs (mm)",
                       ambiguity=("a recording driving over the same place again (or in "
                                  "the other direction) would tell a feature of the ground "
-                                 "from one of the belt"))
+                                 "from one of the belt"),
+                      columns=lambda c: _cols(c, lo, hi, n_int, mode))
+
+
+def _cols(ctx, lo, hi, n_int, mode):
+    """Columns of the profile (B-spline of n_int intervals on [lo, hi] of ground x) at the
+    bottom-run lugs' y, and with `mode` "shared" / "separate" at the body's y too."""
+    lug = (ctx.role == 0) & (ctx.axis == 1) & (ctx.segment == 0) & ctx.valid
+    body = (ctx.role == 1) & (ctx.axis == 1) & ctx.valid
+    nb = n_int + 3
+    B = np.zeros((len(ctx.r), nb * (2 if mode == "separate" else 1)))
+    B[lug, :nb] = ctx.w[lug, None] * bspline(ctx.x_ground[lug], lo, hi, n_int)
+    if mode != "lugs" and body.any():
+        front = ctx.X[body] + ctx.x_off + ctx.D / 2  # the wheels' centres over the ground
+        rear = front - ctx.D
+        gf = bspline(front, lo, hi, n_int)
+        gr = bspline(rear, lo, hi, n_int)
+        # the frame rests on the two wheels: a marker at x = X + c_x sits on the
+        # line through them, (c_x - x_off + D/2) / D of the way from the rear one
+        q = ((ctx.cx[body] - ctx.x_off + ctx.D / 2) / ctx.D)[:, None]
+        B[body, nb * (mode == "separate"):] = ctx.w[body, None] * (gr + q * (gf - gr))
+    return B

@@ -43,23 +43,14 @@ class PathShape(Family):
     def fit(cls, ctx, proj, parts):
         located = {p.get("segment") for p in parts if cls.applies(p)}
         lug = (ctx.role == 0) & ctx.valid
-        D, R = ctx.D, ctx.R
-        u = np.nan_to_num(ctx.u)
         cands = []
         for run in ("top", "bottom"):
             if run not in located:
                 continue
-            sel = lug & (ctx.axis == 1) & (ctx.segment == PARTS[run])
+            sel, xi = _run_rows(ctx, run)
             if sel.sum() < 40:
                 continue
-            xi = (u - D - np.pi * R) / D if run == "top" else u / D
-
-            def cols(n, sel=sel, xi=xi):
-                B = np.zeros((len(ctx.r), n + 3))
-                B[sel] = ctx.w[sel, None] * _design(xi[sel], n)
-                return B
-
-            found = best_size(proj, [(n, cols(n), 0) for n in RUN_INTERVALS])
+            found = best_size(proj, [(n, _run_cols(ctx, run, n), 0) for n in RUN_INTERVALS])
             if found:
                 cands.append((run, found, xi, sel))
         arcs = [a for a in ("rear_arc", "front_arc") if a in located]
@@ -78,6 +69,22 @@ class PathShape(Family):
         if isinstance(where, str):
             return _run_choice(ctx, where, n, fitted, xi, sel)
         return _arc_choice(ctx, where, n, fitted, sel)
+
+
+def _run_rows(ctx, run):
+    """The rows of the lugs' y on the straight run `run` and their place xi along it."""
+    sel = (ctx.role == 0) & ctx.valid & (ctx.axis == 1) & (ctx.segment == PARTS[run])
+    u = np.nan_to_num(ctx.u)
+    xi = (u - ctx.D - np.pi * ctx.R) / ctx.D if run == "top" else u / ctx.D
+    return sel, xi
+
+
+def _run_cols(ctx, run, n):
+    """Columns of the y offset on the straight run `run`: a spline of n intervals in xi."""
+    sel, xi = _run_rows(ctx, run)
+    B = np.zeros((len(ctx.r), n + 3))
+    B[sel] = ctx.w[sel, None] * _design(xi[sel], n)
+    return B
 
 
 def _arc_cols(ctx, which, n):
@@ -138,7 +145,7 @@ def _run_choice(ctx, run, n, fitted, xi, sel):
                          "0 front wheel, 1 rear wheel"), describe,
                   label=f"B-spline on the {run} run, {n} interval(s)", rows=sel,
                   row_coord=xi, row_coord_name=f"place along the {run} run, xi",
-                  ambiguity=amb)
+                  ambiguity=amb, columns=lambda c: _run_cols(c, run, n))
 
 
 def _arc_choice(ctx, which, n, fitted, sel):
@@ -184,4 +191,5 @@ def _arc_choice(ctx, which, n, fitted, sel):
                   rows=sel, row_coord=np.nan_to_num(sel_coord),
                   row_coord_name="place along the arcs",
                   ambiguity=("a recording of the wheel alone (no belt) would tell a pitch "
-                             "radius from lugs that splay"))
+                             "radius from lugs that splay"),
+                  columns=lambda c: _arc_cols(c, which, n))

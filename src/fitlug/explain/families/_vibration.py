@@ -42,11 +42,7 @@ class SegmentVibration(Family):
             return None
 
         def cols(f, n=1):
-            out = []
-            for k in range(1, n + 1):
-                m = np.where(sel, ctx.w * np.sin(k * np.pi * xi), 0.0)
-                out += [m * np.sin(2 * np.pi * f * t), m * np.cos(2 * np.pi * f * t)]
-            return np.stack(out, 1)
+            return _cols(ctx, f, n)
 
         f = best_of_seeds(proj, cols, seeds, 0.03, T)
         found = best_size(proj, [(n, cols(f, n), 1) for n in range(1, MAX_MODES + 1)])
@@ -81,7 +77,19 @@ class SegmentVibration(Family):
                       ambiguity=("a recording at another belt tension or speed would tell a "
                                  "free vibration of the span (its frequency set by the "
                                  "tension) from one the drive forces (its frequency follows "
-                                 "the speed)"))
+                                 "the speed)"),
+                      columns=lambda c: _cols(c, f, n))
+
+
+def _cols(ctx, f, n):
+    """Columns of n standing modes sin(k pi xi) of the top run's y at frequency f."""
+    sel = (ctx.role == 0) & (ctx.axis == 1) & (ctx.segment == 2) & ctx.valid
+    xi = np.where(sel, np.nan_to_num(ctx.xi), 0.0)
+    out = []
+    for k in range(1, n + 1):
+        m = np.where(sel, ctx.w * np.sin(k * np.pi * xi), 0.0)
+        out += [m * np.sin(2 * np.pi * f * ctx.t), m * np.cos(2 * np.pi * f * ctx.t)]
+    return np.stack(out, 1)
 
 
 def proj_resid(ctx, sel) -> np.ndarray:
