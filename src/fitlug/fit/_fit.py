@@ -52,6 +52,17 @@ def _long(prob: Problem, p0: dict, free) -> bool:
     return n_res * sum(Packing.of(p0, free).sizes) > LARGE_ENTRIES
 
 
+def _misfit_scale(out, prob: Problem) -> float:
+    """chi^2/dof of `out` where it is above 1, else 1: the unit of chi^2 in which the
+    decrement left at "converged" is read. Under a misfit the errors that matter are the
+    scaled ones (explain's robust errors, sqrt(chi^2/dof) wider), so a step that would
+    remove 19 of chi^2 = 3.2e6 (chi^2/dof 288: a slip law far from linear, bench_discovery
+    slip_speed seed 1014, LM at its step limit) moves nothing an interval could show, and
+    a FitError there kept explain from ever seeing the misfit."""
+    dof = max(int(prob.n_valid) - len(out.flat), 1)
+    return max(1.0, float(np.sum(np.asarray(out.r) ** 2)) / dof)
+
+
 def fit_problem(prob: Problem, p_start: dict | None = None, *, free=None, max_steps: int = 300,
                 require_convergence: bool = True, params=None) -> FitResult:
     """Fit `prob` from `p_start` (default: the data-derived start) by Levenberg-Marquardt.
@@ -93,7 +104,8 @@ def fit_problem(prob: Problem, p_start: dict | None = None, *, free=None, max_st
         # slope beta of a cruise-only recording, creeps on for hundreds of steps): full
         # Gauss-Newton steps finish the walk; converged once a further step could remove
         # less than DECREMENT_TOL of chi^2 (intervals are drawn at delta chi^2 = 1 and more)
-        out, _ = gauss_newton_polish(out, prob.lay, prob.obs, tol=DECREMENT_TOL,
+        out, _ = gauss_newton_polish(out, prob.lay, prob.obs,
+                                     tol=DECREMENT_TOL * _misfit_scale(out, prob),
                                      max_iter=min(12, max_steps // 10))
     chi2 = float(np.sum(out.r ** 2))
     n_data = prob.n_valid
