@@ -28,7 +28,6 @@ class SegmentVibration(Family):
         sel = (ctx.role == 0) & (ctx.axis == 1) & (ctx.segment == 2) & ctx.valid
         if sel.sum() < 40:
             return None
-        xi = np.where(sel, np.nan_to_num(ctx.xi), 0.0)
         t = ctx.t
         T = float(np.ptp(t[sel]))
         fps = 1.0 / float(np.median(np.diff(np.unique(t))))
