@@ -56,6 +56,10 @@ Mechanisms (family and coordinate as MODEL.md §5 names them):
   the rig's resonance), body y += (A + B c_x) sin(2 pi f t + phi); A 0.01-0.06 mm, pitch
   length A/B 100-400 mm of either sign, f 4-30 Hz (and < 0.3 fps), away from the
   lug-passing and wheel frequencies at cruise;
+- `rail_bow` (body motion; the body's ground position X): the body rides a carriage on a
+  guide rail that is not straight, rail height h sin(2 pi x / lambda + phi), h 0.05-0.3
+  mm, lambda 0.6-1.5 m; the carriage's two rollers 100-300 mm apart about the body's X
+  carry it (heave and pitch), the lugs untouched;
 - `clock_wobble` (time map; t): the camera's frame clock wobbles, tau(t) = A sin(2 pi f t
   + phi), A 0.1-0.6 ms, f 3-25 Hz (and < 0.3 fps): to the data nearly a speed modulation
   in time, but the robot's motion (and its slip) is untouched.
@@ -102,11 +106,15 @@ FAMILIES = {
     "frame_jitter": ("time map", "t"),
     "clock_wobble": ("time map", "t"),
     "frame_vibration": ("body motion", "t"),
+    "rail_bow": ("body motion", "X"),
 }
 #: catalog recordings this generator also makes (no family term may be kept on them)
 CATALOG_CASES = ("wheel_runout", "belt_sag", "lug_ripple", "body_bounce")
 MECHANISMS = tuple(FAMILIES)
-ALL = MECHANISMS + ("null",) + CATALOG_CASES
+#: mechanisms added after the others: last in ALL, so that every earlier kind keeps its
+#: random stream (make's rng is seeded by the kind's place in ALL)
+LATER = ("rail_bow",)
+ALL = tuple(m for m in MECHANISMS if m not in LATER) + ("null",) + CATALOG_CASES + LATER
 STEPS_PER_FRAME = 16
 
 
@@ -348,6 +356,23 @@ def _idler_wobble(sc, c, rng, size):
     return {"w_mm": w, "phi_rad": phi, "pivot": "front wheel"}
 
 
+def _rail_bow(sc, c, rng, size):
+    h = _uniform(rng, 0.05, 0.3, size)
+    lam = float(rng.uniform(600.0, 1500.0))
+    phi = float(rng.uniform(0, 2 * np.pi))
+    Lc = float(rng.uniform(100.0, 300.0))
+    Xb = c["X"][c["f_b"]]
+    cx = c["cx"][c["j_b"]]
+
+    def g(x):
+        return h * np.sin(2 * np.pi * x / lam + phi)
+
+    xr, xf = Xb - Lc / 2, Xb + Lc / 2  # the carriage's two rollers, about the body's X
+    c["by"] = c["by"] + g(xr) + (g(xf) - g(xr)) * (cx - sc.x_off_mm + Lc / 2) / Lc
+    return {"h_mm": h, "wavelength_mm": lam, "phi_rad": phi, "carriage_mm": Lc,
+            "form": "rail h sin(2 pi x / lambda + phi) under a carriage of two rollers"}
+
+
 def _frame_vibration(sc, c, rng, size):
     A = _uniform(rng, 0.01, 0.06, size)
     lp = float(rng.uniform(100, 400)) * float(rng.choice([-1.0, 1.0]))
@@ -494,6 +519,8 @@ def make(mechanism: str, seed: int, *, size: float | None = None, faults: bool =
             params = _idler_wobble(sc, c, rng, size)
         elif mechanism == "frame_vibration":
             params = _frame_vibration(sc, c, rng, size)
+        elif mechanism == "rail_bow":
+            params = _rail_bow(sc, c, rng, size)
         elif mechanism == "carrier_roller":
             params = _carrier_roller(sc, c, rng, size)
         elif mechanism == "lug_splay":

@@ -46,6 +46,9 @@ CASES = {
     "clock_wobble": (SEED, 0.3, "time map", "t"),
     # the frame vibrating at a fixed frequency: body motion in time, not in belt travel
     "frame_vibration": (SEED, 0.04, "body motion", "t"),
+    # MODEL.md §5's fourth coordinate of body motion: the body's ground position X (a
+    # carriage on a rail that bows); the lugs do not show it, so it is not the ground's
+    "rail_bow": (SEED, 0.15, "body motion", "X"),
 }
 
 
@@ -110,6 +113,8 @@ def test_a_mechanism_outside_the_catalog_is_modelled_by_its_family(mechanism, tm
     elif mechanism == "frame_vibration":
         assert t["frequency_hz"] == pytest.approx(q["f_Hz"], abs=0.02)
         assert "vibrates" in t["reading"]
+    elif mechanism == "rail_bow":
+        assert "rail" in t["reading"] and p["X_range_mm"][1] - p["X_range_mm"][0] > 100
     elif mechanism == "clock_wobble":
         assert t["frequency_hz"] == pytest.approx(q["f_Hz"], abs=0.02)
         assert p["amplitude_ms"] == pytest.approx(q["A_ms"], rel=0.1)

@@ -94,7 +94,7 @@ class Family:
     @classmethod
     def fit(cls, ctx, proj, parts) -> Choice | None:
         """The family's term at its best size by the criterion, or None when it cannot act
-        on this recording (no samples at its place)."""
+        on this recording (nothing to fit at its place)."""
         raise NotImplementedError
 
 

@@ -1,20 +1,26 @@
 """Body motion: body-marker y += A(.) + B(.) c_x (heave and pitch) in acceleration a (the
 suspension squats under acceleration and dives under braking), in belt travel psi with a
-free period (a wheel, a sprocket or a lug pattern lifting the frame once per turn) or in
-time t at a free frequency (the frame vibrates); the coordinate with the lower Delta BIC
-is kept (MODEL.md §5). body_bounce is the catalog's
-case at the lug pitch."""
+free period (a wheel, a sprocket or a lug pattern lifting the frame once per turn), in
+time t at a free frequency (the frame vibrates) or in the ground position X (B-splines:
+the body rides a guide rail or carriage track that is not straight); the coordinate with
+the lower Delta BIC is kept (MODEL.md §5). body_bounce is the catalog's case at the lug
+pitch."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from ._base import Choice, Family, best_size, names
+from ._base import Choice, Family, best_size, bspline, names
 from ._solve import best_of_seeds, distinct, peak_frequency
 from ._vibration import _frequency_std
 
 MAX_POWER = 3
 MAX_HARMONICS = 3
+#: least cycles of a periodic body motion in view: in time (t), in belt travel (psi)
+MIN_CYCLES_T = 3
+MIN_CYCLES_PSI = 1.5
+X_INTERVALS = (1, 2, 4, 8, 16)
+X_MIN_SPACING_MM = 20.0
 
 
 class BodyMotion(Family):
@@ -29,7 +35,8 @@ class BodyMotion(Family):
     @classmethod
     def fit(cls, ctx, proj, parts):
         found = [c for c in (cls.fit_a(ctx, proj), cls.fit_periodic(ctx, proj, parts),
-                             cls.fit_periodic(ctx, proj, parts, "t")) if c]
+                             cls.fit_periodic(ctx, proj, parts, "t"), cls.fit_x(ctx, proj))
+                 if c]
         return min(found, key=lambda c: c.fitted.delta_bic) if found else None
 
     @classmethod
@@ -49,7 +56,12 @@ class BodyMotion(Family):
         # in this coordinate (a part's line can be another one)
         seeds = [p["frequency_hz"] for p in parts if cls.applies(p) and p.get("frequency_hz")]
         seeds.append(peak_frequency(u[sel], ctx.r[sel], fps / 2, T))
-        seeds = distinct([f for f in seeds if f * T >= 3], 0.03)
+        # cycles seen: over the time in view, or (psi) over the belt travel in view; a
+        # robot at rest in view adds time but no belt travel (a rail's bow of 1 m, seen
+        # over 0.5 m of travel, read as "periodic in psi, 979 mm")
+        span = T if coord == "t" else float(np.ptp(u[sel]))
+        least = MIN_CYCLES_T if coord == "t" else MIN_CYCLES_PSI
+        seeds = distinct([f for f in seeds if f * span >= least], 0.03)
         if not seeds:
             return None
         pitch = ctx.n_body >= 2 and np.ptp(ctx.cx[sel]) > 1.0
@@ -63,6 +75,8 @@ class BodyMotion(Family):
             return np.stack(out, 1)
 
         f = best_of_seeds(proj, cols, seeds, 0.06, T)
+        if f * span < least:
+            return None
         found = best_size(proj, [(n, cols(f, n), 1) for n in range(1, MAX_HARMONICS + 1)])
         if found is None:
             return None
@@ -174,3 +188,76 @@ class BodyMotion(Family):
         return Choice(cls.name, "a", fitted, names(ctx, sel), "y", "body", None, heave, xs,
                       "mm", "m/s^2", describe, label=f"{n} power(s) of a", rows=sel,
                       row_coord=ctx.a / 1000.0, row_coord_name="acceleration a (m/s²)")
+
+    @classmethod
+    def fit_x(cls, ctx, proj):
+        """Heave and pitch as B-splines in the body's ground position X."""
+        sel = (ctx.role == 1) & (ctx.axis == 1) & ctx.valid
+        if sel.sum() < 20:
+            return None
+        lo, hi = float(np.min(ctx.X[sel])), float(np.max(ctx.X[sel]))
+        sizes = [n for n in X_INTERVALS if (hi - lo) / n >= X_MIN_SPACING_MM]
+        if not sizes:
+            return None
+        pitch = bool(ctx.n_body >= 2 and np.ptp(ctx.cx[sel]) > 1.0)
+        found = best_size(proj, [(n, _x_cols(ctx, lo, hi, n, pitch), 0) for n in sizes])
+        if found is None:
+            return None
+        n, fitted = found
+        per = 2 if pitch else 1
+        cmid = float(np.mean(np.unique(ctx.cx[sel]))) if pitch else 0.0
+        xs = np.linspace(lo, hi, 121)
+
+        def line(x, c, j):  # j = 0: heave at c_x = 0, 1: pitch (rad)
+            return bspline(x, lo, hi, n) @ np.asarray(c)[j::per]
+
+        def heave(x, c):
+            # at the markers' centre, relative to the straight line through its ends (a
+            # level and a tilt of the body's path are the base model's and the camera's)
+            x = np.asarray(x, float)
+            y = line(x, c, 0) + (cmid * line(x, c, 1) if pitch else 0.0)
+            e = line(np.array([lo, hi]), c, 0) + (cmid * line(np.array([lo, hi]), c, 1)
+                                                  if pitch else 0.0)
+            return y - (e[0] + (e[1] - e[0]) * (x - lo) / (hi - lo))
+
+        def describe(c):
+            y = heave(xs, c)
+            k = int(np.argmax(np.abs(y)))
+            h = float(y[k])
+            params = {"peak_mm": h, "at_X_mm": float(xs[k]), "intervals": n,
+                      "knot_spacing_mm": (hi - lo) / n, "X_range_mm": [lo, hi],
+                      "at_body_x_offset_mm": cmid, "coefficients": [float(v) for v in c]}
+            text = (f"body y {'rises' if h > 0 else 'falls'} {abs(h):.2g} mm at X = "
+                    f"{xs[k]:.0f} mm of the body's travel, fixed to its position over the "
+                    "ground")
+            if pitch:
+                pr = line(xs, c, 1)
+                pa = 0.5 * float(np.ptp(pr))
+                params["pitch_range_rad"] = pa
+                text += f" and pitches {pa:.2g} rad"
+            text += (": the body rides something that is not straight under it (a guide "
+                     "rail or a carriage track that bows, the rig's floor under the frame)")
+            return params, text
+
+        return Choice(cls.name, "X", fitted, names(ctx, sel), "y", "body", None, heave, xs,
+                      "mm", "mm (body position over the ground)", describe,
+                      label=f"B-spline in X, {n} interval(s)", rows=sel, row_coord=ctx.X,
+                      row_coord_name="body position over the ground X (mm)",
+                      ambiguity=("a recording over the same stretch at another speed (or "
+                                 "in the other direction) would tell a motion fixed to the "
+                                 "ground position from one in acceleration or time"),
+                      columns=lambda c: _x_cols(c, lo, hi, n, pitch))
+
+
+def _x_cols(ctx, lo, hi, n, pitch):
+    """Columns of the body's heave (and pitch, times c_x) as B-splines of n intervals in
+    the ground position X on [lo, hi]."""
+    sel = (ctx.role == 1) & (ctx.axis == 1) & ctx.valid
+    G = ctx.w[sel, None] * bspline(ctx.X[sel], lo, hi, n)
+    B = np.zeros((len(ctx.r), G.shape[1] * (2 if pitch else 1)))
+    if pitch:
+        B[sel, 0::2] = G
+        B[sel, 1::2] = G * ctx.cx[sel, None]
+    else:
+        B[sel] = G
+    return B

@@ -128,7 +128,8 @@ def discover(res, parts: list, det, J=None) -> Discovery:
                 continue
             ch = F.fit(ctx, proj, parts)
             if ch is None:
-                tried.append({"family": F.name, "rejected_because": "no samples at its place"})
+                tried.append({"family": F.name, "rejected_because": "nothing to fit at its place (no samples "
+                                                     "there, or none that show it)"})
                 continue
             why = chooses(ch.fitted, excess, strong)
             tried.append({"family": F.name, "coordinate": ch.coordinate, "form": ch.label,

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._criterion import BIC_THRESHOLD
 from ._base import Choice, Family, best_size, bspline, names
 
 INTERVALS = (2, 4, 8, 16, 32, 64)
@@ -45,6 +46,11 @@ class GroundProfile(Family):
         # under its rim, wider and flatter than the bump itself)
         for mode in ("lugs", "shared", "separate"):
             found = best_size(proj, [(n, cols(n, mode), 0) for n in sizes])
+            if mode == "lugs" and (found is None or found[1].delta_bic > BIC_THRESHOLD):
+                # the ground is where the bottom run's lugs are: a profile they do not
+                # show is not the ground's (the body riding something that is not
+                # straight under it is body motion in X, :mod:`._body`)
+                return None
             if found and (best is None or found[1].delta_bic < best[2].delta_bic):
                 best = (mode, *found)
         if best is None:
