@@ -9,9 +9,11 @@ Recordings come from tests/mechanisms.py (our own simulator with its own kinemat
 functional forms that differ from the families' splines and Fourier series): a drawn rig,
 motion and mechanism size per seed, seen through tests/realism.py's `drive_through`
 (a window of 300-637 mm that always sees a speed change, misses, occlusions, glitches,
-ids split after gaps). Mechanisms: squat, flap, cogging, bump, slip_speed, idler_wobble
-(see tests/mechanisms.py for their physics, sizes, family and coordinate), plus nulls
-(base model) and catalog recordings (wheel_runout, belt_sag, lug_ripple, body_bounce).
+ids split after gaps). Mechanisms (default: all of tests/mechanisms.py's): the issue's
+squat, flap, cogging, bump and our slip_speed, idler_wobble, then carrier_roller,
+lug_splay, keystone, frame_jitter, clock_wobble, frame_vibration and rail_bow (see
+tests/mechanisms.py for their physics, sizes, family and coordinate), plus nulls (base
+model) and catalog recordings (wheel_runout, belt_sag, lug_ripple, body_bounce).
 Recording k of every kind uses seed `--seed0 + k`, so the kinds share rigs and motions.
 
 Each recording goes through the default pipeline without the posterior: `fitlug.fit.fit`
