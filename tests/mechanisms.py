@@ -60,6 +60,10 @@ Mechanisms (family and coordinate as MODEL.md §5 names them):
   guide rail that is not straight, rail height h sin(2 pi x / lambda + phi), h 0.05-0.3
   mm, lambda 0.6-1.5 m; the carriage's two rollers 100-300 mm apart about the body's X
   carry it (heave and pitch), the lugs untouched;
+- `speed_hunt` (speed modulation; t): the motor's speed controller hunts at a fixed
+  frequency, v -> v (1 + eps sin(2 pi f t + phi)), eps 0.3-3 %, f 2-20 Hz (and < 0.3 fps)
+  away from the lug-passing and wheel frequencies at cruise; X, a, the slip and psi all
+  follow the modulated speed;
 - `clock_wobble` (time map; t): the camera's frame clock wobbles, tau(t) = A sin(2 pi f t
   + phi), A 0.1-0.6 ms, f 3-25 Hz (and < 0.3 fps): to the data nearly a speed modulation
   in time, but the robot's motion (and its slip) is untouched.
@@ -107,13 +111,14 @@ FAMILIES = {
     "clock_wobble": ("time map", "t"),
     "frame_vibration": ("body motion", "t"),
     "rail_bow": ("body motion", "X"),
+    "speed_hunt": ("speed modulation", "t"),
 }
 #: catalog recordings this generator also makes (no family term may be kept on them)
 CATALOG_CASES = ("wheel_runout", "belt_sag", "lug_ripple", "body_bounce")
 MECHANISMS = tuple(FAMILIES)
 #: mechanisms added after the others: last in ALL, so that every earlier kind keeps its
 #: random stream (make's rng is seeded by the kind's place in ALL)
-LATER = ("rail_bow",)
+LATER = ("rail_bow", "speed_hunt")
 ALL = tuple(m for m in MECHANISMS if m not in LATER) + ("null",) + CATALOG_CASES + LATER
 STEPS_PER_FRAME = 16
 
@@ -152,30 +157,33 @@ def scenario(seed: int) -> Scenario:
 
 # ---------------------------------------------------------------- kinematics (numpy)
 
-def _kinematics(sc: Scenario, speed_mod=None, slip_of=None):
+def _kinematics(sc: Scenario, speed_mod=None, slip_of=None, time_mod=None):
     """(t_frames, X, psi, a) at the frame times: RK4 on STEPS_PER_FRAME steps per frame.
 
-    speed_mod(psi) -> (m, dm/dpsi): v = v0 (1 + m); slip_of(s_lin, v) -> s replaces the
-    linear law s_lin = s0 + beta a. a is the body's acceleration (mm/s^2)."""
+    speed_mod(psi) -> (m, dm/dpsi) and time_mod(t) -> (m, dm/dt): v = v0 (1 + m), the two
+    m added; slip_of(s_lin, v) -> s replaces the linear law s_lin = s0 + beta a. a is the
+    body's acceleration (mm/s^2)."""
     h = 1.0 / (sc.fps * STEPS_PER_FRAME)
     nf = int(round(sc.duration_s * sc.fps))
     prof = dict(v_cruise=sc.v_cruise, duration=sc.duration_s, rest=sc.rest_s,
                 ramp=sc.ramp_s, shape=sc.ramp)
 
-    def rates(v0, a0, psi):
+    def rates(v0, a0, psi, t=0.0):
         m, dm = speed_mod(psi) if speed_mod is not None else (0.0, 0.0)
+        mt, dmt = time_mod(t) if time_mod is not None else (0.0, 0.0)
+        m = m + mt
         v = v0 * (1 + m)
         law = (lambda a: sc.slip + sc.beta * a) if slip_of is None else \
             (lambda a: slip_of(sc.slip + sc.beta * a, v))
-        dpsi = v / (1 - law(a0 * (1 + m)))
+        dpsi = v / (1 - law(a0 * (1 + m) + v0 * dmt))
         for _ in range(6):  # a depends on dpsi/dt through m(psi)
-            a = a0 * (1 + m) + v0 * dm * dpsi
+            a = a0 * (1 + m) + v0 * (dm * dpsi + dmt)
             dpsi = v / (1 - law(a))
-        return v, dpsi, a0 * (1 + m) + v0 * dm * dpsi
+        return v, dpsi, a0 * (1 + m) + v0 * (dm * dpsi + dmt)
 
     n = (nf - 1) * STEPS_PER_FRAME
     tg = np.arange(n + 1) * h
-    if speed_mod is None:  # the rates do not depend on psi: Simpson on nodes and midpoints
+    if speed_mod is None and time_mod is None:  # Simpson on nodes and midpoints
         vn, dn, A = rates(*speed_profile(tg, **prof), None)
         vm, dm_, _ = rates(*speed_profile(tg[:-1] + h / 2, **prof), None)
         X = np.r_[0.0, np.cumsum(h / 6 * (vn[:-1] + 4 * vm + vn[1:]))]
@@ -188,19 +196,20 @@ def _kinematics(sc: Scenario, speed_mod=None, slip_of=None):
         v0m, a0m = (a.tolist() for a in speed_profile(tg[:-1] + h / 2, **prof))
         x = p = 0.0
         for k in range(n):
-            v1, d1, A[k] = rates(v0n[k], a0n[k], p)
-            v2, d2, _ = rates(v0m[k], a0m[k], p + h / 2 * d1)
-            v3, d3, _ = rates(v0m[k], a0m[k], p + h / 2 * d2)
-            v4, d4, _ = rates(v0n[k + 1], a0n[k + 1], p + h * d3)
+            t0 = k * h
+            v1, d1, A[k] = rates(v0n[k], a0n[k], p, t0)
+            v2, d2, _ = rates(v0m[k], a0m[k], p + h / 2 * d1, t0 + h / 2)
+            v3, d3, _ = rates(v0m[k], a0m[k], p + h / 2 * d2, t0 + h / 2)
+            v4, d4, _ = rates(v0n[k + 1], a0n[k + 1], p + h * d3, t0 + h)
             x += h / 6 * (v1 + 2 * v2 + 2 * v3 + v4)
             p += h / 6 * (d1 + 2 * d2 + 2 * d3 + d4)
             X[k + 1], P[k + 1] = x, p
-        A[n] = rates(v0n[n], a0n[n], p)[2]
+        A[n] = rates(v0n[n], a0n[n], p, n * h)[2]
     idx = np.arange(nf) * STEPS_PER_FRAME
     return np.arange(nf) / sc.fps, X[idx], P[idx], A[idx]
 
 
-def _clean(sc: Scenario, speed_mod=None, slip_of=None, tau=None):
+def _clean(sc: Scenario, speed_mod=None, slip_of=None, tau=None, time_mod=None):
     """Noise-free positions of every marker at every frame, plus what the marker-only
     mechanisms need: dict with the layout's sample arrays. `tau` (per frame, s): the frame's
     true time is its stamp + tau (X and psi moved to it to second order)."""
@@ -208,7 +217,7 @@ def _clean(sc: Scenario, speed_mod=None, slip_of=None, tau=None):
     from fitlug.model._model import ctx_of, positions
     from fitlug.model._path import stadium
 
-    t, X, psi, a = _kinematics(sc, speed_mod, slip_of)
+    t, X, psi, a = _kinematics(sc, speed_mod, slip_of, time_mod)
     if tau is not None:  # X and psi at the true times (Taylor to tau^2: tau < 1 ms)
         v, vt = np.gradient(X, t), np.gradient(psi, t)
         X = X + v * tau + 0.5 * np.gradient(v, t) * tau ** 2
@@ -356,6 +365,23 @@ def _idler_wobble(sc, c, rng, size):
     return {"w_mm": w, "phi_rad": phi, "pivot": "front wheel"}
 
 
+def _hunt_draw(sc, rng, size):
+    eps = _uniform(rng, 0.003, 0.03, size)
+    lug_f = sc.v_cruise / (1 - sc.slip) / sc.pitch
+    wheel_f = lug_f * sc.pitch / (2 * np.pi * sc.R_mm)
+    for _ in range(1000):  # away from what turns with the belt (that would be psi's)
+        f = float(rng.uniform(2.0, min(20.0, 0.3 * sc.fps)))
+        if all(abs(f / g - round(f / g)) > 0.1 or round(f / g) == 0 for g in (lug_f, wheel_f)):
+            break
+    phi = float(rng.uniform(0, 2 * np.pi))
+    w = 2 * np.pi * f
+
+    def mod(t):
+        return eps * np.sin(w * t + phi), eps * w * np.cos(w * t + phi)
+    return {"epsilon": eps, "f_Hz": f, "phi_rad": phi,
+            "form": "v -> v (1 + eps sin(2 pi f t + phi))"}, mod
+
+
 def _rail_bow(sc, c, rng, size):
     h = _uniform(rng, 0.05, 0.3, size)
     lam = float(rng.uniform(600.0, 1500.0))
@@ -484,7 +510,7 @@ def make(mechanism: str, seed: int, *, size: float | None = None, faults: bool =
         raise ValueError(f"unknown mechanism {mechanism!r}; known: {', '.join(ALL)}")
     sc = scenario(seed)
     rng = np.random.default_rng([seed, 28, ALL.index(mechanism)])
-    speed_mod = slip_of = tau = None
+    speed_mod = slip_of = tau = time_mod = None
     slip_true = sc.slip
     params: dict = {}
     if mechanism in CATALOG_CASES or mechanism == "null":
@@ -508,7 +534,9 @@ def make(mechanism: str, seed: int, *, size: float | None = None, faults: bool =
             params, tau = _jitter_draw(sc, rng, size)
         elif mechanism == "clock_wobble":
             params, tau = _wobble_draw(sc, rng, size)
-        c = _clean(sc, speed_mod, slip_of, tau)
+        elif mechanism == "speed_hunt":
+            params, time_mod = _hunt_draw(sc, rng, size)
+        c = _clean(sc, speed_mod, slip_of, tau, time_mod)
         if mechanism == "squat":
             params = _squat(sc, c, rng, size)
         elif mechanism == "flap":

@@ -49,6 +49,10 @@ CASES = {
     # MODEL.md §5's fourth coordinate of body motion: the body's ground position X (a
     # carriage on a rail that bows); the lugs do not show it, so it is not the ground's
     "rail_bow": (SEED, 0.15, "body motion", "X"),
+    # a speed controller hunting at 15 Hz (speed modulation in time): two 0.7 mm glitches
+    # hide under its misfit from the base fit's finder; left in, they pulled the slip 5
+    # sigma off
+    "speed_hunt": (SEED, 0.015, "speed modulation", "t"),
 }
 
 
@@ -113,6 +117,10 @@ def test_a_mechanism_outside_the_catalog_is_modelled_by_its_family(mechanism, tm
     elif mechanism == "frame_vibration":
         assert t["frequency_hz"] == pytest.approx(q["f_Hz"], abs=0.02)
         assert "vibrates" in t["reading"]
+    elif mechanism == "speed_hunt":
+        assert t["frequency_hz"] == pytest.approx(q["f_Hz"], abs=0.02)
+        assert p["amplitude"] == pytest.approx(q["epsilon"], rel=0.15)
+        assert len(ex.discovery.glitches) >= 2  # the two the base fit's finder missed
     elif mechanism == "rail_bow":
         assert "rail" in t["reading"] and p["X_range_mm"][1] - p["X_range_mm"][0] > 100
     elif mechanism == "clock_wobble":

@@ -42,18 +42,23 @@ def moved(res, flat):
                                chi2=float(r @ r))
 
 
-def relinearised(res, kept, B_all, final, k_all, slip_h, rank: bool):
+def relinearised(res, kept, B_all, final, k_all, slip_h, rank: bool, drop=None):
     """Gauss-Newton steps on the model extended by the `kept` terms (their columns B_all
     at `res`, the extended fit `final` after the first step): each step rebuilds the
     Jacobian, the context and the columns of the terms that can (`Choice.columns`) where
-    the parameters now are and solves the joint problem again. Returns (final, joint
-    :class:`._solve.Fitted` or None when no step was taken)."""
+    the parameters now are and solves the joint problem again; `drop` (bool rows): left
+    out (glitches). Returns (final, joint :class:`._solve.Fitted` or None when no step
+    was taken)."""
     from .._engine import jacobian_of
 
     packing = res.packing
     fixed = {k: v for k, v in res.params.items() if k not in packing.names}
     lay, obs = res.problem.lay, res.problem.obs
     joint = None
+
+    def chi2(f, valid):
+        return float(np.sum(np.asarray(f.residuals)[valid] ** 2))
+
     for _ in range(MAX_STEPS):
         here = moved(res, final.flat)
         J = np.asarray(jacobian_of(here.flat, fixed, packing, lay, obs))
@@ -65,11 +70,13 @@ def relinearised(res, kept, B_all, final, k_all, slip_h, rank: bool):
                           else B_all[:, i:i + m])
             i += m
         B = np.hstack(blocks)
-        proj = Projector(ctx.J, ctx.r, ctx.valid)
+        valid = ctx.valid if drop is None else ctx.valid & ~drop
+        proj = Projector(ctx.J, ctx.r, valid)
         fitted = proj.fit(B, 0, rank=rank)
         new = extended(here, ctx, proj, B, fitted.c, fitted.cov, k_all, slip_h=slip_h)
-        if not np.isfinite(new.chi2) or new.chi2 > final.chi2 - MIN_GAIN:
-            if np.isfinite(new.chi2) and new.chi2 < final.chi2:
+        c_new, c_old = chi2(new, valid), chi2(final, valid)
+        if not np.isfinite(c_new) or c_new > c_old - MIN_GAIN:
+            if np.isfinite(c_new) and c_new < c_old:
                 final, joint = new, fitted
             break
         final, joint = new, fitted
