@@ -211,14 +211,15 @@ class BodyMotion(Family):
         def line(x, c, j):  # j = 0: heave at c_x = 0, 1: pitch (rad)
             return bspline(x, lo, hi, n) @ np.asarray(c)[j::per]
 
+        def centre(x, c):  # heave at the markers' centre
+            return line(x, c, 0) + (cmid * line(x, c, 1) if pitch else 0.0)
+
         def heave(x, c):
-            # at the markers' centre, relative to the straight line through its ends (a
-            # level and a tilt of the body's path are the base model's and the camera's)
+            # relative to the straight line through its ends (a level and a tilt of the
+            # body's path are the base model's and the camera's)
             x = np.asarray(x, float)
-            y = line(x, c, 0) + (cmid * line(x, c, 1) if pitch else 0.0)
-            e = line(np.array([lo, hi]), c, 0) + (cmid * line(np.array([lo, hi]), c, 1)
-                                                  if pitch else 0.0)
-            return y - (e[0] + (e[1] - e[0]) * (x - lo) / (hi - lo))
+            e = centre(np.array([lo, hi]), c)
+            return centre(x, c) - (e[0] + (e[1] - e[0]) * (x - lo) / (hi - lo))
 
         def describe(c):
             y = heave(xs, c)

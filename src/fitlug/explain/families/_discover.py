@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..._errors import FitlugError
+from ...fit._glitches import threshold
 from .._detect import detect
 from .._locate import locate
 from .._criterion import BIC_THRESHOLD, MODELLED_CHI2, STRONG_MISFIT_Z
@@ -128,8 +129,8 @@ def discover(res, parts: list, det, J=None) -> Discovery:
                 continue
             ch = F.fit(ctx, proj, parts)
             if ch is None:
-                tried.append({"family": F.name, "rejected_because": "nothing to fit at its place (no samples "
-                                                     "there, or none that show it)"})
+                tried.append({"family": F.name, "rejected_because": (
+                    "nothing to fit at its place (no samples there, or none that show it)")})
                 continue
             why = chooses(ch.fitted, excess, strong)
             tried.append({"family": F.name, "coordinate": ch.coordinate, "form": ch.label,
@@ -266,8 +267,7 @@ def _far(final, ctx) -> np.ndarray:
     they are few enough to be glitches; empty otherwise."""
     r = np.asarray(final.residuals, float)
     n = int(ctx.valid.sum())
-    c = math.sqrt(2 * math.log(n / 0.01))
-    far = np.flatnonzero(ctx.valid & (np.abs(r) > c))
+    far = np.flatnonzero(ctx.valid & (np.abs(r) > threshold(n)))
     if far.size > max(5, GLITCH_SHARE * n):
         return far[:0]
     return far
@@ -280,12 +280,10 @@ def _glitches(final, ctx):
     on the extended model's residuals; only when they are few (at most GLITCH_SHARE of
     the samples, else they are misfit, not glitches). Their residuals are set to zero and
     the dof lowered; they are listed (Discovery.glitches)."""
-    r = np.asarray(final.residuals, float).copy()
-    n = int(ctx.valid.sum())
-    c = math.sqrt(2 * math.log(n / 0.01))
-    far = np.flatnonzero(ctx.valid & (np.abs(r) > c))
-    if far.size == 0 or far.size > max(5, GLITCH_SHARE * n):
+    far = _far(final, ctx)
+    if far.size == 0:
         return final, []
+    r = np.asarray(final.residuals, float).copy()
     listed = [{"marker": ctx.markers[ctx.marker[i]], "t_s": float(ctx.t[i]),
                "axis": "xy"[ctx.axis[i]], "residual_sigma": float(r[i])} for i in far]
     r[far] = 0.0

@@ -32,9 +32,7 @@ def extended(res, ctx, proj, B: np.ndarray, c: np.ndarray, C: np.ndarray,
     prob = res.problem
     packing = res.packing
     fixed = {k: jnp.asarray(v, float) for k, v in res.params.items() if k not in packing.names}
-    p = {**{k: np.asarray(v) for k, v in packing.unpack(jnp.asarray(flat), {}).items()},
-         **{k: np.asarray(v) for k, v in fixed.items()}}
-    p = {k: p[k] for k in res.params}
+    p = params_at(res, flat)
     if r is None:
         r = np.asarray(residuals({k: jnp.asarray(v) for k, v in p.items()}, prob.lay,
                                  prob.obs)) + B @ c
@@ -56,6 +54,14 @@ def extended(res, ctx, proj, B: np.ndarray, c: np.ndarray, C: np.ndarray,
     return FitResult(problem=prob, params=p, packing=packing, flat=flat, cov=cov,
                      residuals=r, chi2=chi2, dof=int(res.dof - k_extra),
                      converged=res.converged, steps=res.steps, quantities=q, robust=robust)
+
+
+def params_at(res, flat) -> dict:
+    """`res`'s parameters (numpy, its order) with the packed ones at `flat`."""
+    packing = res.packing
+    p = {**{k: np.asarray(v) for k, v in res.params.items() if k not in packing.names},
+         **{k: np.asarray(v) for k, v in packing.unpack(jnp.asarray(flat), {}).items()}}
+    return {k: p[k] for k in res.params}
 
 
 def _slip_moved(q, p, packing, flat, cov, K, C, c, h, prob, fixed_np):

@@ -21,7 +21,7 @@ import numpy as np
 
 from ...fit import residuals
 from ._context import context
-from ._extend import extended
+from ._extend import extended, params_at
 from ._solve import Projector
 
 MAX_STEPS = 5
@@ -31,11 +31,7 @@ MIN_GAIN = 0.5
 
 def moved(res, flat):
     """FitResult `res` with its parameters at `flat` and its own model's residuals there."""
-    packing = res.packing
-    fixed = {k: v for k, v in res.params.items() if k not in packing.names}
-    p = {**{k: np.asarray(v) for k, v in packing.unpack(jnp.asarray(flat), {}).items()},
-         **{k: np.asarray(v) for k, v in fixed.items()}}
-    p = {k: p[k] for k in res.params}
+    p = params_at(res, flat)
     r = np.asarray(residuals({k: jnp.asarray(v) for k, v in p.items()}, res.problem.lay,
                              res.problem.obs))
     return dataclasses.replace(res, params=p, flat=np.asarray(flat, float), residuals=r,
