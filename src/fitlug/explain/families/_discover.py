@@ -14,6 +14,7 @@ import math
 import time
 from dataclasses import dataclass, field
 
+import jax.numpy as jnp
 import numpy as np
 
 from ..._errors import FitlugError
@@ -205,9 +206,11 @@ def discover(res, parts: list, det, J=None) -> Discovery:
             final, joint = again, joint_g
     final, glitches = _glitches(final, ctx)
     i = 0
-    for t in kept:  # each term's coefficients from the joint fit
+    for j, t in enumerate(kept):  # each term's coefficients from the joint fit
         m = t.choice.fitted.B.shape[1]
         t.c, t.cov = joint.c[i:i + m], joint.cov[i:i + m, i:i + m]
+        if t.choice.retuned is not None:  # its refitted frequency, under the final fit
+            t.choice = t.choice.retuned(joint.free.get(j, np.zeros(0)), _belt_speed(final))
         i += m
     kept[-1].chi2_per_dof_after = float(final.chi2_per_dof)
     for t in kept:
@@ -227,14 +230,20 @@ def _solve_terms(res, ctx, proj, kept, B_all, k_all, slip_h, rank, bar, drop=Non
     joint = proj.fit(B_all, 0, rank=rank)
     flat = r_ex = None
     i = 0
-    for t in kept:  # a term with an exact (nonlinear) form is refitted in it
+    for j, t in enumerate(kept):  # a term with an exact (nonlinear) form is refitted in it
         m = t.choice.fitted.B.shape[1]
         if t.choice.exact is not None:
-            flat, joint.c, r_ex = refine(proj, ctx, B_all, joint.c, t.choice.exact,
-                                         np.arange(i, i + m))
+            flat, c, r_ex, free, jac = refine(proj, ctx, B_all, joint.c, t.choice.exact,
+                                              np.arange(i, i + m))
+            final, joint = _exact_fit(res, ctx, proj, jac, c, free, k_all, flat, r_ex,
+                                      slip_h, rank)
+            if free.size:
+                joint.free = {j: free}
             break
         i += m
-    final = extended(res, ctx, proj, B_all, joint.c, joint.cov, k_all, flat, r_ex, slip_h)
+    else:
+        final = extended(res, ctx, proj, B_all, joint.c, joint.cov, k_all, flat, r_ex,
+                         slip_h)
     if flat is None and any(t.choice.columns is not None for t in kept):
         # a term whose place moves with the fit (segment, u, ground x): Gauss-Newton with
         # its columns rebuilt where the fit has moved
@@ -250,16 +259,39 @@ def _solve_terms(res, ctx, proj, kept, B_all, k_all, slip_h, rank, bar, drop=Non
         # longer holds (a time map's lugs: chi2/dof 2.4 for a predicted 1.0; a keystone's
         # warp 1.36 for a predicted 1.3): the terms, linear in their coefficients, refitted
         # with the fit's own exact model
-        c0 = joint.c
-        flat, joint.c, r_ex = refine(proj, ctx, B_all, c0, base_residuals(res),
-                                     np.arange(0))
-        again = extended(res, ctx, proj, B_all, joint.c, joint.cov, k_all, flat, r_ex,
-                         slip_h)
+        flat, c, r_ex, free, jac = refine(proj, ctx, B_all, joint.c, base_residuals(res),
+                                          np.arange(0))
+        again, joint_x = _exact_fit(res, ctx, proj, jac, c, free, k_all, flat, r_ex,
+                                    slip_h, rank)
         if chi2(again) < chi2(final):
-            final = again
-        else:
-            joint.c = c0
+            final, joint = again, joint_x
     return final, joint
+
+
+def _exact_fit(res, ctx, proj, jac, c, free, k_all, flat, r_ex, slip_h, rank):
+    """The extended fit at an exact refit's solution (:func:`._exact.refine`: parameters
+    `flat`, coefficients `c`, the term's own `free`, residuals `r_ex`), its covariance from
+    the extended model's Jacobian `jac` there, not the base fit's: where a term acts at
+    second order its coefficients and the fit's parameters are correlated at the solution
+    though not at the base fit (a cogging's mean belt rate and the slip). Returns (FitResult,
+    Fitted of the coefficients)."""
+    J, B = jac
+    proj_x = Projector(J, r_ex, proj.valid)
+    at = proj_x.fit(B, 0, rank=rank)
+    n_c = len(c)
+    h = np.r_[slip_h, np.zeros(len(free))]
+    final = extended(res, ctx, proj_x, B, np.r_[c, free], at.cov, k_all, flat, r_ex, h)
+    joint = dataclasses.replace(at, B=B[:, :n_c], c=np.asarray(c, float),
+                                cov=at.cov[:n_c, :n_c])
+    return final, joint
+
+
+def _belt_speed(fit) -> float:
+    """The largest belt speed |d psi / dt| of `fit`'s model on its grid, mm/s."""
+    from ...model import integrate
+
+    p = {k: jnp.asarray(v, float) for k, v in fit.params.items()}
+    return float(jnp.max(jnp.abs(integrate(p, fit.problem.lay)[3])))
 
 
 def _far(final, ctx) -> np.ndarray:

@@ -19,7 +19,7 @@ of its excess chi^2.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -36,6 +36,9 @@ class Fitted:
     dchi2: float  # chi^2 removed
     k: int  # parameters counted by the criterion (coefficients + a free frequency)
     delta_bic: float
+    #: an exact term's own parameters after its refit (:func:`._exact.refine`), by the
+    #: index of its term among the kept ones: {i: free}
+    free: dict = field(default_factory=dict)
 
 
 class Projector:

@@ -75,43 +75,56 @@ class SpeedModulation(Family):
         coord, f, (n, fitted), cols = out[0]
         f_std = _frequency_std(proj, lambda g: cols(g, n), f, T)
         ambiguous = len(out) > 1 and out[1][2][1].delta_bic - fitted.delta_bic < 10.0
-        period = vt / f  # mm of belt travel per cycle (psi coordinate)
-        xs = np.linspace(0.0, 1.0, 61)  # one cycle, as a fraction
-
-        def m_of(x, c):
-            ph = 2 * np.pi * np.outer(np.asarray(x), np.arange(1, n + 1))
-            return np.sin(ph) @ c[:n] + np.cos(ph) @ c[n:]
-
-        def describe(c):
-            amp = float(np.max(np.abs(m_of(xs, c))))
-            params = {"frequency_hz": f, "frequency_std_hz": f_std, "harmonics": n,
-                      "amplitude": amp, "coefficients": [float(v) for v in c]}
-            if coord == "psi":
-                params["period_mm"] = period
-                where = f"locked to the belt travel (one cycle per {period:.3g} mm)"
-                why = "the motor cogs or a gear meshes"
-            else:
-                where = "at a fixed frequency in time"
-                why = "a drive resonance or the motor's supply ripples"
-            if ambiguous:
-                why = "the motor cogs, a gear meshes or the drive resonates"
-            text = (f"the speed is modulated by {100 * amp:.2g} % at {f:.1f} Hz, {where}: "
-                    f"{why}")
-            return params, text
-
         amb = ("" if not ambiguous else
                "this recording cannot tell a modulation locked to the belt travel from one "
                "at a fixed frequency in time; a recording at another speed would (a "
                "locked one moves its frequency with the speed)")
-        return Choice(cls.name, coord, fitted, names(ctx, sel), "x", None, f, m_of, xs,
-                      "relative speed change",
-                      "cycle fraction" + (f" (period {period:.3g} mm of belt travel)"
-                                          if coord == "psi" else f" (period {1 / f:.3g} s)"),
-                      describe, label=f"{n} harmonic(s) at {f:.2f} Hz in {coord}",
-                      rows=sel & (ctx.segment == 4),
-                      row_coord=np.mod(f * (ctx.t if coord == "t" else
-                                            np.interp(ctx.t, ctx.grid, ctx.psi_nodes) / vt),
-                                       1.0),
-                      row_coord_name=f"phase of the {f:.3g} Hz cycle (fraction), body x",
-                      ambiguity=amb, exact=speed_residuals(ctx.res, ctx, coord, f, n))
+        exact = speed_residuals(ctx.res, ctx, coord, f, n)
+        return _choice(ctx, sel, coord, fitted, n, f_std, vt, ambiguous, amb, exact,
+                       np.zeros(exact.n_free), vt)
 
+
+def _choice(ctx, sel, coord, fitted, n, f_std, vt, ambiguous, amb, exact, free, vt_now):
+    """The term with the exact term's frequency at `free` (0: the linear search's; its
+    exact refit's in `retuned`); `vt_now` the cruise belt speed of the fit it reports
+    under (in psi the term is locked to the belt: one cycle per vt / f mm of the base
+    fit's belt travel, at vt_now / that in Hz under the extended fit, whose slip moved)."""
+    f_u = exact.free_frequency(free)  # cycles per vt mm of belt travel, or Hz in t
+    period = vt / f_u  # mm of belt travel per cycle (psi coordinate)
+    f = f_u if coord == "t" else vt_now / period
+    xs = np.linspace(0.0, 1.0, 61)  # one cycle, as a fraction
+
+    def m_of(x, c):
+        ph = 2 * np.pi * np.outer(np.asarray(x), np.arange(1, n + 1))
+        return np.sin(ph) @ c[:n] + np.cos(ph) @ c[n:]
+
+    def describe(c):
+        amp = float(np.max(np.abs(m_of(xs, c))))
+        params = {"frequency_hz": f, "frequency_std_hz": f_std, "harmonics": n,
+                  "amplitude": amp, "coefficients": [float(v) for v in c]}
+        if coord == "psi":
+            params["period_mm"] = period
+            where = f"locked to the belt travel (one cycle per {period:.3g} mm)"
+            why = "the motor cogs or a gear meshes"
+        else:
+            where = "at a fixed frequency in time"
+            why = "a drive resonance or the motor's supply ripples"
+        if ambiguous:
+            why = "the motor cogs, a gear meshes or the drive resonates"
+        text = (f"the speed is modulated by {100 * amp:.2g} % at {f:.1f} Hz, {where}: "
+                f"{why}")
+        return params, text
+
+    u_rows = ctx.t if coord == "t" else np.interp(ctx.t, ctx.grid, ctx.psi_nodes) / vt
+    return Choice(SpeedModulation.name, coord, fitted, names(ctx, sel), "x", None, f, m_of, xs,
+                  "relative speed change",
+                  "cycle fraction" + (f" (period {period:.3g} mm of belt travel)"
+                                      if coord == "psi" else f" (period {1 / f:.3g} s)"),
+                  describe, label=f"{n} harmonic(s) at {f:.2f} Hz in {coord}",
+                  rows=sel & (ctx.segment == 4),
+                  row_coord=np.mod(exact.cycles(u_rows, free), 1.0),
+                  row_coord_name=f"phase of the {f:.3g} Hz cycle (fraction), body x",
+                  ambiguity=amb, exact=exact,
+                  retuned=lambda new, vt_new: _choice(ctx, sel, coord, fitted, n, f_std,
+                                                      vt, ambiguous, amb, exact, new,
+                                                      vt_new))
