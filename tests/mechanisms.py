@@ -64,6 +64,10 @@ Mechanisms (family and coordinate as MODEL.md §5 names them):
   frequency, v -> v (1 + eps sin(2 pi f t + phi)), eps 0.3-3 %, f 2-20 Hz (and < 0.3 fps)
   away from the lug-passing and wheel frequencies at cruise; X, a, the slip and psi all
   follow the modulated speed;
+- `ground_step` (ground profile; ground x): what a lab floor has rather than a smooth
+  bump: a board (a plank h high, 30-150 mm wide) or the edge of a mat (the ground h higher
+  from x_b on), h 0.2-1 mm, the edges rounded over 0.5 mm; lugs and wheels ride it as
+  `bump`'s;
 - `clock_wobble` (time map; t): the camera's frame clock wobbles, tau(t) = A sin(2 pi f t
   + phi), A 0.1-0.6 ms, f 3-25 Hz (and < 0.3 fps): to the data nearly a speed modulation
   in time, but the robot's motion (and its slip) is untouched.
@@ -112,13 +116,14 @@ FAMILIES = {
     "frame_vibration": ("body motion", "t"),
     "rail_bow": ("body motion", "X"),
     "speed_hunt": ("speed modulation", "t"),
+    "ground_step": ("ground profile", "x"),
 }
 #: catalog recordings this generator also makes (no family term may be kept on them)
 CATALOG_CASES = ("wheel_runout", "belt_sag", "lug_ripple", "body_bounce")
 MECHANISMS = tuple(FAMILIES)
 #: mechanisms added after the others: last in ALL, so that every earlier kind keeps its
 #: random stream (make's rng is seeded by the kind's place in ALL)
-LATER = ("rail_bow", "speed_hunt")
+LATER = ("rail_bow", "speed_hunt", "ground_step")
 ALL = tuple(m for m in MECHANISMS if m not in LATER) + ("null",) + CATALOG_CASES + LATER
 STEPS_PER_FRAME = 16
 
@@ -322,8 +327,18 @@ def _cogging_mod(q, R):
 
 
 def _bump_height(x, q):
-    z = (x - q["x_mm"]) / (q["width_mm"] / 2)
-    return np.where(np.abs(z) < 1, q["height_mm"] * 0.5 * (1 + np.cos(np.pi * z)), 0.0)
+    shape = q.get("shape", "cosine")
+    h, xb, w = q["height_mm"], q["x_mm"], q["width_mm"]
+    if shape == "plank":  # a board on the floor, its edges rounded over EDGE_MM
+        e = EDGE_MM
+        return h * 0.5 * (np.tanh((x - (xb - w / 2)) / e) - np.tanh((x - (xb + w / 2)) / e))
+    if shape == "step":  # the edge of a mat: the ground higher from x_b on
+        return h * 0.5 * (1 + np.tanh((x - xb) / EDGE_MM))
+    z = (x - xb) / (w / 2)
+    return np.where(np.abs(z) < 1, h * 0.5 * (1 + np.cos(np.pi * z)), 0.0)
+
+
+EDGE_MM = 0.5  # the rounding of a plank's or a mat's edge
 
 
 def _wheel_lift(xw, R, q):
@@ -333,7 +348,7 @@ def _wheel_lift(xw, R, q):
     return np.maximum(prof.max(axis=1), 0.0)
 
 
-def _bump(sc, c, rng, size, window=None):
+def _bump(sc, c, rng, size, window=None, shapes=None):
     h = _uniform(rng, 0.2, 1.0, size)
     w = float(rng.uniform(20, 80))
     lo, hi = window if window is not None else (0.0, sc.travel_mm)
@@ -343,6 +358,12 @@ def _bump(sc, c, rng, size, window=None):
         float(rng.uniform(lo, hi))
     q = {"height_mm": h, "width_mm": w, "x_mm": xb,
          "form": "cosine bump h (1 + cos(pi (x - x_b) / (w/2))) / 2"}
+    if shapes:  # ground_step: a board or a mat's edge (drawn after the bump's numbers)
+        q["shape"] = str(rng.choice(shapes))
+        q["width_mm"] = float(rng.uniform(30, 150))
+        q["form"] = {"plank": f"a board h high, w wide, edges rounded over {EDGE_MM} mm",
+                     "step": f"a mat's edge: h higher from x_b on ({EDGE_MM} mm rounding)"
+                     }[q["shape"]]
     bottom = c["seg"] == 0
     c["ly"] = c["ly"] + np.where(bottom, _bump_height(c["lx"], q), 0.0)
     Xb = c["X"][c["f_b"]]
@@ -541,7 +562,7 @@ def make(mechanism: str, seed: int, *, size: float | None = None, faults: bool =
             params = _squat(sc, c, rng, size)
         elif mechanism == "flap":
             params = _flap(sc, c, rng, size)
-        elif mechanism == "bump":
+        elif mechanism in ("bump", "ground_step"):
             params = {"_pending": True}
         elif mechanism == "idler_wobble":
             params = _idler_wobble(sc, c, rng, size)
@@ -553,11 +574,11 @@ def make(mechanism: str, seed: int, *, size: float | None = None, faults: bool =
             params = _carrier_roller(sc, c, rng, size)
         elif mechanism == "lug_splay":
             params = _lug_splay(sc, c, rng, size)
-        if mechanism not in ("bump", "keystone"):
+        if mechanism not in ("bump", "ground_step", "keystone"):
             rec = _recording(sc, c, seed)
     window = None
     info = {}
-    if mechanism in ("keystone", "bump"):
+    if mechanism in ("keystone", "bump", "ground_step"):
         # the window first (from a draw without the mechanism), then the mechanism in it:
         # the keystone about the window's centre, the bump inside it
         base = _recording(sc, c, seed)
@@ -569,7 +590,8 @@ def make(mechanism: str, seed: int, *, size: float | None = None, faults: bool =
             params = _keystone(sc, c, rng, size, (0.5 * (lo + hi), sc.y_off_mm + sc.R_mm))
         else:
             params = _bump(sc, c, rng, size, window=(lo + 40.0, hi - 40.0) if hi - lo > 100
-                           else (lo, hi))
+                           else (lo, hi),
+                           shapes=("plank", "step") if mechanism == "ground_step" else None)
         rec = _recording(sc, c, seed)
     if faults:
         rec, info = realism.drive_through(rec, seed=seed, need_motion=True, window=window)

@@ -15,6 +15,7 @@ in the upper half of the drawn ranges, so that the base model clearly fails.
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 import mechanisms as M
@@ -56,6 +57,9 @@ CASES = {
     # hide under its misfit from the base fit's finder; left in, they pulled the slip 5
     # sigma off
     "speed_hunt": (SEED, 0.015, "speed modulation", "t"),
+    # a board on the floor (0.70 mm high, 35 mm wide, edges rounded over 0.5 mm): equal
+    # knots left chi2/dof 3.1 (unexplained); knots are added where the ground changes fast
+    "ground_step": (21, None, "ground profile", "x"),
 }
 
 
@@ -98,6 +102,16 @@ def test_a_mechanism_outside_the_catalog_is_modelled_by_its_family(mechanism, tm
     elif mechanism == "bump":
         assert p["at_x_mm"] == pytest.approx(q["x_mm"], abs=0.15 * q["width_mm"])
         assert p["peak_mm"] == pytest.approx(q["height_mm"], rel=0.2)
+    elif mechanism == "ground_step":  # on the board; the drawn shape at its height
+        assert q["shape"] == "plank" and p["knots_added"] > 0
+        assert abs(p["at_x_mm"] - q["x_mm"]) <= q["width_mm"] / 2
+        x, y = np.asarray(sh["coordinate"]), np.asarray(sh["value"])
+        top = np.abs(x - q["x_mm"]) < q["width_mm"] / 4
+        floor = np.abs(x - q["x_mm"]) > q["width_mm"] / 2 + 10.0
+        assert top.sum() >= 3 and floor.sum() >= 3
+        # the level is the fit's (y_off): the board's height above the floor round it
+        assert np.median(y[top]) - np.median(y[floor]) == pytest.approx(q["height_mm"],
+                                                                        rel=0.15)
     elif mechanism == "squat":
         assert p["heave_mm_per_m_s2"] < 0 and "squats" in t["reading"]
     elif mechanism == "slip_speed":  # s_lin (1 + c v): the change at v_ref is s0 c v_ref

@@ -119,8 +119,15 @@ class Everywhere(Family):
 def bspline(x, lo: float, hi: float, n_int: int) -> np.ndarray:
     """(len(x), n_int + 3) cubic B-spline basis on [lo, hi] in n_int equal intervals (x
     clipped to it)."""
-    inner = np.linspace(lo, hi, n_int + 1)
-    knots = np.r_[[lo] * 3, inner, [hi] * 3]
+    return bspline_on(x, np.linspace(lo, hi, n_int + 1))
+
+
+def bspline_on(x, breaks) -> np.ndarray:
+    """(len(x), len(breaks) + 2) cubic B-spline basis on increasing `breaks` (x clipped to
+    their span)."""
+    breaks = np.asarray(breaks, float)
+    lo, hi = float(breaks[0]), float(breaks[-1])
+    knots = np.r_[[lo] * 3, breaks, [hi] * 3]
     xc = np.clip(np.asarray(x, float), lo, hi)
     return BSpline.design_matrix(xc, knots, 3).toarray()
 
