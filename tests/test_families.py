@@ -112,6 +112,7 @@ def test_a_mechanism_outside_the_catalog_is_modelled_by_its_family(mechanism, tm
         # the level is the fit's (y_off): the board's height above the floor round it
         assert np.median(y[top]) - np.median(y[floor]) == pytest.approx(q["height_mm"],
                                                                         rel=0.15)
+        assert p["peak_mm"] == pytest.approx(q["height_mm"], rel=0.15)  # above the floor
     elif mechanism == "squat":
         assert p["heave_mm_per_m_s2"] < 0 and "squats" in t["reading"]
     elif mechanism == "slip_speed":  # s_lin (1 + c v): the change at v_ref is s0 c v_ref
