@@ -68,19 +68,31 @@ def residuals_with(res, rates):
                                    jnp.cumsum(h / 6 * (yn[:-1] + 4 * ym + yn[1:]))])
             out.append((cum, yn))
         (X, vX), (P, vP) = out
-        t0 = jnp.asarray(lay.t_ref, float)
-        Xl = hermite(lay, lay.lug_t, X, vX) - hermite(lay, t0, X, vX)
-        Pl = hermite(lay, lay.lug_t, P, vP) - hermite(lay, t0, P, vP)
-        Xb = hermite(lay, lay.body_t, X, vX) - hermite(lay, t0, X, vX)
-        Pb = hermite(lay, lay.body_t, P, vP) - hermite(lay, t0, P, vP)
-        return _weighted(positions(p, lay, Xl, Pl, Xb, Pb), obs)
+        return _at_samples(p, lay, obs, X, vX, P, vP)
 
+    return _exact_fn(fn)
+
+
+def _at_samples(p, lay, obs, X, vX, P, vP):
+    """Weighted residuals of the model's positions with node values X, psi (rates vX, vP)
+    Hermite-interpolated at the sample times, both 0 at t_ref."""
+    t0 = jnp.asarray(lay.t_ref, float)
+    Xl = hermite(lay, lay.lug_t, X, vX) - hermite(lay, t0, X, vX)
+    Pl = hermite(lay, lay.lug_t, P, vP) - hermite(lay, t0, P, vP)
+    Xb = hermite(lay, lay.body_t, X, vX) - hermite(lay, t0, X, vX)
+    Pb = hermite(lay, lay.body_t, P, vP) - hermite(lay, t0, P, vP)
+    return _weighted(positions(p, lay, Xl, Pl, Xb, Pb), obs)
+
+
+def _exact_fn(fn):
+    """`fn` (flat, c) -> residuals (JAX) as :func:`refine` takes it: numpy in and out,
+    jit-compiled, with `.jacobian` (d r / d flat, d r / d c) by forward differentiation."""
     fn_jit = jax.jit(fn)
 
     def exact(flat, c):
         return np.asarray(fn_jit(jnp.asarray(flat, float), jnp.asarray(c, float)))
 
-    exact.jacobian = jax.jit(jax.jacfwd(fn, argnums=(0, 1)))  # (d r / d flat, d r / d c)
+    exact.jacobian = jax.jit(jax.jacfwd(fn, argnums=(0, 1)))
     return exact
 
 
@@ -197,19 +209,9 @@ def _psi_residuals(res, m_of, vt: float):
         X = jnp.concatenate([jnp.zeros(1), Xs])
         P = jnp.concatenate([start[None], Ps])
         vX, vP = rate(v0n, a0n, P)
-        Xl = hermite(lay, lay.lug_t, X, vX) - hermite(lay, t0, X, vX)
-        Pl = hermite(lay, lay.lug_t, P, vP) - hermite(lay, t0, P, vP)
-        Xb = hermite(lay, lay.body_t, X, vX) - hermite(lay, t0, X, vX)
-        Pb = hermite(lay, lay.body_t, P, vP) - hermite(lay, t0, P, vP)
-        return _weighted(positions(p, lay, Xl, Pl, Xb, Pb), obs)
+        return _at_samples(p, lay, obs, X, vX, P, vP)
 
-    fn_jit = jax.jit(fn)
-
-    def exact(flat, c):
-        return np.asarray(fn_jit(jnp.asarray(flat, float), jnp.asarray(c, float)))
-
-    exact.jacobian = jax.jit(jax.jacfwd(fn, argnums=(0, 1)))
-    return exact
+    return _exact_fn(fn)
 
 
 def base_residuals(res):
