@@ -68,13 +68,7 @@ def _explained(mechanism, seed=SEED, size=None):
     return explain(fit(rec, rig)), truth
 
 
-#: the cases tests/test_families_more.py runs (a second file: pytest-xdist's loadfile puts a
-#: file on one worker, and the cases together were the CI's longest file)
-MORE = ("cogging", "speed_hunt", "ground_step", "clock_wobble", "frame_vibration",
-        "keystone", "frame_jitter")
-
-
-@pytest.mark.parametrize("mechanism", [m for m in CASES if m not in MORE])
+@pytest.mark.parametrize("mechanism", list(CASES))
 def test_a_mechanism_outside_the_catalog_is_modelled_by_its_family(mechanism, tmp_path):
     check_modelled(mechanism, tmp_path)
 
