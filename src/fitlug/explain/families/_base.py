@@ -43,8 +43,9 @@ class Choice:
     #: ground x); None where the columns are kept as first built
     columns: Callable | None = None
     extra: dict = field(default_factory=dict)
-    #: free -> this choice with the exact term's own parameters (`exact.n_free`) refitted
-    #: to `free` (a speed modulation's frequency); None where it has none
+    #: (free, vt) -> this choice with the exact term's own parameters (`exact.n_free`)
+    #: refitted to `free` (a speed modulation's frequency), read under the final fit's
+    #: cruise belt speed vt (mm/s); None where it has none
     retuned: Callable | None = None
 
     def binned(self, r_before, r_after, w, n_bins: int = 40) -> dict | None:

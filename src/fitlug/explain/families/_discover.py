@@ -206,11 +206,12 @@ def discover(res, parts: list, det, J=None) -> Discovery:
             final, joint = again, joint_g
     final, glitches = _glitches(final, ctx)
     i = 0
+    vt_final = _belt_speed(final) if any(t.choice.retuned for t in kept) else None
     for j, t in enumerate(kept):  # each term's coefficients from the joint fit
         m = t.choice.fitted.B.shape[1]
         t.c, t.cov = joint.c[i:i + m], joint.cov[i:i + m, i:i + m]
         if t.choice.retuned is not None:  # its refitted frequency, under the final fit
-            t.choice = t.choice.retuned(joint.free.get(j, np.zeros(0)), _belt_speed(final))
+            t.choice = t.choice.retuned(joint.free.get(j, np.zeros(0)), vt_final)
         i += m
     kept[-1].chi2_per_dof_after = float(final.chi2_per_dof)
     for t in kept:
@@ -306,14 +307,14 @@ def _far(final, ctx) -> np.ndarray:
     far = np.flatnonzero(ctx.valid & (np.abs(r) > threshold(n)))
     if far.size == 0:
         return far
-    # a sample: (role, marker, frame)
+    # a sample: (role, marker, frame), ordered by its track (role, marker), then frame
+    span = int(ctx.frame.max()) + 1
     key = (ctx.role[far].astype(np.int64) * (int(ctx.marker.max()) + 1)
-           + ctx.marker[far]) * (int(ctx.frame.max()) + 1) + ctx.frame[far]
+           + ctx.marker[far]) * span + ctx.frame[far]
     samples, inverse = np.unique(key, return_inverse=True)
     n_samples = int(np.count_nonzero(ctx.valid & (ctx.axis == 0)))
     if len(samples) > max(5, GLITCH_SHARE * n_samples):
         return far[:0]
-    span = int(ctx.frame.max()) + 1
     track, frame = samples // span, samples % span
     # runs of consecutive frames of one marker: longer than MAX_RUN is misfit, not glitches
     new_run = np.r_[True, (np.diff(track) != 0) | (np.diff(frame) != 1)]

@@ -48,29 +48,34 @@ def residuals_with(res, rates):
     """A function (flat, c) -> weighted residuals (S,) of `res`'s model whose speed v and
     belt rate d psi / dt at the integration nodes (grid and midpoints) are
     `rates(p, v0, a0, c)` -> (v, dpsi) from the base speed v0 and acceleration a0."""
-    prob = res.problem
-    lay, obs = prob.lay, prob.obs
-    grid = np.asarray(lay.grid)
-    h = float(lay.h)
-    packing = res.packing
-    fixed = {q: jnp.asarray(v, float) for q, v in res.params.items() if q not in packing.names}
-    G = len(grid)
+    lay, obs, params_at = _model_of(res)
+    G = lay.grid.shape[0]
 
     def fn(flat, c):  # JAX throughout: refine differentiates it
-        p = packing.unpack(jnp.asarray(flat), fixed)
+        p = params_at(flat)
         v0n, a0n, v0m, a0m = speed_basis_values(lay, p["v"])
         v, dpsi = rates(p, jnp.concatenate([v0n, v0m]), jnp.concatenate([a0n, a0m]),
                         jnp.asarray(c, float))
-        out = []
-        for y in (v, dpsi):  # Simpson on the node grid, then X = psi = 0 at t_ref
-            yn, ym = y[:G], y[G:]
-            cum = jnp.concatenate([jnp.zeros(1),
-                                   jnp.cumsum(h / 6 * (yn[:-1] + 4 * ym + yn[1:]))])
-            out.append((cum, yn))
-        (X, vX), (P, vP) = out
-        return _at_samples(p, lay, obs, X, vX, P, vP)
+        # Simpson on the node grid, then X = psi = 0 at t_ref
+        X, P = (_simpson(lay, y[:G], y[G:]) for y in (v, dpsi))
+        return _at_samples(p, lay, obs, X, v[:G], P, dpsi[:G])
 
     return _exact_fn(fn)
+
+
+def _model_of(res):
+    """(layout, observations, flat -> the parameters (JAX)) of `res`'s model."""
+    packing = res.packing
+    fixed = {q: jnp.asarray(v, float) for q, v in res.params.items() if q not in packing.names}
+    return res.problem.lay, res.problem.obs, lambda flat: packing.unpack(jnp.asarray(flat),
+                                                                         fixed)
+
+
+def _simpson(lay, yn, ym):
+    """Cumulative Simpson integral on the layout's grid of node values yn, midpoints ym
+    (0 at the grid's start)."""
+    return jnp.concatenate([jnp.zeros(1), jnp.cumsum(lay.h / 6 * (yn[:-1] + 4 * ym
+                                                                   + yn[1:]))])
 
 
 def _at_samples(p, lay, obs, X, vX, P, vP):
@@ -164,27 +169,18 @@ def _psi_residuals(res, m_of, vt: float):
     `m_of(psi, c)` -> (m, dm/du) with u = psi / vt. The belt travel from the grid's start
     to t_ref is the unmodulated model's, so that the phase stays anchored at t_ref when the
     fit's slip moves."""
-    prob = res.problem
-    lay, obs = prob.lay, prob.obs
-    grid = np.asarray(lay.grid)
+    lay, obs, params_at = _model_of(res)
+    G = lay.grid.shape[0]
     h = float(lay.h)
-    packing = res.packing
-    fixed = {q: jnp.asarray(v, float) for q, v in res.params.items() if q not in packing.names}
-    G = len(grid)
-    t0 = jnp.asarray(lay.t_ref, float)
 
     def fn(flat, c):
-        p = packing.unpack(jnp.asarray(flat), fixed)
+        p = params_at(flat)
         c = jnp.asarray(c, float)
         v0n, a0n, v0m, a0m = speed_basis_values(lay, p["v"])
-
-        def simpson(yn, ym):
-            return jnp.concatenate([jnp.zeros(1), jnp.cumsum(h / 6 * (yn[:-1] + 4 * ym
-                                                                       + yn[1:]))])
-
         d0n = v0n / (1 - slip_law(p, lay, a0n))
-        P0 = simpson(d0n, v0m / (1 - slip_law(p, lay, a0m)))
-        start = -hermite(lay, t0, P0, d0n)  # psi at the grid's start, from t_ref
+        P0 = _simpson(lay, d0n, v0m / (1 - slip_law(p, lay, a0m)))
+        # psi at the grid's start, from t_ref
+        start = -hermite(lay, jnp.asarray(lay.t_ref, float), P0, d0n)
 
         def rate(v0, a0, psi):
             m, dm_du = m_of(psi, c)
@@ -245,27 +241,33 @@ def refine(proj, ctx, B, c, exact, idx) -> tuple:
     def resid(flat, cc, free):
         return exact(flat, np.r_[cc[idx], free]) + B0[:, others] @ cc[others]
 
+    last = {}  # the Jacobian last computed, by its point
+
     def jacobian(flat, c, free):
         """(J, B): d r / d flat and the columns of the terms' coefficients and `free`."""
+        at = np.r_[flat, c, free]
+        if "at" in last and np.array_equal(last["at"], at):
+            return last["jac"]
         Jf, Jc = (np.asarray(q) for q in exact.jacobian(
             jnp.asarray(flat, float), jnp.asarray(np.r_[c[idx], free], float)))
         Bx = B0.copy()
         Bx[:, idx] = Jc[:, :m]
-        return Jf, np.hstack([Bx, Jc[:, m:]])
+        last.update(at=at, jac=(Jf, np.hstack([Bx, Jc[:, m:]])))
+        return last["jac"]
 
-    def lm_step(flat, c, free, chi2, lam, fit_only=False):
-        """One Levenberg-Marquardt step with the extended model's own Jacobian where the
-        parameters are (`fit_only`: the fit's parameters alone, the term held); None when
-        no step lowers chi^2."""
+    def lm_step(flat, c, free, r, chi2, lam, fit_only=False):
+        """One Levenberg-Marquardt step from residuals r with the extended model's own
+        Jacobian where the parameters are (`fit_only`: the fit's parameters alone, the term
+        held); None when no step lowers chi^2."""
         Jf, Bx = jacobian(flat, c, free)
         A = Jf[v] if fit_only else np.hstack([Jf[v], Bx[v]])
         d = np.sqrt(np.sum(A * A, 0))
         d = np.where(d > 0, d, 1.0)
         As = A / d
         N = As.T @ As
-        r = resid(flat, c, free)
         grad = As.T @ r[v]
         n_p, n_c = Jf.shape[1], B0.shape[1]
+
         def moved(step):
             step = np.r_[step, np.zeros(n_c + n_free)] if fit_only else step
             return flat + step[:n_p], c + step[n_p:n_p + n_c], free + step[n_p + n_c:]
@@ -309,7 +311,7 @@ def refine(proj, ctx, B, c, exact, idx) -> tuple:
         chi2 = float(r[v] @ r[v])
         lam = LM_LAMBDA0
         for _ in range(SETTLE_STEPS if scale > 0 else 0):
-            out = lm_step(*x, chi2, lam, fit_only=True)
+            out = lm_step(*x, r, chi2, lam, fit_only=True)
             if out is None:
                 break
             gain = chi2 - out[2]
@@ -321,7 +323,7 @@ def refine(proj, ctx, B, c, exact, idx) -> tuple:
     chi2, (flat, c, free), r = best
     lam = LM_LAMBDA0
     for _ in range(MAX_STEPS):
-        out = lm_step(flat, c, free, chi2, lam)
+        out = lm_step(flat, c, free, r, chi2, lam)
         if out is None:
             break
         gain = chi2 - out[2]
