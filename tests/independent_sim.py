@@ -27,6 +27,14 @@ How each effect is read from MODEL.md §3 and its "Conventions":
   lens_distortion (q → c + (q − c)(1 + k1|q − c|²)); the measurement noise is added after.
 - ``frame_drop``: rows keep their stamps t; for t ≥ t* the positions are those at the
   true time t + Δt (everything, ψ included, is evaluated at the true time).
+
+The marker on the lug (MODEL.md §2, ``marker_h`` h and ``shear_tau`` τ; h = 1 is the
+stadium path): each lug's shear d is stepped in time on the 10 µs grid as the text says it
+(not as fitlug computes it): it is 0 where the lug touches down at the front of the bottom
+run, grows at dd/dt = s·v_t while the lug is on the run, and relaxes as dd/dt = −d/τ after
+lift-off; the marker is drawn at the stadium point of σ − (1 − h)·d. A lug already on the
+run at t = 0 starts with the shear s(0)·u (the recording starts at rest, at the steady
+slip's law).
 """
 
 from __future__ import annotations
@@ -129,7 +137,8 @@ def _hermite(tq, tg, y, dy):
 def make(seed=0, *, fps=120.0, duration=5.0, v_max=120.0, t_acc=(0.4, 1.6), t_dec=(3.4, 4.6),
          m=6.0, k=0.3, C_rr=0.08, n=8, L=127.0, R=30.0, pitch=20.0, N=20, e=2.5,
          x_off=3.0, y_off=4.0, n_lug=8, body=((-50.0, 70.0), (45.0, 72.0)),
-         noise_lug=0.0065, noise_body=0.0041, effects=None, F_d=0.0, ground=None):
+         noise_lug=0.0065, noise_body=0.0041, effects=None, F_d=0.0, ground=None,
+         marker_h=1.0, shear_tau=0.0):
     """A recording (Recording, Rig, truth dict) from the contract's equations.
 
     F_d: drawbar pull (N), added to the traction load F = m (a/1000 + C_rr g) + F_d.
@@ -141,7 +150,7 @@ def make(seed=0, *, fps=120.0, duration=5.0, v_max=120.0, t_acc=(0.4, 1.6), t_de
         seed, fps=fps, duration=duration, v_max=v_max, t_acc=t_acc, t_dec=t_dec, m=m, k=k,
         C_rr=C_rr, n=n, L=L, R=R, pitch=pitch, N=N, e=e, x_off=x_off, y_off=y_off,
         n_lug=n_lug, body=body, noise_lug=noise_lug, noise_body=noise_body, effects=effects,
-        F_d=F_d, ground=ground)
+        F_d=F_d, ground=ground, marker_h=marker_h, shear_tau=shear_tau)
     return rec, rig, truth
 
 
@@ -149,7 +158,7 @@ def make_detailed(seed=0, *, fps=120.0, duration=5.0, v_max=120.0, t_acc=(0.4, 1
                   t_dec=(3.4, 4.6), m=6.0, k=0.3, C_rr=0.08, n=8, L=127.0, R=30.0, pitch=20.0,
                   N=20, e=2.5, x_off=3.0, y_off=4.0, n_lug=8,
                   body=((-50.0, 70.0), (45.0, 72.0)), noise_lug=0.0065, noise_body=0.0041,
-                  effects=None, F_d=0.0, ground=None):
+                  effects=None, F_d=0.0, ground=None, marker_h=1.0, shear_tau=0.0):
     """As `make`, plus a dict of noise-free series at the frame stamps for tests.
 
     series: t (stamps, one per frame), tau (true times), X, psi, v (the possibly modulated
@@ -212,7 +221,13 @@ def make_detailed(seed=0, *, fps=120.0, duration=5.0, v_max=120.0, t_acc=(0.4, 1
         psi = np.concatenate([[0], np.cumsum((vt[1:] + vt[:-1]) / 2 * h)])
         Xs, psis = np.interp(tau, tt, X), np.interp(tau, tt, psi)
         vs, vts, ss = np.interp(tau, tt, v), np.interp(tau, tt, vt), np.interp(tau, tt, s)
+        if marker_h != 1.0:
+            shear = _lug_shear(11.0 + pitch * np.arange(n_lug), psi, v, vt, s, h, D, P,
+                               shear_tau)
+            lag = (1.0 - marker_h) * np.stack([np.interp(tau, tt, d) for d in shear])
     else:
+        if marker_h != 1.0:
+            raise ValueError("marker_h != 1 with a speed modulation is not implemented here")
         er = eff.get("lug_ripple", {}).get("ripple_eps", 0.0)
         pr = eff.get("lug_ripple", {}).get("ripple_phi", 0.0)
         ew = eff.get("wheel_runout", {}).get("runout_eps", 0.0)
@@ -264,9 +279,10 @@ def make_detailed(seed=0, *, fps=120.0, duration=5.0, v_max=120.0, t_acc=(0.4, 1
             if "ground_sinkage" in eff else None)
     cx_, cy_ = [], []
     for i in range(n_lug):
-        px, py = stadium(sigma0[i] + psis, R, D, e)
+        ui = sigma0[i] + psis - (lag[i] if marker_h != 1.0 else 0.0)
+        px, py = stadium(ui, R, D, e)
         if sag is not None or sink is not None:
-            py = py + path_corrections(sigma0[i] + psis, R, D, sag, sink)
+            py = py + path_corrections(ui, R, D, sag, sink)
         cx_.append(Xs + x_off + px)
         cy_.append(y_off + py)
     for j, (cx, cy) in enumerate(body):
@@ -321,7 +337,7 @@ def make_detailed(seed=0, *, fps=120.0, duration=5.0, v_max=120.0, t_acc=(0.4, 1
     truth = {"slip": s0, "delta_l_mm": s_lin0 * L / (n - 1), "stiffness_N_per_mm": k,
              "rolling_resistance": C_rr, "R_mm": R, "D_mm": D, "e_mm": e, "pitch_mm": pitch,
              "effects": copy.deepcopy(eff), "drawbar_pull_N": F_d,
-             "traction_N": m * C_rr * G + F_d}
+             "traction_N": m * C_rr * G + F_d, "marker_h": marker_h, "shear_tau": shear_tau}
     if sK is not None:
         truth["slip_linear"] = s_lin0
     rig = Rig(load_bearing_length_mm=L, lugs_in_contact=n, lug_pitch_mm=pitch, mass_kg=m,
@@ -329,3 +345,21 @@ def make_detailed(seed=0, *, fps=120.0, duration=5.0, v_max=120.0, t_acc=(0.4, 1
     series = {"t": t, "tau": tau, "X": Xs, "psi": psis, "v": vs, "vt": vts, "s": ss,
               "sigma0": sigma0, "P": P, "D": D}
     return rec, rig, truth, series
+
+
+def _lug_shear(sigma0, psi, v, vt, s, h, D, P, tau):
+    """Each lug's shear d (mm) on the fine grid, stepped in time (see the module's text)."""
+    u = np.mod(sigma0[:, None] + psi[None, :], P)  # (lugs, steps)
+    on = u < D
+    gain = (vt - v) * h  # s v_t dt
+    decay = math.exp(-h / tau) if tau > 0 else 0.0
+    d = np.where(on[:, 0], s[0] * u[:, 0], 0.0)
+    out = np.empty_like(u)
+    out[:, 0] = d
+    was = on[:, 0]
+    for k in range(1, u.shape[1]):
+        now = on[:, k]
+        d = np.where(now, np.where(was, d + gain[k], 0.0), d * decay)
+        out[:, k] = d
+        was = now
+    return list(out)

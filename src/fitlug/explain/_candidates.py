@@ -11,6 +11,7 @@ whose derivative vanishes at identity are scanned on a small grid instead:
 - body_bounce: columns for A at phi = 0 and pi/2 (the sin and cos of 2 pi psi / p), and
   the same for B with two or more body markers; A = hypot, phi = atan2;
 - ground_sinkage: z for u_s on a grid (3 to 120 mm);
+- lug_shear: h for tau on a grid (5 to 150 ms);
 - lens_distortion: k1 for centres on a 5 x 3 grid over the field of view;
 - frame_drop: dt for t* at every frame (the residual jump), by cumulative sums.
 
@@ -41,6 +42,8 @@ from ._engine import _alternative_columns
 from ._normal import NormalJacobian, pinv_factor, tdot
 
 SINK_US_GRID = (3.0, 8.0, 20.0, 50.0, 120.0)
+#: lug_shear's relaxation times tried (s): rubber lugs spring back in tens of ms
+SHEAR_TAU_GRID = (0.005, 0.02, 0.06, 0.15)
 
 
 @dataclass
@@ -92,6 +95,9 @@ def alternatives(eid: str, engine, theta) -> list[Alternative]:
     if eid == "ground_sinkage":
         return [Alternative({"sink_us": u}, [({}, "sink_z")], _linear(["sink_z"]),
                             f"u_s={u:g} mm") for u in SINK_US_GRID]
+    if eid == "lug_shear":  # the lag is linear in 1 - h; tau's column vanishes at h = 1
+        return [Alternative({"shear_tau": tau}, [({}, "shear_h")], _linear(["shear_h"]),
+                            f"tau={1000 * tau:g} ms") for tau in SHEAR_TAU_GRID]
     if eid == "lens_distortion":
         x, y = engine.field()
         xs = np.linspace(x[0], x[1], 5)
@@ -251,6 +257,11 @@ def physical(eid: str, p: dict) -> str | None:
         return "the top run bulges upward (d <= 0), not a sag"
     if eid == "ground_sinkage" and g("sink_z") <= 0:
         return "the lugs rise (z <= 0), not sinkage"
+    if eid == "lug_shear" and not -0.25 <= g("shear_h") <= 1.0:
+        return (f"the lug markers would sit {'above the pitch line' if g('shear_h') > 1 else 'below the lug tips'} "
+                f"(h = {g('shear_h'):.2f}), not on the lugs")
+    if eid == "lug_shear" and abs(g("shear_tau")) > 2.0:
+        return f"the lugs' shear would take {abs(g('shear_tau')):.1f} s to relax, not rubber"
     if eid == "frame_drop" and g("drop_dt") <= 0:
         return "the stamps jump forward (dt <= 0), not a lost frame"
     return None

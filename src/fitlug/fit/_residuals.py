@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..model import KINEMATIC, positions, predict, predict_from_nodes, sampled_kinematics
+from ..model import CATALOG, KINEMATIC, positions, predict, predict_from_nodes, sampled_kinematics
 
 
 def residuals(p: dict, lay, obs: dict):
@@ -43,7 +43,12 @@ def jacobian(flat, fixed: dict, lay, obs: dict, packing: "Packing"):
     """
     sl = packing.slices()
     kin = [k for k in packing.names if k in KINEMATIC]
-    rest = [k for k in packing.names if k not in KINEMATIC and k != "sigma0"]
+    # a marker below the pitch line (lug_shear) trails by a shear that depends on where
+    # its lug touched down, sigma0 included: then sigma0 goes forward with the rest
+    sig_direct = "sigma0" in sl and not any(
+        getattr(CATALOG[e], "lug_lag", None) is not None for e in lay.effects)
+    rest = [k for k in packing.names if k not in KINEMATIC
+            and (k != "sigma0" or not sig_direct)]
     p = packing.unpack(flat, fixed)
     n_l, n_b = lay.lug_t.shape[0], lay.body_t.shape[0]
 
@@ -64,7 +69,7 @@ def jacobian(flat, fixed: dict, lay, obs: dict, packing: "Packing"):
         dP = jnp.concatenate([dpl, dpl, dpb, dpb])
         blocks.append(dr_dX[:, None] * dX + dr_dpsi[:, None] * dP)
         order.append(idx)
-    if "sigma0" in sl:  # u = sigma0[i] + psi: dr/dsigma0_i is dr/dpsi on marker i's rows
+    if sig_direct:  # u = sigma0[i] + psi: dr/dsigma0_i is dr/dpsi on marker i's rows
         idx = np.arange(sl["sigma0"].start, sl["sigma0"].stop)
         onehot = (lay.lug_i[:, None] == jnp.arange(len(idx))[None, :]).astype(flat.dtype)
         onehot = jnp.concatenate([onehot, onehot, jnp.zeros((2 * n_b, len(idx)))])

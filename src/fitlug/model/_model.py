@@ -252,8 +252,13 @@ def sampled_from_nodes(p: dict, lay: Layout, nodes):
     explanation integrates once and evaluates the samples by time blocks)."""
     X, psi, vn, dpn = nodes
     tl, tb = _true_times(p, lay, lay.lug_t), _true_times(p, lay, lay.body_t)
-    return (hermite(lay, tl, X, vn), hermite(lay, tl, psi, dpn),
-            hermite(lay, tb, X, vn), hermite(lay, tb, psi, dpn))
+    Xl, psil = hermite(lay, tl, X, vn), hermite(lay, tl, psi, dpn)
+    lags = _hook(lay, "lug_lag")
+    if lags:  # a marker below the pitch line trails its pitch-line point (lug_shear)
+        ctx = ctx_of(p, lay)
+        sig = p["sigma0"][lay.lug_i] + psil
+        psil = psil - sum(f(p, sig, psil, Xl, tl, nodes, lay.grid, ctx) for f in lags)
+    return Xl, psil, hermite(lay, tb, X, vn), hermite(lay, tb, psi, dpn)
 
 
 def predict(p: dict, lay: Layout):

@@ -10,6 +10,7 @@ from ._frame_drop import FrameDrop
 from ._ground_sinkage import GroundSinkage
 from ._lens_distortion import LensDistortion
 from ._lug_ripple import LugRipple
+from ._lug_shear import LugShear
 from ._lug_sliding import LugSliding
 from ._marker_depth import MarkerDepth
 from ._wheel_runout import WheelRunout
@@ -26,7 +27,7 @@ from ._registry import (
 
 #: id -> effect class, in the order of MODEL.md's table, then plugins
 _builtin(LugRipple, BodyBounce, LugSliding, BeltSag, GroundSinkage, WheelRunout,
-         LensDistortion, MarkerDepth, CameraTilt, FrameDrop)
+         LensDistortion, MarkerDepth, CameraTilt, FrameDrop, LugShear)
 _exported.add_identity(code_identity)
 
 

@@ -8,7 +8,9 @@ serves the base fit and every extension. Hooks a subclass may override (all opti
 - ``slip(p, s_lin) -> s``: replaces the linear slip law;
 - ``top_dy(p, xi, ctx)`` / ``bottom_dy(p, u, ctx)``: extra path_y on the top / bottom run;
 - ``body_dy(p, psi, cx, ctx)``: extra body-marker y;
-- ``image(p, x, y, is_lug) -> (x, y)``: image effect, applied in `IMAGE_ORDER`.
+- ``image(p, x, y, is_lug) -> (x, y)``: image effect, applied in `IMAGE_ORDER`;
+- ``lug_lag(p, sigma, psi, X, t, nodes, grid, ctx)``: how far (mm) a lug marker trails its
+  pitch-line point along the belt (lug_shear).
 """
 
 from __future__ import annotations
@@ -48,6 +50,9 @@ class Effect:
         body_dy(p, psi, cx, ctx): extra y (mm) of a body marker at x offset cx.
         image(p, x, y, is_lug): (x, y) after an image map, applied by the class
             attribute ``order`` (plugins default to after fitlug's own).
+        lug_lag(p, sigma, psi, X, t, nodes, grid, ctx): how far (mm) lug samples at belt
+            coordinate sigma (body position X, time t) trail their pitch-line point along
+            the belt; `nodes` = (X, psi, dX/dt, dpsi/dt) of the integration on `grid`.
 
     Attributes:
         id: the name in fit.json, the report, ``effects=`` and ``--effect``.
@@ -78,6 +83,7 @@ class Effect:
     bottom_dy = None
     body_dy = None
     image = None
+    lug_lag = None
 
     @classmethod
     def n_free(cls, n_body: int) -> int:
