@@ -46,7 +46,7 @@ from ._criterion import BIC_THRESHOLD, MIN_SHARE_REMOVED, STRONG_MISFIT_Z
 from .families import after_catalog
 from ._detect import ALPHA, detect
 from ._engine import Engine
-from ._explanation import Explanation, Step
+from ._explanation import Explanation, Step, as_base
 from ._final import final_fit, polished_theta
 from ._locate import locate
 from ._robust import nuisance_result, partial_shift, robust_result
@@ -75,8 +75,15 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
     """Detect, locate and explain the mismatch of a least-squares fit `res`.
 
     `seed` is accepted for a uniform CLI (the procedure is deterministic). Returns an
-    :class:`Explanation`; never raises on a recording that `res` fitted.
+    :class:`Explanation`; never raises on a recording that `res` fitted. The base model's
+    marker height h and relaxation tau (MODEL.md §2, `lug_shear`) are searched with the
+    catalog and, where the data show them, reported as the base model's (`base_steps`),
+    not as left-out physics.
     """
+    return as_base(_explain(res, seed=seed, progress=progress, alpha=alpha))
+
+
+def _explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA) -> Explanation:
     t_start = time.perf_counter()
     timing = {}
     _display.check_result(res)

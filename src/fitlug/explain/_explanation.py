@@ -49,6 +49,9 @@ class Explanation:
     geometry: object = None  # fitlug.explain.Geometry of the residual vectors
     systematics: dict | None = None  # the tracker-systematics check (see ._systematics)
     discovery: object = None  # the families' search (fitlug.explain.families.Discovery)
+    #: steps that fitted a part of the base model (MODEL.md §2's marker height h and
+    #: relaxation tau, `lug_shear`): named and shown, not left-out physics (BASE_EFFECTS)
+    base_steps: list = field(default_factory=list)
 
     @property
     def discovered(self) -> list:
@@ -88,6 +91,12 @@ class Explanation:
                          "chi2_per_dof_after": s.chi2_per_dof_after,
                          "misfit_removed_share": s.misfit_removed_share,
                          "meaning": CATALOG[s.effect].meaning} for s in self.steps],
+            "marker_on_lug": [{"id": s.effect, **self._final_params(s), "delta_bic": s.delta_bic,
+                               "chi2_per_dof_before": s.chi2_per_dof_before,
+                               "chi2_per_dof_after": s.chi2_per_dof_after,
+                               "meaning": CATALOG[s.effect].meaning,
+                               "reading": base_reading(self.final)}
+                              for s in self.base_steps],
             "slip_before": slip(self.base),
             "slip_after": slip(self.final),
             "slip_after_uncertainty": self.slip_uncertainty,
@@ -159,3 +168,39 @@ def _plain(x):
     if isinstance(x, np.ndarray):
         return _plain(x.tolist())
     return x
+
+
+#: catalog ids that fit a part of MODEL.md §2's base model: where the explanation adds
+#: one, it is the base model's own parameter found (the marker height h and the lug's
+#: relaxation tau, fitted only where the data show them; h = 1 otherwise), so it neither
+#: makes a verdict nor counts as left-out physics, and is reported under `marker_on_lug`
+BASE_EFFECTS = ("lug_shear",)
+
+
+def as_base(ex: "Explanation") -> "Explanation":
+    """`ex` with its BASE_EFFECTS moved from the left-out physics to the base model: an
+    'explained' verdict that needed nothing else is 'none'."""
+    import dataclasses
+
+    base = [s for s in ex.steps if s.effect in BASE_EFFECTS]
+    if not base and not set(ex.effects) & set(BASE_EFFECTS):
+        return ex
+    effects = [e for e in ex.effects if e not in BASE_EFFECTS]
+    verdict = "none" if ex.verdict == "explained" and not effects else ex.verdict
+    return dataclasses.replace(ex, verdict=verdict, effects=effects, base_steps=base,
+                               steps=[s for s in ex.steps if s.effect not in BASE_EFFECTS])
+
+
+def base_reading(res) -> str:
+    """Where the lug markers sit and what the lugs do, in words (from `res`'s h, tau)."""
+    try:
+        p = res.effect_params("lug_shear")
+    except (KeyError, ValueError, AttributeError):
+        return ""
+    h, tau = float(p["h"]), float(p["tau_s"])
+    where = ("on the lug tips" if h < 0.15 else "near the lug tips" if h < 0.4
+             else "half-way up the lugs" if h < 0.7 else "near the belt's pitch line")
+    return (f"the lug markers sit {where} (h = {h:.2f} of the lug from its tip): on the "
+            f"ground they drift at {h:.2f} of the belt's stall while each lug shears under "
+            f"the traction, and the shear springs back in {1000 * tau:.0f} ms after the lug "
+            "lifts off at the rear of the contact patch")

@@ -66,6 +66,17 @@ def _located_sentence(d: dict) -> str:
 
 
 def _verdict_box(fj) -> str:
+    """The verdict's box, and (beside any verdict but 'none', which says it) the marker's
+    place on the lug where the explanation fitted it."""
+    d = fj.get("discrepancy") or {}
+    mol = "".join(f" {_e((e.get('reading') or '').capitalize())}."
+                  for e in d.get("marker_on_lug") or [])
+    extra = (f'<div class="verdict v-none"><b>Marker on the lug.</b>{mol}</div>'
+             if mol and d.get("verdict") != "none" else "")
+    return _verdict_main(fj) + extra
+
+
+def _verdict_main(fj) -> str:
     d = fj.get("discrepancy")
     if not d:
         why = fj.get("discrepancy_skipped")
@@ -73,6 +84,14 @@ def _verdict_box(fj) -> str:
                 f'{f" ({_e(why)})" if why else ""}.</div>')
     v = d.get("verdict")
     s = fj.get("slip") or {}
+    mol = "".join(f" {_e((e.get('reading') or '').capitalize())} (χ²/dof "
+                  f"{F.sig(e.get('chi2_per_dof_before'), 4)} → "
+                  f"{F.sig(e.get('chi2_per_dof_after'), 4)} with h and τ fitted)."
+                  for e in d.get("marker_on_lug") or [])
+    if v == "none" and mol:
+        return ('<div class="verdict v-none"><b>No left-out physics.</b> The base model '
+                'fits to the measurement noise with the lug markers placed on their lugs '
+                f'(MODEL.md §2\'s h and τ).{mol}</div>')
     if v == "none":
         det = d.get("detection_before") or {}
         return ('<div class="verdict v-none"><b>No left-out physics.</b> The base model fits '

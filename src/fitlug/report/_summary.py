@@ -86,6 +86,12 @@ def summary_lines(doc: dict) -> list[str]:
             lines.append(f"    slip without {'it' if len(eff) == 1 else 'them'} {pm(b['value'], b.get('std'))}: "
                          f"{sig(100 * (b['value'] - s['value']) / s['value'], 2)} %, "
                          f"{sigma_apart(b['value'], s.get('std'), s['value'])} the final value")
+        for e in d.get("marker_on_lug") or []:
+            std = e.get("params_std") or {}
+            ps = ", ".join(f"{k} = " + (pm(v, std.get(k)) if v is not None else "n/a")
+                           for k, v in (e.get("params") or {}).items())
+            lines.append(f"  marker on the lug  {ps} (chi2/dof {e['chi2_per_dof_before']:.3g} "
+                         f"-> {e['chi2_per_dof_after']:.3g}): {e.get('reading', '')}")
         for t in d.get("discovered") or []:
             lines.append(f"    {t['family']} ({t['coordinate']})"
                          f"{' partial' if t.get('partial') else ''}: chi2/dof "
