@@ -1,0 +1,75 @@
+"""Files from the field (issue 44): programs' own exports that were refused or misread.
+
+- Tracker's own example car-clip-22-JS.trz (tests/data/trackers/tracker, GPL-3.0, only its
+  .trk kept): its XML declares UTF-8 but an author line holds Latin-1 bytes. The values
+  checked are read from the XML with regular expressions and mapped by hand.
+- Kinovea TXT and Argus xypts files in the programs' exact layouts, small copies of real
+  files whose licences are not stated (tests/data/trackers/README.md says which each mirrors).
+"""
+
+import math
+import os
+import re
+import zipfile
+
+import numpy as np
+import pytest
+
+from fitlug import InputError
+from fitlug.cli import main
+from fitlug.io import read_any, read_trajectories, read_tracks
+
+DATA = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "trackers")
+CAR_CLIP = os.path.join(DATA, "tracker", "car-clip-22-JS.trz")
+
+
+def _car_clip_xml() -> bytes:
+    with zipfile.ZipFile(CAR_CLIP) as zf:
+        return zf.read("TEST123_Car in a loop with friction.trk")
+
+
+def test_car_clip_latin1_bytes_under_a_utf8_declaration(tmp_path):
+    raw = _car_clip_xml()
+    # the file as Tracker 5.1.3 wrote it: UTF-8 declared, Latin-1 bytes on line 11
+    assert raw.startswith(b'<?xml version="1.0" encoding="UTF-8"?>')
+    assert b"Jal\xf3n" in raw.splitlines()[10]
+    with pytest.raises(UnicodeDecodeError):
+        raw.decode("utf-8")
+    xml = raw.decode("latin-1")
+    pat = re.compile(r'name="\[(\d+)\]" type="object">\s*<object class="[^"]*PointMass\$FrameData">'
+                     r'\s*<property name="x" type="double">([^<]+)</property>'
+                     r'\s*<property name="y" type="double">([^<]+)</property>')
+    pts = {int(n): (float(x), float(y)) for n, x, y in pat.findall(xml)}
+    assert sorted(pts) == list(range(22))
+    tr = read_tracks(CAR_CLIP)
+    assert tr.markers == ("masa A",)
+    np.testing.assert_array_equal(tr.xy_px[:, 0], np.array([pts[k] for k in range(22)]))
+    # frame 21 by hand: origin (615.93, 538.27) px, x axis 1.273 degrees, 5763.38 px/m, y up
+    x, y = pts[21]
+    a = math.radians(1.273030020056704)
+    u = (x - 615.9331476323121) / 5763.384311147731
+    w = -(y - 538.2729805013928) / 5763.384311147731
+    assert tr.xy_mm[21, 0, 0] == pytest.approx(1000 * (math.cos(a) * u + math.sin(a) * w), abs=1e-9)
+    assert tr.xy_mm[21, 0, 1] == pytest.approx(1000 * (-math.sin(a) * u + math.cos(a) * w), abs=1e-9)
+    assert tr.t[21] == pytest.approx(21 * 4.166666666666667e-3, rel=1e-12)  # delta_t in ms
+    # the header's source line says how it was read
+    out = tmp_path / "car.csv"
+    assert main(["import", CAR_CLIP, "--body", "masa A", "-o", str(out), "-q"]) == 0
+    rec = read_trajectories(str(out))
+    assert rec.meta["source"].startswith("tracker car-clip-22-JS.trz (read as cp1252")
+    assert "UTF-8" in rec.meta["source"]
+    assert rec.fps == pytest.approx(240.0)
+
+
+def test_tracker_xml_still_refused_when_broken_in_its_own_encoding(tmp_path):
+    broken = _car_clip_xml().replace(b"</object>\n", b"</objet>\n", 1)  # line 26
+    p = tmp_path / "broken.trk"
+    p.write_bytes(re.sub(rb"[\x80-\xff]", b"o", broken))  # valid UTF-8: nothing else tried
+    with pytest.raises(InputError, match=r"broken\.trk:26: malformed Tracker XML: mismatched "
+                                         r"tag: line 26, column \d+$"):
+        read_any(str(p), body=["masa A"])
+    p.write_bytes(broken)  # Latin-1 bytes too: the tag is named, and how it was read
+    with pytest.raises(InputError, match=r"broken\.trk:26: malformed Tracker XML: mismatched "
+                                         r"tag: line 26, column \d+ \(read as cp1252: the "
+                                         r"bytes are not the UTF-8 its XML declares\)$"):
+        read_any(str(p), body=["masa A"])
