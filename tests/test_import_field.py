@@ -73,3 +73,50 @@ def test_tracker_xml_still_refused_when_broken_in_its_own_encoding(tmp_path):
                                          r"tag: line 26, column \d+ \(read as cp1252: the "
                                          r"bytes are not the UTF-8 its XML declares\)$"):
         read_any(str(p), body=["masa A"])
+
+
+KINOVEA = os.path.join(DATA, "kinovea", "walk_120fps.txt")
+
+
+def _kinovea_stamps() -> dict[str, list[str]]:
+    """Each track's time cells as written (read here with str.split, not by the reader)."""
+    out, name = {}, None
+    for ln in open(KINOVEA, encoding="utf-8").read().splitlines()[3:]:
+        if ln.startswith("# "):
+            name = ln[2:]
+            out[name] = []
+        elif ln.strip():
+            out[name].append(ln.split(" ")[0])
+    return out
+
+
+def test_kinovea_rate_from_the_span_not_the_commonest_step(tmp_path):
+    stamps = _kinovea_stamps()
+    allt = sorted({float(s) for v in stamps.values() for s in v})
+    steps = np.round(np.diff(allt), 3)
+    assert np.bincount((steps * 1000).astype(int)).argmax() == 8  # the commonest step: 8 ms
+    assert len(allt) == 67 and allt[-1] == 0.55  # 66 intervals in 0.550 s: 120 fps
+    out = tmp_path / "walk.csv"
+    assert main(["import", KINOVEA, "--length-unit", "px", "--mm-per-px", "0.5", "--body",
+                 "hanche", "-o", str(out), "-q"]) == 0
+    rec = read_trajectories(str(out))
+    assert float(rec.meta["fps"]) == pytest.approx(120.0, rel=1e-9)
+    # the time column stays as written; the frames count 120ths of a second
+    k = rec.markers.index("tarse")
+    sel = (rec.marker_index == k) & np.isfinite(rec.x)
+    np.testing.assert_array_equal(rec.t[sel], [float(s) for s in stamps["tarse"]])
+    np.testing.assert_array_equal(rec.frame[sel], np.arange(55))
+    # --fps 120 agrees with the file; 125 (the commonest step's rate) does not
+    assert main(["import", KINOVEA, "--length-unit", "px", "--mm-per-px", "0.5", "--body",
+                 "hanche", "--fps", "120", "-o", str(out), "-q"]) == 0
+    with pytest.raises(InputError, match="matches 125 fps in none"):
+        read_any(KINOVEA, length_unit="px", pixels_to_mm=lambda xy: xy, body=["hanche"], fps=125)
+
+
+def test_kinovea_stamps_without_a_steady_rate_refused(tmp_path):
+    text = open(KINOVEA, encoding="utf-8").read().replace("\n0.300 ", "\n0.297 ")
+    p = tmp_path / "uneven.txt"
+    p.write_text(text, encoding="utf-8")
+    with pytest.raises(InputError, match=r"uneven\.txt: the time stamps keep no steady frame rate: "
+                                         r"the stamp 0\.297 is 0\.003 off frame 36 at 120 frames"):
+        read_tracks(str(p), length_unit="px")
