@@ -120,3 +120,56 @@ def test_kinovea_stamps_without_a_steady_rate_refused(tmp_path):
     with pytest.raises(InputError, match=r"uneven\.txt: the time stamps keep no steady frame rate: "
                                          r"the stamp 0\.297 is 0\.003 off frame 36 at 120 frames"):
         read_tracks(str(p), length_unit="px")
+
+
+ARGUS = os.path.join(DATA, "argus", "two_tracks-xypts.csv")
+
+
+def _argus_cells() -> tuple[list[str], list[list[str]]]:
+    import csv
+
+    rows = list(csv.reader(open(ARGUS, newline="")))
+    return rows[0], rows[1:]
+
+
+@pytest.mark.parametrize("camera", [None, 2])
+def test_argus_xypts_point_per_track_camera_chosen(tmp_path, camera):
+    header, rows = _argus_cells()
+    cam = camera or 1
+    out = tmp_path / "argus.csv"
+    args = ["import", ARGUS, "--fps", "100", "--mm-per-px", "0.5", "--body", "Track 1",
+            "-o", str(out), "-q"] + (["--camera", str(camera)] if camera else [])
+    assert main(args) == 0
+    rec = read_trajectories(str(out))
+    assert rec.markers == ("Track 1", "Track 2") and rec.roles == ("body", "lug")
+    assert rec.meta["source"] == "argus two_tracks-xypts.csv"
+    assert rec.meta["camera"] == str(cam) and rec.meta["pixel_origin"] == "bottom-left"
+    for m, track in enumerate(rec.markers):
+        jx, jy = header.index(f"{track}_cam_{cam}_x"), header.index(f"{track}_cam_{cam}_y")
+        sel = rec.marker_index == m
+        want_x = np.array([float(r[jx]) for r in rows])
+        want_y = np.array([float(r[jy]) for r in rows])
+        np.testing.assert_array_equal(rec.frame[sel], np.arange(1, 31))  # rows count from 1
+        np.testing.assert_array_equal(rec.x_px[sel], want_x)
+        # the origin is the image's bottom-left corner (argus-click): y up already
+        np.testing.assert_allclose(rec.x[sel], 0.5 * want_x, rtol=1e-12, equal_nan=True)
+        np.testing.assert_allclose(rec.y[sel], 0.5 * want_y, rtol=1e-12, equal_nan=True)
+    assert int(np.isfinite(rec.x).sum()) == 2 * (20 if cam == 1 else 12)
+
+
+def test_argus_and_dltdv_camera_refused_where_absent(tmp_path):
+    with pytest.raises(InputError, match=r"two_tracks-xypts\.csv:1: no columns for camera 3 "
+                                         r"\(the file's cameras: 1, 2\): give --camera 1 or 2$"):
+        read_any(ARGUS, fps=100, camera=3, pixels_to_mm=lambda xy: xy, body=["Track 1"])
+    # a DLTdv8 U/V file of two cameras: --camera picks the second (it had no option before)
+    p = tmp_path / "run_xypts.csv"
+    p.write_text("pt1_cam1_U,pt1_cam1_V,pt1_cam2_U,pt1_cam2_V\n"
+                 "1.000000,2.000000,30.000000,40.000000\n"
+                 "1.500000,2.500000,31.000000,41.000000\n"
+                 "2.000000,3.000000,NaN,NaN\n")
+    out = tmp_path / "t.csv"
+    assert main(["import", str(p), "--camera", "2", "--fps", "10", "--mm-per-px", "1",
+                 "--body", "pt1", "-o", str(out), "-q"]) == 0
+    rec = read_trajectories(str(out))
+    np.testing.assert_array_equal(rec.x_px, [30.0, 31.0, np.nan])
+    assert rec.meta["camera"] == "2"
