@@ -173,3 +173,36 @@ def test_argus_and_dltdv_camera_refused_where_absent(tmp_path):
     rec = read_trajectories(str(out))
     np.testing.assert_array_equal(rec.x_px, [30.0, 31.0, np.nan])
     assert rec.meta["camera"] == "2"
+
+
+def _tracker_export(tmp_path, names) -> str:
+    """Tracker's "Export Data" text of two tracks (its layout: `#multi:`, the names over
+    their columns, `t x y x y`, tab-delimited), 4 frames at 30 fps, metres."""
+    rows = ["#multi:", "\t" + "\t\t".join(names), "t\tx\ty\tx\ty"]
+    for k in range(4):
+        rows.append("\t".join(f"{v:.6g}" for v in (k / 30, 0.01 * k, 0.1, 0.2 + 0.01 * k, 0.05)))
+    p = tmp_path / "export.txt"
+    p.write_text("\n".join(rows) + "\n")
+    return str(p)
+
+
+def test_roles_of_foreign_names_not_guessed_from_a_first_letter(tmp_path, recwarn):
+    path = _tracker_export(tmp_path, ["cart 1", "cart 2"])
+    # "cart 1" starts with C but is no C1: not taken for a body marker
+    with pytest.raises(InputError, match=r"export\.txt: cannot tell the role of marker 'cart 1': "
+                                         r"give --body NAME"):
+        read_any(path, length_unit="m")
+    rec = read_any(path, length_unit="m", body=["cart 1"])  # told: no guess, no warning
+    assert rec.roles == ("body", "lug") and not recwarn.list
+
+
+def test_roles_guessed_from_the_project_names_said_so(tmp_path):
+    path = _tracker_export(tmp_path, ["C1", "B01"])
+    said = (r"export\.txt: roles guessed from the marker names \(body C1; lug B01\): if wrong, "
+            r"give --body NAME,\.\.\. \(the others are lugs\) or \[markers\] body = \[\.\.\.\] "
+            r"in rig\.toml$")
+    with pytest.warns(UserWarning, match=said):
+        rec = read_any(path, length_unit="m")
+    assert rec.roles == ("body", "lug")
+    with pytest.warns(UserWarning, match=said):  # the command says it too
+        assert main(["import", path, "--length-unit", "m", "-o", str(tmp_path / "t.csv")]) == 0
