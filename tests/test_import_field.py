@@ -206,3 +206,30 @@ def test_roles_guessed_from_the_project_names_said_so(tmp_path):
     assert rec.roles == ("body", "lug")
     with pytest.warns(UserWarning, match=said):  # the command says it too
         assert main(["import", path, "--length-unit", "m", "-o", str(tmp_path / "t.csv")]) == 0
+
+
+def test_kinovea_pixels_world_space_y_up_image_space_y_down(tmp_path):
+    """Kinovea's source (DrawingTrack.CollectMeasuredData, CalibratorPlane.GridToWorldWithOffset):
+    the default export is its world space, y up, origin at the image centre without a
+    calibration; the image-space preference writes image pixels, y down."""
+    stamps = _kinovea_stamps()
+    row = open(KINOVEA, encoding="utf-8").read().splitlines()[4]  # hanche at t = 0.000
+    x, y = (float(c.replace(",", ".")) for c in row.split(" ")[1:3])
+    assert row.startswith("0.000 ") and len(stamps["hanche"]) == 67
+    # image pixels (y down) to mm (y up) at 0.5 mm/px, as --mm-per-px 0.5 maps them
+    to_mm = lambda p: np.stack([0.5 * p[..., 0], -0.5 * p[..., 1]], axis=-1)  # noqa: E731
+    opts = dict(length_unit="px", pixels_to_mm=to_mm, body=["hanche"])
+    rec = read_any(KINOVEA, **opts)
+    assert rec.meta["pixel_origin"] == "image centre, y up (world space)"
+    assert (rec.x[0], rec.y[0]) == (0.5 * x, 0.5 * y)  # y up as written
+    # negative values: world space, never Kinovea's image space
+    with pytest.raises(InputError, match=r"walk_120fps\.txt: negative pixel coordinates"):
+        read_any(KINOVEA, y_origin="top", **opts)
+    # an image-space export (all positive): y down, turned up
+    text = open(KINOVEA, encoding="utf-8").read().replace(" -", " ")
+    p = tmp_path / "image_space.txt"
+    p.write_text(text, encoding="utf-8")
+    up, down = read_any(str(p), **opts), read_any(str(p), y_origin="top", **opts)
+    assert down.meta["pixel_origin"] == "top-left (image space)"
+    np.testing.assert_array_equal(down.y, -up.y)
+    np.testing.assert_array_equal(down.x, up.x)

@@ -31,7 +31,8 @@ def add_source_options(parser: argparse.ArgumentParser) -> None:
                         "Kinovea): px, mm, cm, m, in")
     g.add_argument("--y-origin", choices=("top", "bottom"),
                    help="DLTdv X/Y files: pixel origin top-left (DLTdv8) or bottom-left (DLTdv7); "
-                        "Argus files are bottom-left unless told")
+                        "Argus files are bottom-left unless told; Kinovea in px: top for its "
+                        "image-space export (default: its world space, y up)")
     g.add_argument("--camera", type=int, metavar="J",
                    help="DLTdv and Argus xypts files: which camera's columns (default the first)")
     g.add_argument("--likelihood", type=float, metavar="P",

@@ -7,8 +7,14 @@ a comma). TXT (`ExporterTXTTrajectory`): `#Kinovea Trajectory data export`, `#T 
 per track a `# <name>` line and space-separated `t x y` rows. Time is in seconds by default
 (or frames, ms, µs, by the user's preference; older versions write time codes
 `h:mm:ss:cc`, the last field hundredths, or thousandths above 100 fps). Coordinates are
-Kinovea's coordinate system (y up) in its calibrated unit, or pixels without calibration;
-the unit is not written, so `length_unit` ('px', 'mm', 'cm', 'm', ...) must be given.
+in Kinovea's world space by default (preference `ExportSpace.WorldSpace`,
+Kinovea.Services/Preferences/PlayerPreferences.cs): `DrawingTrack.CollectMeasuredData` maps
+each point through `CalibrationHelper.GetPointAtTime`, whose `CalibratorPlane.
+GridToWorldWithOffset` returns (x - x0, -y + y0): y up, in the calibrated unit, or without a
+calibration in pixels with the origin at the image centre (`CalibrationHelper.Reset`: a
+100 px line from the centre). Since Kinovea 2023.1 the preference `ExportSpace.ImageSpace`
+exports the raw image point instead: pixels, origin top-left, y down (`y_origin='top'`).
+The unit is not written, so `length_unit` ('px', 'mm', 'cm', 'm', ...) must be given.
 """
 
 from __future__ import annotations
@@ -83,17 +89,28 @@ def _seconds(t: np.ndarray, k: np.ndarray, fps: float | None, path: str,
                            f"{fps:g} fps in none of s, ms, µs or frames")
 
 
-def _positions(xy: np.ndarray, length_unit: str | None, path: str) -> dict:
+def _positions(xy: np.ndarray, length_unit: str | None, path: str,
+               y_origin: str | None = None) -> dict:
     if not length_unit:
         raise InputError(path, "Kinovea's export does not say its length unit: give "
                                "--length-unit (px when it is not calibrated, or mm, cm, m)")
     if length_unit == "px":
-        return {"xy_px": xy, "px_y_up": True}
+        if y_origin == "top" and np.nanmin(xy, initial=0.0) < 0:
+            raise InputError(path, "negative pixel coordinates, which Kinovea's image-space "
+                                   "export (origin top-left) never writes: this is its world "
+                                   "space (origin at the image centre, y up); leave out "
+                                   "--y-origin top")
+        return {"xy_px": xy, "px_y_up": y_origin != "top",
+                "meta": {"pixel_origin": "top-left (image space)" if y_origin == "top"
+                         else "image centre, y up (world space)"}}
+    if y_origin == "top":
+        raise InputError(path, "--y-origin top is for Kinovea's image-space export, in pixels "
+                               "(--length-unit px); calibrated units are its world space, y up")
     return {"xy_mm": xy * length_factor(length_unit, path, "--length-unit")}
 
 
 def read_kinovea_csv(path: str, length_unit: str | None = None,
-                     fps: float | None = None) -> Tracks:
+                     fps: float | None = None, y_origin: str | None = None) -> Tracks:
     """Kinovea's trajectory CSV; see the module docstring for the conventions."""
     text = read_text(path)
     first = text.lstrip().splitlines()[0] if text.strip() else ""
@@ -140,13 +157,14 @@ def read_kinovea_csv(path: str, length_unit: str | None = None,
     # short names: the track alone when each track has one point
     tracks = [b.split("/")[0] for b in names]
     short = tracks if len(set(tracks)) == len(tracks) else list(names)
+    pos = _positions(xy, length_unit, path, y_origin)
     return Tracks("kinovea-csv", path, tuple(short), k, t=t,
-                  meta={"time_unit": unit, "length_unit": length_unit or ""},
-                  **_positions(xy, length_unit, path))
+                  meta={"time_unit": unit, "length_unit": length_unit or "",
+                        **pos.pop("meta", {})}, **pos)
 
 
 def read_kinovea_txt(path: str, length_unit: str | None = None,
-                     fps: float | None = None) -> Tracks:
+                     fps: float | None = None, y_origin: str | None = None) -> Tracks:
     """Kinovea's trajectory TXT (gnuplot style); see the module docstring."""
     lines = read_text(path).splitlines()
     if not lines or not lines[0].startswith("#Kinovea Trajectory data export"):
@@ -191,6 +209,7 @@ def read_kinovea_txt(path: str, length_unit: str | None = None,
     t, xy = merge_by_time(path, "Kinovea", series)
     k = _frame_numbers(t, q, path)
     t, unit = _seconds(t, k, fps, path, codes)
+    pos = _positions(xy, length_unit, path, y_origin)
     return Tracks("kinovea-txt", path, tuple(names), k, t=t,
-                  meta={"time_unit": unit, "length_unit": length_unit or ""},
-                  **_positions(xy, length_unit, path))
+                  meta={"time_unit": unit, "length_unit": length_unit or "",
+                        **pos.pop("meta", {})}, **pos)

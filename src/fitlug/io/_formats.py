@@ -139,7 +139,8 @@ def read_tracks(path: str | os.PathLike, format: str | None = None, *,
         length_unit: the world unit where the file does not write it (Tracker's exported
             text, Kinovea: 'px', 'mm', 'cm', 'm', ...) or to override Tracker's.
         y_origin: DLTdv X/Y files: 'top' (DLTdv8) or 'bottom' (DLTdv7); Argus files are
-            'bottom' unless given.
+            'bottom' unless given; Kinovea in px: 'top' for its image-space export (the
+            default is its world space, y up).
         camera: DLTdv and Argus: which camera's columns (1, 2, ...; default the first).
         likelihood: DeepLabCut: samples below it are missing (default 0.6, DLC's pcutoff).
         fps: Kinovea: tells a time column in ms, µs or frames from one in s.
@@ -159,8 +160,10 @@ def read_tracks(path: str | os.PathLike, format: str | None = None, *,
         "tracker-text": lambda: _fmt_tracker.read_tracker_text(path, length_unit),
         "dltdv": lambda: _fmt_dltdv.read_dltdv(path, y_origin, camera),
         "argus": lambda: _fmt_dltdv.read_dltdv(path, y_origin, camera),
-        "kinovea-csv": lambda: _fmt_kinovea.read_kinovea_csv(path, length_unit, fps),
-        "kinovea-txt": lambda: _fmt_kinovea.read_kinovea_txt(path, length_unit, fps),
+        "kinovea-csv": lambda: _fmt_kinovea.read_kinovea_csv(path, length_unit, fps,
+                                                                  y_origin),
+        "kinovea-txt": lambda: _fmt_kinovea.read_kinovea_txt(path, length_unit, fps,
+                                                                  y_origin),
         "deeplabcut": lambda: _fmt_dlc.read_dlc_csv(path, lik),
         "deeplabcut-h5": lambda: _fmt_dlc.read_dlc_h5(path, lik),
         "trackpy": lambda: _fmt_trackpy.read_trackpy_csv(path),
