@@ -49,8 +49,9 @@ def test_car_clip_latin1_bytes_under_a_utf8_declaration(tmp_path):
     a = math.radians(1.273030020056704)
     u = (x - 615.9331476323121) / 5763.384311147731
     w = -(y - 538.2729805013928) / 5763.384311147731
-    assert tr.xy_mm[21, 0, 0] == pytest.approx(1000 * (math.cos(a) * u + math.sin(a) * w), abs=1e-9)
-    assert tr.xy_mm[21, 0, 1] == pytest.approx(1000 * (-math.sin(a) * u + math.cos(a) * w), abs=1e-9)
+    X, Y = math.cos(a) * u + math.sin(a) * w, -math.sin(a) * u + math.cos(a) * w
+    assert tr.xy_mm[21, 0, 0] == pytest.approx(1000 * X, abs=1e-9)  # length_unit m
+    assert tr.xy_mm[21, 0, 1] == pytest.approx(1000 * Y, abs=1e-9)
     assert tr.t[21] == pytest.approx(21 * 4.166666666666667e-3, rel=1e-12)  # delta_t in ms
     # the header's source line says how it was read
     out = tmp_path / "car.csv"

@@ -190,7 +190,8 @@ def _roles(tracks: Tracks, rig: "Rig | None", body, lug) -> list[str]:
     if guessed["body"] or guessed["lug"]:
         import warnings
 
-        said = "; ".join(f"{r} {', '.join(m)}" for r, m in guessed.items() if m)
+        said = "; ".join(f"{r} {', '.join(m[:6])}" + (f" and {len(m) - 6} more" if m[6:] else "")
+                         for r, m in guessed.items() if m)
         warnings.warn(f"{tracks.path}: roles guessed from the marker names ({said}): if wrong, "
                       f"give --body NAME,... (the others are lugs) or [markers] body = [...] "
                       f"in rig.toml", stacklevel=3)
