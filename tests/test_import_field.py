@@ -162,6 +162,11 @@ def test_argus_and_dltdv_camera_refused_where_absent(tmp_path):
     with pytest.raises(InputError, match=r"two_tracks-xypts\.csv:1: no columns for camera 3 "
                                          r"\(the file's cameras: 1, 2\): give --camera 1 or 2$"):
         read_any(ARGUS, fps=100, camera=3, pixels_to_mm=lambda xy: xy, body=["Track 1"])
+    # a line cut at its CR (the file ends lines with CRLF): one line of refusal, no csv.Error
+    cut = tmp_path / "cut-xypts.csv"
+    cut.write_bytes(open(ARGUS, "rb").read().replace(b"NaN\r\nNaN,NaN", b"NaN\rNaN", 1))
+    with pytest.raises(InputError, match=r"cut-xypts\.csv:\d+: row has"):
+        read_any(str(cut), fps=100, pixels_to_mm=lambda xy: xy, body=["Track 1"])
     # a DLTdv8 U/V file of two cameras: --camera picks the second (it had no option before)
     p = tmp_path / "run_xypts.csv"
     p.write_text("pt1_cam1_U,pt1_cam1_V,pt1_cam2_U,pt1_cam2_V\n"

@@ -17,7 +17,6 @@ caller says otherwise.
 from __future__ import annotations
 
 import csv
-import io
 import re
 
 import numpy as np
@@ -67,7 +66,7 @@ def read_dltdv(path: str, y_origin: str | None = None, camera: int | None = None
             cell, an X/Y file without `y_origin`, a camera the file has no columns for.
     """
     text = read_text(path)
-    rows = list(csv.reader(io.StringIO(text)))
+    rows = list(csv.reader(text.splitlines()))  # a lone CR ends a line too
     numbered = [(i + 1, r) for i, r in enumerate(rows) if any(c.strip() for c in r)]
     if not numbered:
         raise InputError(path, "empty file")

@@ -59,7 +59,11 @@ def _frame_numbers(t: np.ndarray, q: float, path: str) -> np.ndarray:
     d = np.diff(t)
     step = float(np.median(d))
     for _ in range(20):
-        k = np.concatenate([[0], np.cumsum(np.maximum(np.round(d / step), 1))]).astype(np.int64)
+        n = np.maximum(np.round(d / step), 1)
+        if not np.all(n < 1e7):
+            raise InputError(path, f"a gap of {float(np.max(d)):g} between time stamps that step "
+                                   f"by {step:g}: no frame rate explains both")
+        k = np.concatenate([[0], np.cumsum(n)]).astype(np.int64)
         new = float(t[-1] - t[0]) / float(k[-1])
         if new == step:
             break
