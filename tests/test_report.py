@@ -310,3 +310,57 @@ def test_terminal_summary_digits_and_verdict(capsys):
     assert "belt_sag: sag_d = 0.49970 ± 0.00033" in out
     assert "slip without it 0.0770047 ± 0.0000021" in out and "σ below" in out
     assert "e-0" not in out  # no "2.1e-06"
+
+
+@pytest.mark.parametrize("change, shown", [
+    ({}, True),                                                    # the reference rig as given
+    ({"rig": {"load_bearing_length_mm": 200.0}}, False),           # another robot: L
+    ({"rig": {"lugs_in_contact": 6}}, False),                      # n
+    ({"rig": {"lug_pitch_mm": 25.4}}, False),                      # its pitch as given
+    ({"rig": {"lug_pitch_mm": None}, "geometry": {"pitch_mm": 18.40}}, True),   # fitted, 0.2 %
+    ({"rig": {"lug_pitch_mm": None}, "geometry": {"pitch_mm": 21.0}}, False),   # fitted, 14 %
+])
+def test_reference_paper_compared_only_on_the_reference_rig(change, shown):
+    """Issue 44: "this fit is 110 σ above it" was printed for every rig; the paper's 0.07716
+    is set beside the slip only where the rig is the reference study's (n = 8, L = 127 mm,
+    pitch 18.36 mm as given, or fitted within 1 % where not given)."""
+    from fitlug.report._section_summary import _headline
+
+    ref = os.path.join(os.path.dirname(__file__), "..", "fits", "reference", "fit.json")
+    doc = json.load(open(ref, encoding="utf-8"))
+    for key, values in change.items():
+        doc[key] = dict(doc[key], **values)
+    rig = doc["rig"]  # the state's layout holds the rig's n and L
+    html = _headline(doc, {"meta": {"n_contact": rig["lugs_in_contact"],
+                                    "L_mm": rig["load_bearing_length_mm"]}})
+    s = doc["slip"]
+    assert ("Reference paper: s = 0.07716" in html) is shown
+    assert (fmt.sigma_apart(s["value"], s["std"], REFERENCE_SLIP) + " it" in html) is shown
+
+
+def test_no_rig_given_no_reference_comparison(tmp_path):
+    """A recording fitted without rig.toml runs on the reference robot's values, but nothing
+    says the robot is the reference's: no comparison with the paper, and the rig line says
+    the values were assumed (issue 44)."""
+    from fitlug.io import Rig, find_rig
+    from fitlug.report._section_summary import _headline, _rig_line
+
+    (tmp_path / "run.csv").write_text("")
+    assert find_rig(tmp_path / "run.csv").assumed and not Rig.reference().assumed
+    assert find_rig(tmp_path / "run.csv") == Rig.reference()  # the same values
+    from fitlug.fit._problem import build_problem
+
+    from fitlug.io import read_rig, read_trajectories
+
+    bundled = os.path.join(os.path.dirname(__file__), "..", "data", "reference")
+    rec = read_trajectories(os.path.join(bundled, "trajectories.csv"))
+    assert build_problem(rec, None).rig.assumed
+    assert not build_problem(rec, read_rig(os.path.join(bundled, "rig.toml"))).rig.assumed
+    ref = os.path.join(os.path.dirname(__file__), "..", "fits", "reference", "fit.json")
+    doc = json.load(open(ref, encoding="utf-8"))
+    st = {"meta": {"n_contact": 8, "L_mm": 127.0}}
+    assert "Reference paper" in _headline(doc, st)
+    doc["rig"] = dict(doc["rig"], assumed=True)
+    assert "Reference paper" not in _headline(doc, st)
+    assert _rig_line(doc, st).startswith("Rig: none given (no rig.toml), the reference "
+                                         "robot's values assumed: n = 8")

@@ -36,6 +36,7 @@ def sha256_rig(rig) -> str:
 
     d = asdict(rig)
     d.pop("path", None)
+    d.pop("assumed", None)  # how the rig came, not what it is
     return hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()
 
 

@@ -30,7 +30,11 @@ def add_source_options(parser: argparse.ArgumentParser) -> None:
                    help="world unit where the file does not say it (Tracker's exported text, "
                         "Kinovea): px, mm, cm, m, in")
     g.add_argument("--y-origin", choices=("top", "bottom"),
-                   help="DLTdv X/Y files: pixel origin top-left (DLTdv8) or bottom-left (DLTdv7)")
+                   help="DLTdv X/Y files: pixel origin top-left (DLTdv8) or bottom-left (DLTdv7); "
+                        "Argus files are bottom-left unless told; Kinovea in px: top for its "
+                        "image-space export (default: its world space, y up)")
+    g.add_argument("--camera", type=int, metavar="J",
+                   help="DLTdv and Argus xypts files: which camera's columns (default the first)")
     g.add_argument("--likelihood", type=float, metavar="P",
                    help="DeepLabCut: samples below this likelihood are missing (default 0.6)")
 
@@ -71,7 +75,8 @@ def recording_from_args(path: str, args, rig):
     if fmt == "fitlug":
         return read_trajectories(path, rig=rig)
     tracks = read_tracks(path, fmt, length_unit=args.length_unit, y_origin=args.y_origin,
-                         likelihood=args.likelihood, fps=args.fps)
+                         likelihood=args.likelihood, fps=args.fps,
+                         camera=getattr(args, "camera", None))
     to_mm, height = _calibration(args, tracks)
     body = [b.strip() for b in args.body.split(",") if b.strip()] if args.body else None
     return tracks_to_recording(tracks, pixels_to_mm=to_mm, image_height=height, fps=args.fps,
@@ -80,7 +85,8 @@ def recording_from_args(path: str, args, rig):
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = (
-        "Convert another tracker's export (OSP Tracker .trk/.trz/text, DLTdv xypts.csv, "
+        "Convert another tracker's export (OSP Tracker .trk/.trz/text, DLTdv and Argus "
+        "xypts.csv, "
         "Kinovea CSV/TXT, DeepLabCut CSV/.h5, trackpy CSV) into trajectories.csv in "
         "ground-frame mm (x along travel, y up). The format is detected from the content.")
     parser.add_argument("file", metavar="FILE", help="the other program's export")

@@ -142,7 +142,7 @@ def fit_many(recordings, rig=None, *, effects=(), noise: dict | None = None,
     from ..io import Rig
     from ._fit import finish_fit, fit_problem
 
-    rig = Rig.reference() if rig is None else rig
+    rig = Rig.reference(assumed=True) if rig is None else rig
     recordings = list(recordings)
     probs = [build_problem(rec, rig, effects=effects, noise=noise) for rec in recordings]
     groups: dict = {}

@@ -200,7 +200,7 @@ def fit(rec, rig=None, *, effects=(), noise: float | dict | None = None, glitche
     effects = check_effects(effects)
     noise = check_noise(noise)
     rig = as_rig(rig)
-    rig = Rig.reference() if rig is None else rig
+    rig = Rig.reference(assumed=True) if rig is None else rig
     rec = as_recording(rec, rig=rig)
     if params is not None:
         kw["params"] = params

@@ -86,7 +86,7 @@ def build_problem(rec, rig, *, effects=(), noise: dict | None = None) -> Problem
     if rig is None:
         from ..io import Rig
 
-        rig = Rig.reference()
+        rig = Rig.reference(assumed=True)
     rec = as_recording(rec, rig=rig)
     rec, found = prepare(rec, rig)  # frame, plausibility, swaps, spurious tracks (_prepare)
     path = rec.path

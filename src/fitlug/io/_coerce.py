@@ -36,7 +36,7 @@ def rig_fields() -> list[str]:
     """The keyword names of :class:`fitlug.io.Rig` (what a dict rig may hold)."""
     from ._rig import Rig
 
-    return [f.name for f in dataclasses.fields(Rig) if f.name != "path"]
+    return [f.name for f in dataclasses.fields(Rig) if f.name not in ("path", "assumed")]
 
 
 def as_rig(obj):

@@ -125,12 +125,47 @@ def image_to_world(xy_px: np.ndarray, cs: np.ndarray) -> np.ndarray:
     return np.stack([c * u + s * w, -s * u + c * w], axis=-1)
 
 
-def _parse_trk(text: str | bytes, path: str, length_unit: str | None) -> Tracks:
+_DECLARED = re.compile(rb"""^\s*<\?xml[^>]*?encoding\s*=\s*["']([A-Za-z0-9._-]+)["']""")
+
+
+def _xml_root(data: str | bytes, path: str) -> tuple[ET.Element, str | None]:
+    """The XML's root, and a note when it was read in another encoding than it declares.
+
+    Tracker 5.1.3 wrote Latin-1 bytes (an author's "Jalón") under `encoding="UTF-8"`
+    (its own example car-clip-22-JS.trz): where the bytes break the declared encoding,
+    they are read as cp1252 (Windows' Latin-1), else Latin-1."""
     try:
-        root = ET.fromstring(text)
+        return ET.fromstring(data), None
     except ET.ParseError as exc:
-        line = exc.position[0] if getattr(exc, "position", None) else None
-        raise InputError(path, f"malformed Tracker XML: {exc}", line=line) from None
+        first, why = exc, str(exc)
+    if isinstance(data, bytes):
+        m = _DECLARED.match(data)
+        declared = m.group(1).decode() if m else "UTF-8"
+        try:
+            data.decode(declared)
+            broken = False
+        except (UnicodeDecodeError, LookupError):
+            broken = True
+        for enc in ("cp1252", "latin-1") if broken else ():
+            try:
+                text = data.decode(enc)
+            except UnicodeDecodeError:
+                continue
+            if m:  # the declaration would make the parser re-read the text in it
+                text = text[:m.start(1)] + "utf-8" + text[m.end(1):]
+            note = (f"read as {'Latin-1' if enc == 'latin-1' else enc}: the bytes are not "
+                    f"the {declared} its XML declares")
+            try:
+                return ET.fromstring(text.encode("utf-8")), note
+            except ET.ParseError as exc:  # broken in any encoding: say where, read so
+                first, why = exc, f"{exc} ({note})"
+                break
+    line = first.position[0] if getattr(first, "position", None) else None
+    raise InputError(path, f"malformed Tracker XML: {why}", line=line) from None
+
+
+def _parse_trk(text: str | bytes, path: str, length_unit: str | None) -> Tracks:
+    root, note = _xml_root(text, path)
     if root.tag != "object" or root.get("class") != _PANEL:
         raise InputError(path, f"not a Tracker file: the root is not a {_PANEL}")
     tracks = _props(root).get("tracks")
@@ -160,7 +195,7 @@ def _parse_trk(text: str | bytes, path: str, length_unit: str | None) -> Tracks:
         for k, v in pts.items():
             xy_px[where[k], j] = v
     cs = _coords(root, path, int(frames[-1]) + 1)[frames]
-    meta = {}
+    meta = {"source_note": note} if note else {}
     unit = length_unit or _get(root, "length_unit", path)
     xy_mm = None
     if cs[:, 5].all() and unit:

@@ -30,6 +30,7 @@ FORMATS = {
     "tracker-trz": "OSP Tracker .trz (zip with the .trk)",
     "tracker-text": "OSP Tracker Export Data text",
     "dltdv": "DLTdv *xypts.csv",
+    "argus": "Argus *xypts.csv (Track 1_cam_1_x, ...)",
     "kinovea-csv": "Kinovea trajectory CSV",
     "kinovea-txt": "Kinovea trajectory TXT",
     "deeplabcut": "DeepLabCut CSV",
@@ -116,8 +117,9 @@ def sniff(path: str | os.PathLike) -> tuple[str, bool]:
         return "tracker-text", True
     body = [ln for ln in lines if not ln.lstrip().startswith("#")]
     header = _cells(body[0]) if body else []
-    if looks_like_dltdv(header):
-        return "dltdv", True
+    xypts = looks_like_dltdv(header)
+    if xypts:
+        return xypts, True
     if looks_like_trackpy(header):
         return "trackpy", True
     if "time_s" in header or any(h.lower().endswith(("_x_mm", "_y_mm")) for h in header):
@@ -127,7 +129,8 @@ def sniff(path: str | os.PathLike) -> tuple[str, bool]:
 
 def read_tracks(path: str | os.PathLike, format: str | None = None, *,
                 length_unit: str | None = None, y_origin: str | None = None,
-                likelihood: float | None = None, fps: float | None = None) -> Tracks:
+                likelihood: float | None = None, fps: float | None = None,
+                camera: int | None = None) -> Tracks:
     """Read another tracker's export as `Tracks` (positions in px and/or world mm).
 
     Args:
@@ -135,7 +138,10 @@ def read_tracks(path: str | os.PathLike, format: str | None = None, *,
         format: a key of `FORMATS` (default: detected from the content).
         length_unit: the world unit where the file does not write it (Tracker's exported
             text, Kinovea: 'px', 'mm', 'cm', 'm', ...) or to override Tracker's.
-        y_origin: DLTdv X/Y files: 'top' (DLTdv8) or 'bottom' (DLTdv7).
+        y_origin: DLTdv X/Y files: 'top' (DLTdv8) or 'bottom' (DLTdv7); Argus files are
+            'bottom' unless given; Kinovea in px: 'top' for its image-space export (the
+            default is its world space, y up).
+        camera: DLTdv and Argus: which camera's columns (1, 2, ...; default the first).
         likelihood: DeepLabCut: samples below it are missing (default 0.6, DLC's pcutoff).
         fps: Kinovea: tells a time column in ms, µs or frames from one in s.
 
@@ -152,9 +158,12 @@ def read_tracks(path: str | os.PathLike, format: str | None = None, *,
         "tracker": lambda: _fmt_tracker.read_trk(path, length_unit),
         "tracker-trz": lambda: _fmt_tracker.read_trz(path, length_unit),
         "tracker-text": lambda: _fmt_tracker.read_tracker_text(path, length_unit),
-        "dltdv": lambda: _fmt_dltdv.read_dltdv(path, y_origin),
-        "kinovea-csv": lambda: _fmt_kinovea.read_kinovea_csv(path, length_unit, fps),
-        "kinovea-txt": lambda: _fmt_kinovea.read_kinovea_txt(path, length_unit, fps),
+        "dltdv": lambda: _fmt_dltdv.read_dltdv(path, y_origin, camera),
+        "argus": lambda: _fmt_dltdv.read_dltdv(path, y_origin, camera),
+        "kinovea-csv": lambda: _fmt_kinovea.read_kinovea_csv(path, length_unit, fps,
+                                                                  y_origin),
+        "kinovea-txt": lambda: _fmt_kinovea.read_kinovea_txt(path, length_unit, fps,
+                                                                  y_origin),
         "deeplabcut": lambda: _fmt_dlc.read_dlc_csv(path, lik),
         "deeplabcut-h5": lambda: _fmt_dlc.read_dlc_h5(path, lik),
         "trackpy": lambda: _fmt_trackpy.read_trackpy_csv(path),
@@ -170,7 +179,7 @@ def read_any(path: str | os.PathLike, *, format: str | None = None, rig: "Rig | 
              fps: float | None = None, pixels_to_mm: Callable | None = None,
              image_height: float | None = None, body=None, lug=None,
              length_unit: str | None = None, y_origin: str | None = None,
-             likelihood: float | None = None) -> "Recording":
+             likelihood: float | None = None, camera: int | None = None) -> "Recording":
     """A `Recording` from a file of any known format (detected from its content).
 
     The canonical trajectories.csv goes to `read_trajectories` unchanged; any other format
@@ -187,7 +196,7 @@ def read_any(path: str | os.PathLike, *, format: str | None = None, rig: "Rig | 
 
         return read_trajectories(path, rig=rig)
     tracks = read_tracks(path, fmt, length_unit=length_unit, y_origin=y_origin,
-                         likelihood=likelihood, fps=fps)
+                         likelihood=likelihood, fps=fps, camera=camera)
     return tracks_to_recording(tracks, pixels_to_mm=pixels_to_mm, image_height=image_height,
                                fps=fps, rig=rig, body=body, lug=lug)
 

@@ -11,6 +11,7 @@ a body list or the marker names) told here.
 from __future__ import annotations
 
 import dataclasses
+import re
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -146,6 +147,21 @@ def _role_from_name(marker: str) -> str | None:
     return None
 
 
+# another program's track names tell a role only in the project's own naming (DATA.md's
+# C1, B03): a role's letters and a number, or the words body / lug ("cart 1" is no C1)
+_NUMBERED = re.compile(r"^(qs|cog|c|q|b|l)[ _-]?\d+$", re.IGNORECASE)
+_WORD = re.compile(r"^(body|lug)(?![a-z])", re.IGNORECASE)
+
+
+def guessed_role(marker: str) -> str | None:
+    """The role a foreign file's track name stands for (C1, QS2, B03, COG1, body_front,
+    lug 3), or None."""
+    name = marker.strip()
+    if _NUMBERED.match(name) or _WORD.match(name):
+        return _role_from_name(name)
+    return None
+
+
 def _roles(tracks: Tracks, rig: "Rig | None", body, lug) -> list[str]:
     body = set(body or ()) | set(rig.body_markers if rig is not None else ())
     lug = set(lug or ()) | set(rig.lug_markers if rig is not None else ())
@@ -153,7 +169,7 @@ def _roles(tracks: Tracks, rig: "Rig | None", body, lug) -> list[str]:
     if unknown and (body or lug):
         raise InputError(tracks.path, f"marker {unknown[0]!r} named in the roles is not in the "
                          f"file (markers: {', '.join(tracks.markers)})")
-    roles = []
+    roles, guessed = [], {"body": [], "lug": []}
     for marker in tracks.markers:
         if marker in body:
             role = "body"
@@ -162,13 +178,23 @@ def _roles(tracks: Tracks, rig: "Rig | None", body, lug) -> list[str]:
         elif body and not lug:
             role = "lug"  # a body list alone: every other marker is a lug
         else:
-            role = _role_from_name(marker)
+            role = guessed_role(marker)
+            if role is not None:
+                guessed[role].append(marker)
         if role is None:
             raise InputError(tracks.path, f"cannot tell the role of marker {marker!r}: give "
                              f"--body NAME,... (the others are lugs) or list it under [markers] "
-                             f"in rig.toml (body markers may also be named C*, Q*, QS*, body*; "
-                             f"lug markers B*, L*, COG*, lug*)")
+                             f"in rig.toml (a name tells it only when it is C1, Q1, QS1 or "
+                             f"body... for the body, B1, L1, COG1 or lug... for a lug)")
         roles.append(role)
+    if guessed["body"] or guessed["lug"]:
+        import warnings
+
+        said = "; ".join(f"{r} {', '.join(m[:6])}" + (f" and {len(m) - 6} more" if m[6:] else "")
+                         for r, m in guessed.items() if m)
+        warnings.warn(f"{tracks.path}: roles guessed from the marker names ({said}): if wrong, "
+                      f"give --body NAME,... (the others are lugs) or [markers] body = [...] "
+                      f"in rig.toml", stacklevel=3)
     return roles
 
 
@@ -188,12 +214,19 @@ def _times(tracks: Tracks, fps: float | None) -> np.ndarray:
         raise InputError(tracks.path, f"time going backwards or repeated: frame "
                          f"{int(tracks.frame[k + 1])} at {t[k + 1]!r} s after {t[k]!r} s")
     if fps is not None and t.size > 2:
-        steps = np.diff(t) / np.maximum(np.diff(tracks.frame), 1)
-        data_fps = 1.0 / float(np.median(steps))
+        data_fps = span_rate(t, tracks.frame)
         if abs(fps / data_fps - 1) > _FPS_TOLERANCE:
             raise InputError(tracks.path, f"the fps {fps:g} (--fps or [camera] fps) disagrees "
                              f"with the file's time stamps ({data_fps:.6g} frames/s)")
     return t
+
+
+def span_rate(t: np.ndarray, frame: np.ndarray) -> float:
+    """Frames per second of time stamps `t` (s) at frame numbers `frame`: the intervals over
+    the whole span, which stamps rounded by their writer (Kinovea's 1 ms) leave right where
+    the commonest step does not (8 ms at 120 fps reads as 125)."""
+    intervals = float(frame[-1] - frame[0]) if frame[-1] > frame[0] else float(t.size - 1)
+    return intervals / float(t[-1] - t[0])
 
 
 def merge_by_time(path: str, fmt: str, series: list[tuple[str, np.ndarray, np.ndarray]],

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 
 from .._errors import InputError
-from ._imported import Tracks, _roles, _times
+from ._imported import Tracks, _roles, _times, span_rate
 
 if TYPE_CHECKING:
     from ._rig import Rig
@@ -283,11 +283,13 @@ def tracks_to_recording(tracks: Tracks, *, pixels_to_mm: Callable | None = None,
         optional["y_px"] = tracks.xy_px[rows, cols, 1]
     if tracks.quality is not None:
         optional["quality"] = tracks.quality[rows, cols]
-    meta = {"source": f"{tracks.format} {os.path.basename(tracks.path)}", "units": "mm"}
+    extra = dict(tracks.meta)
+    note = extra.pop("source_note", None)  # how the file was read, where it broke its format
+    meta = {"source": f"{tracks.format} {os.path.basename(tracks.path)}"
+                      + (f" ({note})" if note else ""), "units": "mm"}
     if t.size > 1:
-        step = float(np.median(np.diff(t) / np.maximum(np.diff(tracks.frame), 1)))
-        meta["fps"] = f"{1.0 / step:.10g}"
-    meta.update(tracks.meta)
+        meta["fps"] = f"{span_rate(t, tracks.frame):.10g}"
+    meta.update(extra)
     meta["positions"] = units
     rec = Recording(markers=tracks.markers, roles=tuple(roles), t=t[rows],
                     marker_index=cols.astype(np.int64), x=mm[rows, cols, 0], y=mm[rows, cols, 1],

@@ -112,6 +112,9 @@ class Rig:
         fps: camera frame rate, 1/s ([camera] fps, 0.01 to 1e8), or None.
         extra: every other table/key of rig.toml, kept as read ({table: {key: value}}).
         path: the file it was read from (not part of equality).
+        assumed: True where no rig was given and the reference robot's values stand in for
+            it (`find_rig` without a rig.toml, a fit without a rig; not part of equality):
+            the report then sets no slip against the reference paper's.
 
     Raises:
         InputError: a value out of range, naming the key (e.g. "[track] lugs_in_contact ...").
@@ -128,6 +131,7 @@ class Rig:
     fps: float | None = None
     extra: dict = field(default_factory=dict, hash=False)
     path: str | None = field(default=None, compare=False)
+    assumed: bool = field(default=False, compare=False)
 
     def __post_init__(self):
         for table, key, attr, check in _FIELDS:
@@ -145,9 +149,10 @@ class Rig:
         object.__setattr__(self, "extra", dict(self.extra))
 
     @classmethod
-    def reference(cls) -> "Rig":
-        """The reference robot: the defaults, with lug pitch 18.36 mm."""
-        return cls(lug_pitch_mm=18.36)
+    def reference(cls, assumed: bool = False) -> "Rig":
+        """The reference robot: the defaults, with lug pitch 18.36 mm (`assumed`: standing
+        in for a rig nobody gave)."""
+        return cls(lug_pitch_mm=18.36, assumed=assumed)
 
 
 def _key_line(text: str, table: str | None, key: str) -> int | None:
@@ -278,7 +283,7 @@ def write_rig(path: str | os.PathLike, rig: Rig) -> None:
 
 def find_rig(csv_path: str | os.PathLike) -> Rig:
     """The rig for a trajectories file: `<stem>.rig.toml` or `rig.toml` beside it (first
-    found, read with `read_rig`), else `Rig.reference()`."""
+    found, read with `read_rig`), else `Rig.reference(assumed=True)`."""
     csv_path = os.fspath(csv_path)
     folder = os.path.dirname(os.path.abspath(csv_path))
     stem = os.path.splitext(os.path.basename(csv_path))[0]
@@ -286,4 +291,4 @@ def find_rig(csv_path: str | os.PathLike) -> Rig:
         candidate = os.path.join(folder, name)
         if os.path.isfile(candidate):
             return read_rig(candidate)
-    return Rig.reference()
+    return Rig.reference(assumed=True)

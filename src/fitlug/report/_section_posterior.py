@@ -44,7 +44,7 @@ def _posterior(st, fj) -> str:
                            "that enter linearly are marginalised, not sampled: their "
                            "errors are in the estimates.")
     fig, ax = _fig(FIG_W, 3.6)
-    ref = fj.get("reference_paper_slip") if is_reference_rig(meta) else None
+    ref = fj.get("reference_paper_slip") if is_reference_rig(fj, meta) else None
     ls = meta.get("least_squares", {}).get("slip") or {}
     plot_slip_posterior(S[:, names.index("slip")], ax=ax[0, 0], reference=ref,
                         least_squares=(ls.get("value"), ls.get("std")))

@@ -6,17 +6,22 @@ from __future__ import annotations
 
 import math
 
+from .._reference import is_reference_rig as reference_rig
 from . import _format as F
 from ._markup import _e
 
-REFERENCE_L_MM = 127.0
-REFERENCE_N = 8
 
-
-def is_reference_rig(meta: dict) -> bool:
-    """The reference robot of the paper: n = 8 lugs on L = 127 mm."""
-    return (meta.get("n_contact") == REFERENCE_N
-            and abs(float(meta.get("L_mm", 0) or 0) - REFERENCE_L_MM) < 1e-6)
+def is_reference_rig(fj: dict, meta: dict | None = None) -> bool:
+    """The reference study's robot (`fitlug._reference.is_reference_rig`: n = 8, L = 127 mm,
+    lug pitch 18.36 mm as given or fitted), from a fit.json's rig and geometry; `meta` (the
+    state's) gives n and L where the fit.json has no rig. A rig nobody gave (`assumed`,
+    the reference's values standing in for it) is not the reference study's."""
+    rig, meta = fj.get("rig") or {}, meta or {}
+    if rig.get("assumed"):  # no rig given: nothing says the robot is the reference's
+        return False
+    return reference_rig(rig.get("lugs_in_contact", meta.get("n_contact")),
+                         rig.get("load_bearing_length_mm", meta.get("L_mm")),
+                         rig.get("lug_pitch_mm"), (fj.get("geometry") or {}).get("pitch_mm"))
 
 
 _QUANTITIES = (("slip", "steady slippage s₀", ""), ("delta_l_mm", "lug deflection Δl′", "mm"),
@@ -161,6 +166,9 @@ def _rig_line(fj, st) -> str:
     g = rig.get("ground_name") or (ground.get("name") if isinstance(ground, dict) else ground)
     if g:
         parts.append(f"ground: {_e(g)}")
+    if rig.get("assumed"):
+        return ("Rig: none given (no rig.toml), the reference robot's values assumed: "
+                + ", ".join(parts) + ".")
     return "Rig (as given): " + ", ".join(parts) + "."
 
 
@@ -215,7 +223,7 @@ def _headline(fj, st) -> str:
     elif w:
         notes.append(f"The error was widened: {w}.")
     ref = fj.get("reference_paper_slip")
-    if ref and is_reference_rig(st.get("meta", {})) and cmp_std:
+    if ref and is_reference_rig(fj, st.get("meta", {})) and cmp_std:
         notes.append(f"Reference paper: s = {F.num(ref, 4)} (quoted to 4 digits); {cmp_what} "
                      f"{F.sigma_apart(cmp_value, cmp_std, ref)} it"
                      + (", within the paper's rounding." if abs(cmp_value - ref) < 1e-5
