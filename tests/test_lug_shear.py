@@ -48,28 +48,22 @@ def test_identity_at_h_one_and_exact_jacobian():
     np.testing.assert_allclose(J / scale, J_ref / scale, atol=1e-9)
 
 
-def test_tip_markers_fitted_with_their_shear(tip_recording):
-    """Tip markers stand still in contact: the base model (h = 1) cannot fit them; with
-    the lug's shear the fit is at the noise, the slip within 3 sigma of the truth, h and
-    tau as simulated."""
-    rec, rig, truth = tip_recording
-    res = fit(rec, rig, effects=["lug_shear"])
-    assert res.chi2_per_dof < 1.15
-    s = res.quantities["slip"]
-    assert abs(s.value - truth["slip"]) < 3 * s.std, (s.value, s.std, truth["slip"])
-    assert abs(float(res.params["shear_h"])) < 0.02
-    assert abs(abs(float(res.params["shear_tau"])) - 0.04) < 0.008
-
-
-def test_explain_names_the_lug_shear(tip_recording):
-    """From the base fit (markers taken on the pitch line, chi2/dof in the thousands), the
-    explanation names lug_shear and nothing else, and its slip holds the truth."""
+def test_tip_markers_found_and_fitted(tip_recording):
+    """Tip markers stand still in contact: the base model (h = 1) cannot fit them
+    (chi2/dof in the thousands). The explanation finds the marker's place on the lug as the
+    base model's h and tau (not as left-out physics: verdict none), fits to the noise, and
+    holds the slip within 3 sigma of the truth, h and tau as simulated."""
     rec, rig, truth = tip_recording
     base = fit(rec, rig)
     assert base.chi2_per_dof > 50
     ex = explain(base)
-    assert "lug_shear" in ex.effects
-    assert not {"lens_distortion", "marker_depth", "camera_tilt", "frame_drop"} & set(ex.effects)
+    assert ex.verdict == "none" and ex.effects == []
+    assert [s.effect for s in ex.base_steps] == ["lug_shear"]
+    assert "lug_shear" in ex.final.effects
+    assert ex.final.chi2_per_dof < 1.15
     s = ex.final.quantities["slip"]
     assert abs(s.value - truth["slip"]) < 3 * s.std, (s.value, s.std, truth["slip"])
-    assert ex.final.chi2_per_dof < 1.15
+    p = ex.final.effect_params("lug_shear")
+    assert abs(p["h"]) < 0.02 and abs(p["tau_s"] - 0.04) < 0.008, p
+    mol = ex.to_json()["marker_on_lug"][0]
+    assert "on the lug tips" in mol["reading"]
