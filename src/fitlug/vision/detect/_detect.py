@@ -359,7 +359,9 @@ def detect_markers(frame: np.ndarray, *, kinds=(COG, QS), cog_radius=None, qs_ha
     if COG in kinds:
         search, k = search_image(COG)
         s_noise = noise / k
-        r_range = cog_radius_range if cog_radius is None else (0.7 * cog_radius, 1.3 * cog_radius)
+        # (any disc in the range, the size known or not: discs of one recording differ -
+        # a disc half the size of the others is a marker as well, issue 45)
+        r_range = cog_radius_range
         cand, radii, check = _find_cog(search, s_noise, (r_range[0] / k, r_range[1] / k),
                                        min_contrast, shrunk=k > 1)
         if check.any():  # blobs of the shrunk image that fill their box: discs at full size?
@@ -386,8 +388,15 @@ def detect_markers(frame: np.ndarray, *, kinds=(COG, QS), cog_radius=None, qs_ha
             size_l.append(radii)
             con_l.append(np.full(cand.shape[0], np.nan))
         elif cand.shape[0]:
-            r = radii if cog_radius is None else np.full(radii.shape, float(cog_radius))
-            fit = refine_cog(frame, cand, r, blur_px=1.0, n_iter=3)
+            # each disc through an aperture of its own size: its blob's, then the one it
+            # measures (an aperture sized for discs twice as large takes in the dark lug
+            # round a small disc, which measured half its size and moved 0.2 px, issue 45)
+            fit = refine_cog(frame, cand, radii, blur_px=1.0, n_iter=3)
+            ok = np.isfinite(fit.xy).all(axis=1) & (fit.radius > 0.5 * radii)
+            if ok.any():
+                again = refine_cog(frame, fit.xy[ok], fit.radius[ok], blur_px=1.0, n_iter=1)
+                for name in ("xy", "contrast", "radius"):
+                    getattr(fit, name)[ok] = getattr(again, name)
             good = np.isfinite(fit.xy).all(axis=1) & (fit.contrast > max(8.0 * noise, min_contrast))
             xy_l.append(fit.xy[good])
             kind_l.append(np.full(int(good.sum()), COG))

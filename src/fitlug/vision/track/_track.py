@@ -204,13 +204,18 @@ class Tracker(Follow, PickUp):
                     # first one found (which may have been coming into view, half hidden)
                     self._radii.append(t.radius)
                     self.cog_radius = float(np.median(self._radii[-16:]))
-                if not t.confirmed and t.kind == COG and t.radius is not None \
-                        and t.first_size < 0.9 * t.radius and t.frames[1] == t.frames[0] + 1:
-                    # its first sample was of a disc still coming into view (found before
-                    # the size of the discs was known): its centre is off
-                    for a in (t.frames, t.xs, t.ys, t.qs):
-                        a.pop(0)
+                if not t.confirmed and t.kind == COG:
+                    # its first samples of a disc still coming into view (smaller than it
+                    # is whole, as its last sample measures it): their centres are off
+                    t.sizes.append(float(extra[1]))
+                    whole = 0.9 * t.sizes[-1]
+                    while len(t.sizes) > 2 and t.sizes[0] < whole:
+                        for a in (t.frames, t.xs, t.ys, t.qs, t.sizes):
+                            a.pop(0)
                 t.confirmed = True
+                t.sizes = None
+            elif t.kind == COG:
+                t.sizes.append(float(extra[1]))
             if t.kind == COG:
                 if t.area is None:
                     t.area, t.radius, t.shear, t.slope = extra
