@@ -20,7 +20,7 @@ class Track:
 
     __slots__ = ("uid", "kind", "size", "frames", "xs", "ys", "qs", "misses", "alive",
                  "area", "radius", "shear", "slope", "rms", "contrast", "params",
-                 "confirmed", "sizes")
+                 "confirmed", "sizes", "n_ref")
 
     def __init__(self, uid, kind, size, frame, xy, contrast, params=None):
         self.uid, self.kind, self.size = uid, kind, float(size)
@@ -31,6 +31,7 @@ class Track:
         self.xs, self.ys, self.qs = array("d", [xy[0]]), array("d", [xy[1]]), array("d", [1.0])
         self.misses, self.alive, self.confirmed = 0, True, False
         self.area = self.radius = self.shear = self.slope = self.rms = None
+        self.n_ref = 0  # samples in a COG's area and radius references (see Tracker._accept)
         self.contrast = float(contrast)
         self.params = params
 
