@@ -44,8 +44,8 @@ class Follow:
         # and they settle over the first ~10 samples after the confirmation (the aperture
         # with them, from the averaged radius and streak: a small disc's area and width
         # through it move by ~3 %, its annulus reaching the lug's edge): the tolerances
-        # narrow over those samples, not at once (issue 45: an 8 px disc lost 10 of its
-        # first 15 frames)
+        # narrow over those samples, not at once (issue 45: a still 8 px disc lost 9 of its
+        # first 16 frames)
         young = 3.0 + self._blur(t)[0] - 0.25
         if t.confirmed:
             young = 1.0 + (young - 1.0) * min(max((15 - t.n_ref) / 10.0, 0.0), 1.0)

@@ -194,7 +194,7 @@ class PickUp:
         the marker still partly hidden (by a bar, a post, a plate), its centre off (16 %
         smaller: 0.6 px); it is taken a frame or two later, whole. A disc is not compared
         with the other markers' size: discs of one recording differ (one 10 px across among
-        16 px ones, taken for a partly hidden one, was never picked up: issue 45); a new
+        13-16 px ones, taken for a partly hidden one, was never picked up: issue 45); a new
         marker's first samples taken while it came into view are dropped when its track
         is confirmed (`Tracker._accept`)."""
         for t, until in self._watch:
