@@ -22,7 +22,9 @@ frames) and markers leaving it (`fitlug.sim._scene.hard_clip`), over --n recordi
 (--workers processes): detection rate over the frames where a marker is whole and clear,
 identity swaps, RMS per axis and 2-D against the Cramer-Rao bound, and speed (steady state
 of frames in memory, blocks of 25 frames after the first, and with the periodic whole-frame
-search for new markers amortized over its period); with
+search for new markers amortized over its period); then (issue 45) as many recordings whose
+lug markers' discs take the sizes of --mixed in turn (default 8, 10, 12, 16 px across: small
+discs among large ones), a row per size: detection, its worst marker, RMS, the bound, swaps; with
 --compare-src DIR the same frames are also tracked by the fitlug found in DIR (e.g. a
 checkout of main's src/) side by side. `--memory`: peak RSS of tracking a 1632x1200 video
 of 2 000 and 20 000 frames, each in its own process, streamed from a generator, from a
@@ -195,6 +197,9 @@ def main(argv=None):
     ap.add_argument("--size", default="1632x1200", help="--hard: image size WxH")
     ap.add_argument("--cog-px", type=float, default=9.0, help="--hard: COG disc diameter px")
     ap.add_argument("--qs-px", type=float, default=10.0, help="--hard: QS checker side px")
+    ap.add_argument("--mixed", default="8,10,12,16",
+                    help="--hard: then recordings whose discs take these sizes (px across) in "
+                         "turn, a row per size ('' for none; issue 45)")
     ap.add_argument("--compare-src", default=None,
                     help="--hard: also track the same frames with the fitlug sources in this "
                          "folder (e.g. /work/main/src), side by side, in a subprocess")
@@ -389,12 +394,16 @@ class _Res:
 
 
 def _hard_one(job):
-    """One hard recording: render, track with this tree (and `compare`), the bound."""
+    """One hard recording: render, track with this tree (and `compare`), the bound.
+    cog_px: one size, or a size per lug marker (in turn)."""
     seed, n_frames, size, cog_px, qs_px, compare, repeats, every = job
     from fitlug.sim._scene import hard_clip
 
     clip = hard_clip(n_frames, size, seed=seed, cog_px=cog_px, qs_px=qs_px, keep_sub=True)
-    out = {"frames": n_frames, "markers": len(clip.kinds), "kinds": clip.kinds}
+    n_lug = clip.kinds.count("cog")
+    px = np.resize(np.asarray(cog_px, dtype=np.float64).reshape(-1), n_lug)
+    out = {"frames": n_frames, "markers": len(clip.kinds), "kinds": clip.kinds,
+           "px": list(px) + [qs_px] * (len(clip.kinds) - n_lug)}
     for name, src in (("after", None), ("before", compare)):
         if name == "before" and src is None:
             continue
@@ -403,19 +412,45 @@ def _hard_one(job):
         found = _found(xy, clip.truth)
         out[name] = {"err": err, "swaps": swaps, "ids": ids, "cpu": cpu, "blocks": blocks,
                      "search": search, "every": period,
-                     "hits": (found & clip.visible).sum(axis=0), "vis": clip.visible.sum(axis=0)}
+                     "hits": (found & clip.visible).sum(axis=0), "vis": clip.visible.sum(axis=0),
+                     "marker": _per_marker(xy, clip.truth, clip.visible)}
     gain = _render.gain_field(size, clip.options)
     sigma2 = clip.options.noise_sigma ** 2 + 1.0 / 12.0
     crb = {"cog": [], "qs": []}
+    crb_marker = [[] for _ in clip.kinds]
     for i in range(0, n_frames, every):
         for j, kind in enumerate(clip.kinds):
             if clip.visible[i, j]:
-                crb[kind].append(crb_variance(
-                    kind, clip.sub_px[i, :, j],
-                    lambda x0, y0, n: gain[y0:y0 + n, x0:x0 + n].astype(np.float64),
-                    sigma2, half=int(2 * max(cog_px, qs_px)), opt=clip.options, s=S))
+                # (each disc drawn at its own size: the options' size is the largest's)
+                opt = clip.options.replace(marker_scale=(), marker_contrast=())
+                if kind == "cog":
+                    opt = opt.replace(cog_diameter_mm=px[j] * S, lug_diameter_mm=2 * px[j] * S)
+                v = crb_variance(kind, clip.sub_px[i, :, j],
+                                 lambda x0, y0, n: gain[y0:y0 + n, x0:x0 + n].astype(np.float64),
+                                 sigma2, half=int(2 * max(np.max(px), qs_px)), opt=opt, s=S)
+                crb[kind].append(v)
+                crb_marker[j].append(v)
     out["crb"] = crb
+    out["crb_marker"] = crb_marker
     return out
+
+
+def _per_marker(xy, truth, visible, tol=0.5):
+    """Per truth marker: its samples' errors on its clear frames (the tracks that follow
+    it, within `tol` px) and the tracks owned by it that jump to another marker or stray."""
+    err = [[] for _ in range(truth.shape[1])]
+    swaps = np.zeros(truth.shape[1], int)
+    for k in range(xy.shape[1]):
+        d = np.hypot(*(xy[:, k, None, :] - truth).transpose(2, 0, 1))  # (F, M)
+        ok = np.isfinite(xy[:, k, 0])
+        if not ok.any():
+            continue
+        j = int(np.argmin(np.nanmedian(np.where(ok[:, None], d, np.nan), axis=0)))
+        near = d[ok] < tol
+        swaps[j] += int(near.any(axis=0).sum() > 1 or (~near.any(axis=1)).any())
+        sel = ok & (d[:, j] < tol) & visible[:, j]
+        err[j].append(xy[sel, k] - truth[sel, j])
+    return {"err": [np.concatenate(e) if e else np.zeros((0, 2)) for e in err], "swaps": swaps}
 
 
 def _found(xy, truth, tol=0.5):
@@ -440,6 +475,56 @@ def main_hard(args):
             runs = list(ex.map(_hard_one, jobs))
     else:
         runs = [_hard_one(j) for j in jobs]
+    _print_hard(args, runs, size, t0)
+    if args.mixed:
+        sizes = tuple(float(v) for v in args.mixed.split(","))
+        jobs = [(args.seed + i, args.frames, size, sizes, args.qs_px, args.compare_src,
+                 1, max(1, args.compare_every)) for i in range(args.n)]
+        t0 = time.perf_counter()
+        if args.workers > 1:
+            with ProcessPoolExecutor(args.workers,
+                                     mp_context=multiprocessing.get_context("spawn")) as ex:
+                mixed = list(ex.map(_hard_one, jobs))
+        else:
+            mixed = [_hard_one(j) for j in jobs]
+        _print_sizes(args, mixed, size, sizes, t0)
+    return 0
+
+
+def _print_sizes(args, runs, size, sizes, t0):
+    """One row per disc size of recordings whose lug markers' discs take the sizes in turn
+    (issue 45: discs of different sizes in one recording)."""
+    print(f"\ndiscs of {len(sizes)} sizes in one recording ({', '.join(f'{v:g}' for v in sizes)} "
+          f"px across, in turn over the {runs[0]['kinds'].count('cog')} lug markers): "
+          f"{args.n} recordings x {args.frames} frames {size[0]}x{size[1]}, otherwise as above "
+          f"({time.perf_counter() - t0:.0f} s)")
+    print(f"{'tracker':<8}{'disc px':>8}{'markers':>8}{'detected':>10}{'worst':>8}{'rms x':>8}"
+          f"{'rms y':>8}{'CRB 2D':>8}{'vs CRB':>8}{'swaps':>7}")
+    for name in ("before", "after"):
+        if name not in runs[0]:
+            continue
+        for px in list(sizes) + ["qs"]:
+            cols = [(r, j) for r in runs for j, k in enumerate(r["kinds"])
+                    if (k == "qs" if px == "qs" else (k == "cog" and r["px"][j] == px))]
+            hits = sum(r[name]["hits"][j] for r, j in cols)
+            vis = sum(r[name]["vis"][j] for r, j in cols)
+            worst = min(r[name]["hits"][j] / max(r[name]["vis"][j], 1) for r, j in cols)
+            e = np.concatenate([r[name]["marker"]["err"][j] for r, j in cols])
+            ax = np.sqrt(np.mean(e ** 2, axis=0)) if e.size else np.full(2, np.nan)
+            c = [np.asarray(r["crb_marker"][j]).reshape(-1, 2) for r, j in cols]
+            b2 = np.sqrt(np.sum(np.nanmean(np.concatenate(c), axis=0)))
+            swaps = sum(int(r[name]["marker"]["swaps"][j]) for r, j in cols)
+            label = f"qs {args.qs_px:g}" if px == "qs" else f"{px:g}"
+            rms = (f"{ax[0]:>8.4f}{ax[1]:>8.4f}{b2:>8.4f}{np.sqrt(np.sum(ax ** 2)) / b2:>7.2f}x"
+                   if e.size else f"{'-':>8}{'-':>8}{b2:>8.4f}{'-':>8}")
+            print(f"{name:<8}{label:>8}{len(cols) // args.n:>8}{hits / max(vis, 1):>10.2%}"
+                  f"{worst:>8.1%}{rms}{swaps:>7}")
+    print("(per size: share of the clear frames of its markers with a sample within 0.5 px, "
+          "the worst marker's; rms over those samples; swaps: tracks following a marker of "
+          "that size that jump to another marker or stray 0.5 px)")
+
+
+def _print_hard(args, runs, size, t0):
     kinds = runs[0]["kinds"]
     print(f"hard footage: {args.n} recordings x {args.frames} frames {size[0]}x{size[1]}, "
           f"{kinds.count('cog')} COG discs {args.cog_px:g} px across, {kinds.count('qs')} QS "
@@ -480,7 +565,6 @@ def main_hard(args):
               f"(load {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores); the whole-frame "
               f"search for new markers {search * 1e3:.1f} ms CPU, one every {every} frames: "
               f"with it, median {1 / (np.median(b) + search / every):.0f} frames/s CPU")
-    return 0
 
 
 # -- memory against the video's length ----------------------------------------------------------

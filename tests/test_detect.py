@@ -189,3 +189,24 @@ def test_markers_already_followed_are_left_out():
             assert d[j] < 0.03 and det.kind[j] == kinds[k]
         for k in cog[:2] + qs[:1]:
             assert np.hypot(*(det.xy - truth[k]).T).min() > 2 * R_COG
+
+
+def test_discs_of_other_sizes_are_found_and_measured_at_their_own_size():
+    # discs of one recording differ (issue 45): with the usual size known (6 px radius),
+    # a disc 8 px across is found and measured through its own aperture as well, at full
+    # and at half size (an aperture for 12 px discs took in a small disc's lug: half its
+    # size, 0.2 px off)
+    from fitlug.sim._scene import hard_clip
+
+    sizes = (12.0, 8.0, 11.0, 12.0, 9.0, 12.0, 10.0, 12.0)
+    clip = hard_clip(1, (480, 320), seed=3, cog_px=sizes)
+    img, n = clip.frames[0], 0
+    for scale in (1, 2):
+        det = detect_markers(img, cog_radius=6.0, qs_half=5.0, noise=4.0, scale=scale)
+        for j in np.flatnonzero(clip.visible[0, :len(sizes)]):
+            d = np.hypot(*(det.xy - clip.truth[0, j]).T)
+            i = int(np.argmin(d))
+            assert d[i] < 0.1 and det.kind[i] == "cog", (sizes[j], d[i])
+            assert det.size[i] == pytest.approx(0.5 * sizes[j], rel=0.05)
+            n += 1
+    assert n >= 12

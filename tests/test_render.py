@@ -35,6 +35,21 @@ def test_disc_coverage_is_the_area(cx, cy, r):
     assert np.abs(cov - _supersampled_disc(cx, cy, r, 21, 21)).max() < 1 / 64
 
 
+
+def test_markers_of_their_own_size_and_contrast():
+    # marker_scale / marker_contrast (issue 45): a disc drawn at 0.6 of the size and half
+    # the contrast holds 0.36 x 0.5 of the full disc's flux, the next marker is unchanged
+    cam = default_camera(0.39, (200, 120), dist_coeffs=None)
+    opt = QUIET.replace(lug_level=QUIET.background, cog_level=QUIET.background + 100.0,
+                        marker_scale=(0.6,), marker_contrast=(0.5,))
+    sub = np.array([[[61.37, 58.82], [140.6, 61.1]]])
+    img = render_frame(sub, ["cog", "cog"], cam, opt, np.random.default_rng(0), dtype=np.uint16)
+    r = 0.5 * opt.cog_diameter_mm / 0.39
+    flux = (img.astype(float) - opt.background)
+    assert flux[:, :100].sum() == pytest.approx(50.0 * math.pi * (0.6 * r) ** 2, abs=0.5 * 110)
+    assert flux[:, 100:].sum() == pytest.approx(100.0 * math.pi * r * r, abs=0.5 * 110)
+
+
 def test_interval_overlap_lengths():
     ov = interval_overlap([2.25], [4.0], 0, 7)[0]  # pixel k spans [k - 1/2, k + 1/2]
     np.testing.assert_allclose(ov, [0, 0, 0.25, 1, 0.5, 0, 0])

@@ -38,6 +38,10 @@ class RenderOptions:
     noise_sigma: standard deviation of the sensor noise, grey levels (before rounding).
     exposure_s: exposure time (motion blur); n_sub: positions averaged across it.
     occluders: rectangles (x0, y0, x1, y1) in px drawn over the markers at `occluder_level`.
+    marker_scale, marker_contrast: factors per marker, in the order the markers are drawn
+        (markers past the tuple's end: 1) on its size (a COG's discs, a QS's square) and on
+        its light part's level above its dark part (a COG's bright disc over its lug, a QS's
+        light quarters over its dark ones): markers of different sizes, dim markers.
     """
 
     cog_diameter_mm: float = 6.0
@@ -55,6 +59,8 @@ class RenderOptions:
     n_sub: int = 7
     occluders: tuple = ()
     occluder_level: float = 40.0
+    marker_scale: tuple = ()
+    marker_contrast: tuple = ()
 
     def replace(self, **changes) -> "RenderOptions":
         return dataclasses.replace(self, **changes)
@@ -178,11 +184,17 @@ def render_frame(sub_px: np.ndarray, kinds, camera: Calibration, opt: RenderOpti
         pts = pts[np.isfinite(pts).all(axis=1)]
         if pts.size == 0:
             continue
+        f = opt.marker_scale[m] / s if m < len(opt.marker_scale) else 1.0 / s
+        o = opt
+        if m < len(opt.marker_contrast):
+            c = float(opt.marker_contrast[m])
+            o = opt.replace(cog_level=opt.lug_level + c * (opt.cog_level - opt.lug_level),
+                            qs_light=opt.qs_dark + c * (opt.qs_light - opt.qs_dark))
         if kind == "cog":
-            _draw_cog(canvas, pts, 0.5 * opt.cog_diameter_mm / s, 0.5 * opt.lug_diameter_mm / s,
-                      opt)
+            _draw_cog(canvas, pts, 0.5 * opt.cog_diameter_mm * f, 0.5 * opt.lug_diameter_mm * f,
+                      o)
         else:
-            _draw_qs(canvas, pts, 0.5 * opt.qs_size_mm / s, opt)
+            _draw_qs(canvas, pts, 0.5 * opt.qs_size_mm * f, o)
     for x0, y0, x1, y1 in opt.occluders:
         rows = slice(max(int(y0), 0), max(int(y1), 0))
         canvas[rows, max(int(x0), 0):max(int(x1), 0)] = opt.occluder_level

@@ -72,13 +72,14 @@ def hard_clip(n_frames: int = 120, image_size=(480, 320), *, seed: int = 0,
               exposure_s: float = 0.004, fps: float = 100.0, speed_mm_s: float = 60.0,
               bar_px: float = 10.0, bar_speed_px: float = -3.0, n_lug_markers: int = 8,
               n_body_markers: int = 2, d_mm: float | None = None, r_mm: float | None = None,
-              origin_mm=None, keep_sub: bool = False):
+              origin_mm=None, keep_sub: bool = False, cog_contrast=()):
     """Hard footage with its truth: small markers (COG bright discs `cog_px` across, QS
-    checkers `qs_px` a side), sensor noise `noise_sigma` grey levels, a lighting gradient and
-    vignetting, motion blur (`exposure_s`), a dark vertical bar `bar_px` wide sweeping
-    across the picture at `bar_speed_px` px/frame (hiding each marker a few frames), and
-    the rig driving out of the picture on the right (markers leave and lug markers come
-    round).
+    checkers `qs_px` a side; `cog_px` a sequence: one size per lug marker, in turn, and
+    `cog_contrast` factors on their bright discs' contrast: dim discs), sensor noise
+    `noise_sigma` grey levels, a lighting gradient and vignetting, motion blur
+    (`exposure_s`), a dark vertical bar `bar_px` wide sweeping across the picture at
+    `bar_speed_px` px/frame (hiding each marker a few frames), and the rig driving out of
+    the picture on the right (markers leave and lug markers come round).
 
     The stadium is sized to the image (d_mm, r_mm default from its width and height); the
     rig starts with its rear at a fifth of the width. Returns a `HardClip` (frames in
@@ -91,10 +92,16 @@ def hard_clip(n_frames: int = 120, image_size=(480, 320), *, seed: int = 0,
 
     w, h = (int(v) for v in image_size)
     s = float(mm_per_px)
-    # lug disc twice the bright disc
-    opt = RenderOptions(cog_diameter_mm=cog_px * s, lug_diameter_mm=2.0 * cog_px * s,
+    # lug disc twice the bright disc; the options' size the largest disc's
+    sizes = np.resize(np.asarray(cog_px, dtype=np.float64).reshape(-1), n_lug_markers)
+    top = float(sizes.max())
+    dim = tuple(float(c) for c in np.resize(np.asarray(cog_contrast, dtype=np.float64),
+                                              n_lug_markers if len(cog_contrast) else 0))
+    opt = RenderOptions(cog_diameter_mm=top * s, lug_diameter_mm=2.0 * top * s,
                         qs_size_mm=qs_px * s, noise_sigma=noise_sigma, gradient=tuple(gradient),
-                        vignetting=vignetting, exposure_s=exposure_s)
+                        vignetting=vignetting, exposure_s=exposure_s,
+                        marker_scale=tuple(sizes / top) if np.ptp(sizes) > 0 else (),
+                        marker_contrast=dim)
     width_mm, height_mm = w * s, h * s
     r = 0.22 * height_mm if r_mm is None else float(r_mm)
     d = 0.45 * width_mm if d_mm is None else float(d_mm)
@@ -108,7 +115,8 @@ def hard_clip(n_frames: int = 120, image_size=(480, 320), *, seed: int = 0,
         origin_mm = (-(0.5 * d + r) - 0.2 * width_mm, r - 0.5 * height_mm)
     kinds = [KINDS[x] for x in roles]
     # visibility: the whole lug disc (twice the bright disc) for COG, the square for QS
-    radii = np.where(np.array(kinds) == "cog", cog_px, 0.5 * qs_px * 2 ** 0.5)
+    radii = np.full(len(kinds), 0.5 * qs_px * 2 ** 0.5)
+    radii[:n_lug_markers] = sizes  # (lug markers first)
     sub = subframe_positions(t, xy, opt.exposure_s, opt.n_sub)
     rng = np.random.default_rng(seed)
     gain = gain_field((w, h), opt)

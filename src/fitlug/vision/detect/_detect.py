@@ -269,8 +269,9 @@ def detect_markers(frame: np.ndarray, *, kinds=(COG, QS), cog_radius=None, qs_ha
                    refine: bool = True) -> Detections:
     """Find and refine COG and QS markers in a frame.
 
-    frame: (H, W) grey image; kinds: which marker types to look for; cog_radius: disc
-    radius px if known (else any in cog_radius_range); qs_half: half side of the checkers
+    frame: (H, W) grey image; kinds: which marker types to look for; cog_radius: kept
+    for callers, unused: discs of any radius in cog_radius_range are found, each measured
+    at its own size (discs of one recording differ); qs_half: half side of the checkers
     px if known (else measured); min_contrast: least marker contrast, grey levels (the
     default threshold is 8x the noise); roi: (x0, y0, x1, y1) px to search only there;
     noise: pixel noise std if known; scale: search on the frame shrunk by this factor
@@ -359,7 +360,7 @@ def detect_markers(frame: np.ndarray, *, kinds=(COG, QS), cog_radius=None, qs_ha
     if COG in kinds:
         search, k = search_image(COG)
         s_noise = noise / k
-        r_range = cog_radius_range if cog_radius is None else (0.7 * cog_radius, 1.3 * cog_radius)
+        r_range = cog_radius_range  # (any size: one disc may be half the others', issue 45)
         cand, radii, check = _find_cog(search, s_noise, (r_range[0] / k, r_range[1] / k),
                                        min_contrast, shrunk=k > 1)
         if check.any():  # blobs of the shrunk image that fill their box: discs at full size?
@@ -386,8 +387,14 @@ def detect_markers(frame: np.ndarray, *, kinds=(COG, QS), cog_radius=None, qs_ha
             size_l.append(radii)
             con_l.append(np.full(cand.shape[0], np.nan))
         elif cand.shape[0]:
-            r = radii if cog_radius is None else np.full(radii.shape, float(cog_radius))
-            fit = refine_cog(frame, cand, r, blur_px=1.0, n_iter=3)
+            # each disc through an aperture of its own size, its blob's then the one it
+            # measures (one sized for discs twice as large takes in a small disc's lug)
+            fit = refine_cog(frame, cand, radii, blur_px=1.0, n_iter=3)
+            ok = np.isfinite(fit.xy).all(axis=1) & (fit.radius > 0.5 * radii)
+            if ok.any():
+                again = refine_cog(frame, fit.xy[ok], fit.radius[ok], blur_px=1.0, n_iter=1)
+                for name in ("xy", "contrast", "radius"):
+                    getattr(fit, name)[ok] = getattr(again, name)
             good = np.isfinite(fit.xy).all(axis=1) & (fit.contrast > max(8.0 * noise, min_contrast))
             xy_l.append(fit.xy[good])
             kind_l.append(np.full(int(good.sum()), COG))

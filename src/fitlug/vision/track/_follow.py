@@ -41,7 +41,14 @@ class Follow:
         # those of a marker coming into view at speed were taken through apertures that
         # differ by its streak (a streak of 2 px: 3 % in area and width, seen on
         # drive-throughs): wider still by the streak
-        young = 1.0 if t.confirmed else 3.0 + self._blur(t)[0] - 0.25
+        # and they settle over the first ~10 samples after the confirmation (the aperture
+        # with them, from the averaged radius and streak: a small disc's area and width
+        # through it move by ~3 %, its annulus reaching the lug's edge): the tolerances
+        # narrow over those samples, not at once (issue 45: a still 8 px disc lost 9 of its
+        # first 16 frames)
+        young = 3.0 + self._blur(t)[0] - 0.25
+        if t.confirmed:
+            young = 1.0 + (young - 1.0) * min(max((15 - t.n_ref) / 10.0, 0.0), 1.0)
         ds = math.hypot(shear[0] - t.shear[0], shear[1] - t.shear[1])
         return min(score(area / t.area - 1, young * max(0.006, 3.5 * 1.3 * rel)),
                    score(radius / t.radius - 1, young * max(0.005, 3.5 * 1.1 * rel)),

@@ -20,16 +20,18 @@ class Track:
 
     __slots__ = ("uid", "kind", "size", "frames", "xs", "ys", "qs", "misses", "alive",
                  "area", "radius", "shear", "slope", "rms", "contrast", "params",
-                 "confirmed", "first_size")
+                 "confirmed", "sizes", "n_ref")
 
     def __init__(self, uid, kind, size, frame, xy, contrast, params=None):
         self.uid, self.kind, self.size = uid, kind, float(size)
-        self.first_size = float(size)  # as detected: a disc coming into view measures smaller
+        # its samples' sizes until it is confirmed (a disc coming into view measures smaller)
+        self.sizes = [float(size)]
         # typed arrays, not lists: 8 bytes a sample rather than ~40 (long recordings)
         self.frames = array("q", [int(frame)])
         self.xs, self.ys, self.qs = array("d", [xy[0]]), array("d", [xy[1]]), array("d", [1.0])
         self.misses, self.alive, self.confirmed = 0, True, False
         self.area = self.radius = self.shear = self.slope = self.rms = None
+        self.n_ref = 0  # samples in a COG's area and radius references (see Tracker._accept)
         self.contrast = float(contrast)
         self.params = params
 
