@@ -198,9 +198,11 @@ def base_reading(res) -> str:
     except (KeyError, ValueError, AttributeError):
         return ""
     h, tau = float(p["h"]), float(p["tau_s"])
+    hs = f"{h:.2f}" if abs(h) >= 0.005 else "0.00"
     where = ("on the lug tips" if h < 0.15 else "near the lug tips" if h < 0.4
              else "half-way up the lugs" if h < 0.7 else "near the belt's pitch line")
-    return (f"the lug markers sit {where} (h = {h:.2f} of the lug from its tip): on the "
-            f"ground they drift at {h:.2f} of the belt's stall while each lug shears under "
-            f"the traction, and the shear springs back in {1000 * tau:.0f} ms after the lug "
-            "lifts off at the rear of the contact patch")
+    still = ("stand still on the ground" if h < 0.15 else
+             f"drift over the ground at {hs} of the pitch line's creep")
+    return (f"the lug markers sit {where} (h = {hs}; 0 tip, 1 pitch line): in contact they "
+            f"{still} while each lug shears under the traction, and the shear springs back "
+            f"in {1000 * tau:.0f} ms after the lug lifts off at the rear of the contact patch")
