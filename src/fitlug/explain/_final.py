@@ -109,12 +109,20 @@ def final_fit(res, eng, accepted, theta) -> FitResult:
                                     params=spec, require_convergence=False)
         return final
     final = _polish(prob_f, p, free)
-    if prob.noise_source in ("differences", "residual differences"):
+    renoise = prob.noise_source in ("differences", "residual differences")
+    if renoise:
         new = residual_noise(final)
         old = final.problem.noise
         if all(np.isfinite(v) and v > 0 for v in new.values()) and any(
                 abs(new[k] / old[k] - 1.0) > NOISE_REFIT_TOL for k in new):
             final = _polish(reweighted(final.problem, new), final.params, free)
+    if "lug_shear" in accepted and (prob.init_info.get("glitches") or []):
+        # the base model (markers on the pitch line) misfits tip markers by millimetres
+        # where the lugs lift off, and its glitch rule took real samples for glitches (8 on
+        # a tip-marker recording); the rounds again under the final model give them back
+        from ..fit._fit import remove_glitches
+
+        final = remove_glitches(final, renoise=renoise, free=free, require_convergence=False)
     return final
 
 
