@@ -31,9 +31,10 @@ def main(argv=None) -> int:
         ap.error(f"unknown case(s) {', '.join(bad)}; known: {', '.join(CASES)}")
     print(f"{'case':18s} {'slip':>7s} {'per period':>18s} {'k_eff':>6s} {'rear shear':>10s} "
           f"{'lugs':>5s} {'limit':>6s} {'pitch':>6s} {'surge':>6s} {'wall s':>7s}")
-    for i, name in enumerate(names):
+    for name in names:
         t0 = time.perf_counter()
-        tr = simulate_engine(CASES[name], os.path.join(args.out, name), seed=args.seed + i)
+        tr = simulate_engine(CASES[name], os.path.join(args.out, name), 
+                             seed=args.seed + list(CASES).index(name))
         per = " ".join(f"{p:.4f}" for p in tr["slip_per_contact_period"])
         print(f"{name:18s} {tr['slip']:7.4f} {per:>18s} {tr['k_eff_N_per_mm']:6.3f} "
               f"{tr['liftoff_shear_mm']:8.2f}mm {tr['lugs_in_contact']['mean']:5.2f} "

@@ -28,6 +28,7 @@ class EngineCase:
     link_mass_g: float = 10.0
     wheel_mass_g: float = 50.0
     tension_N: float = 60.0            # the idler's tensioner force (rearward)
+    idler_damping: float = 400.0       # N s/m on the tensioner's slide
     mu_wheel: float = 1.2              # wheel on links: the belt is driven by friction
     # lugs
     lug_height_mm: float = 6.0         # pitch line to the tip sphere's centre
@@ -50,6 +51,7 @@ class EngineCase:
     settle_s: float = 0.4
     # numerics
     timestep_s: float = 62.5e-6
+    noslip_iterations: int = 0         # MuJoCo's no-slip pass (0: soft friction, may creep)
     # camera and markers
     fps: float = 100.0
     marker_h: float = 0.0              # 0 lug tip .. 1 pitch line (on the link)

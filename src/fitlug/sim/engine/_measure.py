@@ -160,6 +160,10 @@ def measure(case: EngineCase, o: dict) -> dict:
                 "mass_kg": round(o["mass_total_kg"], 4), "drawbar_pull_N": case.drawbar_pull_N},
         "wheel_distance_mm": D,
         "traction_load_N": F,
+        # power: what the motor gives against what the belt delivers (F v_belt: towing
+        # F v_chassis plus the slip's loss F s v_belt)
+        "power_motor_W": float(np.mean((o["torque"] * o["omega"])[win])),
+        "power_traction_W": F * vb * 1e-3,
         "traction_springs_N": float(np.mean(traction_springs[win])),
         "traction_shear_only_N": float(np.mean(traction_shear[win])),
         "traction_ground_N": float(np.mean(traction_ground[win])),

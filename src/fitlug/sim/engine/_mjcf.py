@@ -127,7 +127,7 @@ def build_mjcf(case: EngineCase) -> tuple[str, dict]:
   <geom name="front" {wheel_geom}/>
  </body>
  <body name="idler" pos="{rear_local:.9g} 0 0">
-  <joint name="tensioner" type="slide" axis="1 0 0" damping="40" range="-0.05 0.03" limited="true" armature="1e-3"/>
+  <joint name="tensioner" type="slide" axis="1 0 0" damping="{case.idler_damping:.9g}" range="-0.05 0.03" limited="true" armature="1e-3"/>
   <inertial pos="0 0 0" mass="0.02" diaginertia="1e-6 1e-6 1e-6"/>
   <body name="rear">
    <joint name="idle" type="hinge" axis="0 1 0" damping="1e-5" armature="1e-6"/>
@@ -138,7 +138,7 @@ def build_mjcf(case: EngineCase) -> tuple[str, dict]:
     ground_friction = f"{case.mu} 0.005 0.0001"
     xml = f"""<mujoco model="fitlug-engine-{case.name}">
 <compiler angle="radian" autolimits="true"/>
-<option timestep="{case.timestep_s:.9g}" integrator="implicitfast" cone="elliptic" impratio="10" gravity="0 0 -9.81" iterations="60" ls_iterations="20"/>
+<option timestep="{case.timestep_s:.9g}" integrator="implicitfast" cone="elliptic" impratio="10" gravity="0 0 -9.81" iterations="60" ls_iterations="20" noslip_iterations="{case.noslip_iterations}"/>
 <default><geom solref="0.002 1" solimp="0.95 0.99 0.0005"/></default>
 <worldbody>
 <geom name="ground" type="plane" size="5 0.5 0.1" contype="0" conaffinity="{_GROUND}" condim="3" friction="{ground_friction}" priority="1"/>
