@@ -3,7 +3,8 @@
 Each folder: trajectories.csv (DATA.md long form, 4 decimals in mm), rig.toml (L, n, the
 lug pitch and the mass as the engine measured them), truth.json (what the engine itself
 measured: slip at cruise, lug shear, contacts, body motion, the self-checks, the settings).
-Prints per case the engine's slip and the wall time.
+Prints per case the engine's slip and the wall time (a case that differs from an earlier
+one only in its camera, e.g. ref_250fps or markers_on_links, reuses its simulation).
 
     python benchmarks/make_engine_recordings.py                 # every case
     python benchmarks/make_engine_recordings.py ref_100fps mu025 --out /tmp/engine
@@ -18,7 +19,7 @@ import time
 
 
 def main(argv=None) -> int:
-    from fitlug.sim.engine import CASES, simulate_engine
+    from fitlug.sim.engine import CASES, same_physics, simulate_engine
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("cases", nargs="*", help=f"case names (default all: {', '.join(CASES)})")

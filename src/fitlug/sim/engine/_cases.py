@@ -13,7 +13,8 @@ CASES: dict[str, EngineCase] = {c.name: c for c in [
     EngineCase(name="ref_250fps", **dict(_REF, fps=250.0), notes="the same at 250 fps"),
     EngineCase(name="stiff_k06", **dict(_REF, k_N_per_mm=0.6), notes="stiffer lugs"),
     EngineCase(name="soft_drawbar5", **dict(_REF, k_N_per_mm=0.15), drawbar_pull_N=5.0,
-               notes="softer lugs pulling a 5 N drawbar load"),
+               cruise_s=4.0, notes="softer lugs pulling a 5 N drawbar load (a longer cruise: "
+               "its slip settles slowly)"),
     EngineCase(name="mu025", **_REF, mu=0.25, notes="low friction: rear tips slide"),
     EngineCase(name="markers_on_links", **_REF, marker_h=1.0,
                notes="lug markers on the links (pitch line), not the lug tips"),
