@@ -49,7 +49,7 @@ def simulate_engine(case: EngineCase, out_dir: str | None = None, seed: int = 0,
 def same_physics(a: EngineCase, b: EngineCase) -> bool:
     """Whether two cases differ only in what the camera sees (fps, markers, noise)."""
     camera = {"name", "notes", "fps", "marker_h", "lug_markers", "body_markers",
-              "noise_lug_mm", "noise_body_mm"}
+              "noise_lug_mm", "noise_body_mm", "camera_window_mm"}
     da, db = a.settings(), b.settings()
     return all(da[k] == db[k] for k in da if k not in camera | {"duration_s"})
 

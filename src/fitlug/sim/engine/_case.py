@@ -59,6 +59,7 @@ class EngineCase:
     body_markers: tuple = ((-60.0, 45.0), (60.0, 45.0))  # mm from the wheel-centre midpoint
     noise_lug_mm: float = 0.0065
     noise_body_mm: float = 0.0041
+    camera_window_mm: tuple | None = None  # ground-frame x the camera sees (None: all)
     notes: str = ""
     extra: dict = field(default_factory=dict)
 
@@ -123,6 +124,8 @@ class EngineCase:
         d = asdict(self)
         d["lug_markers"] = list(self.lug_markers)
         d["body_markers"] = [list(b) for b in self.body_markers]
+        if self.camera_window_mm is not None:
+            d["camera_window_mm"] = list(self.camera_window_mm)
         d.update(lug_pitch_mm=self.lug_pitch_mm, r_eff_mm=self.r_eff_mm,
                  duration_s=self.duration_s)
         return d

@@ -23,6 +23,9 @@ CASES: dict[str, EngineCase] = {c.name: c for c in [
                notes="a rubber belt: 4.59 mm links (almost smooth), lugs every 18.36 mm"),
     EngineCase(name="wheel35", **_REF, wheel_radius_mm=35.0,
                notes="35 mm wheels: shorter straight runs (the same 22 links)"),
+    EngineCase(name="drive_through", **_REF, camera_window_mm=(150.0, 500.0),
+               notes="the reference run seen through a 350 mm window: the robot drives in "
+                     "and out of it"),
     EngineCase(name="h05_spread", **_REF, marker_h=0.5, lug_markers=(0, 5, 11, 16),
                notes="markers half-way up the lugs, on four lugs spread round the belt"),
 ]}

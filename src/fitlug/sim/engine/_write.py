@@ -52,9 +52,11 @@ def write_recording(case: EngineCase, o: dict, truth: dict, out_dir: str, seed: 
              "# units: mm", f"# case: {case.name}",
              "time_s,marker,role,x_mm,y_mm,frame"]
     T = len(tracks[0][2])
+    lo, hi = case.camera_window_mm or (-float("inf"), float("inf"))
     for f in range(T):
         for name, role, t, x, y in tracks:
-            lines.append(f"{t[f]:.6g},{name},{role},{x[f]:.4f},{y[f]:.4f},{f}")
+            if lo <= x[f] <= hi:  # the camera sees the marker
+                lines.append(f"{t[f]:.6g},{name},{role},{x[f]:.4f},{y[f]:.4f},{f}")
     _atomic(os.path.join(out_dir, "trajectories.csv"), "\n".join(lines) + "\n")
     rig = truth["rig"]
     text = ["[track]", f"load_bearing_length_mm = {rig['L_mm']}",
