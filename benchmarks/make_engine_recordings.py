@@ -37,6 +37,7 @@ def main(argv=None) -> int:
         tr = simulate_engine(CASES[name], os.path.join(args.out, name), 
                              seed=args.seed + list(CASES).index(name))
         per = " ".join(f"{p:.4f}" for p in tr["slip_per_contact_period"])
+        tr = {k: (float("nan") if v is None else v) for k, v in tr.items()}
         print(f"{name:18s} {tr['slip']:7.4f} {per:>18s} {tr['k_eff_N_per_mm']:6.3f} "
               f"{tr['liftoff_shear_mm']:8.2f}mm {tr['lugs_in_contact']['mean']:5.2f} "
               f"{tr['tip_contacts_at_friction_limit']:6.3f} {tr['body_pitch_pp_mrad']:6.1f} "
