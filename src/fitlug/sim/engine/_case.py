@@ -26,6 +26,7 @@ class EngineCase:
     wheel_radius_mm: float = 25.0      # pin-circle radius of both wheels
     link_radius_mm: float = 1.5        # the links' capsule radius (pins on its axis)
     link_mass_g: float = 10.0
+    bend_Nm_per_rad: float = 0.0       # bending stiffness at each pin (a rubber belt's), 0: free
     wheel_mass_g: float = 50.0
     tension_N: float = 60.0            # the idler's tensioner force (rearward)
     idler_damping: float = 400.0       # N s/m on the tensioner's slide

@@ -19,7 +19,7 @@ CASES: dict[str, EngineCase] = {c.name: c for c in [
     EngineCase(name="markers_on_links", **_REF, marker_h=1.0,
                notes="lug markers on the links (pitch line), not the lug tips"),
     EngineCase(name="rubber_belt", **_REF, n_links=88, link_pitch_mm=4.59, lug_every=4,
-               link_mass_g=2.5, link_radius_mm=1.0,
+               link_mass_g=2.5, link_radius_mm=1.0, bend_Nm_per_rad=0.1,
                notes="a rubber belt: 4.59 mm links (almost smooth), lugs every 18.36 mm"),
     EngineCase(name="wheel35", **_REF, wheel_radius_mm=35.0,
                notes="35 mm wheels: shorter straight runs (the same 22 links)"),

@@ -91,10 +91,13 @@ def build_mjcf(case: EngineCase) -> tuple[str, dict]:
     body_close = ""
     for i in range(case.n_links):
         if i:
-            chain += (f'<body name="link{i}" pos="{p:.9g} 0 0" '
-                      f'quat="{_quat_y(-(alpha[i] - alpha[i - 1]))}">\n'
+            turn = math.remainder(alpha[i] - alpha[i - 1], 2 * math.pi)
+            # a belt's bending stiffness: the pin's spring rests where the links are in line
+            bend = (f'stiffness="{case.bend_Nm_per_rad:.9g}" springref="{turn:.12g}" '
+                    if case.bend_Nm_per_rad else "")
+            chain += (f'<body name="link{i}" pos="{p:.9g} 0 0" quat="{_quat_y(-turn)}">\n'
                       f'<joint name="pin{i}" type="hinge" axis="0 1 0" damping="1e-5" '
-                      f'armature="1e-7"/>\n')
+                      f'{bend}armature="1e-7"/>\n')
         chain += (f'<geom name="link{i}" type="capsule" fromto="0 0 0 {p:.9g} 0 0" '
                   f'size="{rc:.9g}" mass="{case.link_mass_g * 1e-3:.9g}" {link_cls}/>')
         chain += f'<site name="pin{i}" pos="0 0 0"/>' + lug(i) + "\n"
