@@ -1,0 +1,125 @@
+"""fitlug against the contact-dynamics engine's recordings (fitlug.sim.engine, MuJoCo).
+
+Per recording in data/engine/<case>/ (or freshly simulated with --simulate): the library
+as `fit-lug --no-mcmc` calls it (`fitlug.fit.fit`, then `fitlug.explain.explain`), and per
+case the engine's slip (truth.json), the fitted slip +- its std (explain's final model),
+z = (fit - engine) / std, std / s, chi2/dof before (base) and after (final), the verdict,
+the catalog entries named and the family terms kept, and the seconds. Asserts nothing.
+
+    python benchmarks/bench_engine.py [CASE ...] [--data data/engine] [--simulate]
+        [--timeout 1800] [--log results.jsonl]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.join(HERE, "..", "src"))
+
+
+class _Timeout(Exception):
+    pass
+
+
+def _alarm(signum, frame):
+    raise _Timeout()
+
+
+def _kept_terms(ex) -> list[str]:
+    try:
+        terms = ex.discovered
+        terms = terms() if callable(terms) else terms
+    except Exception:  # noqa: BLE001 - an explain without discovery
+        terms = None
+    if terms is None:
+        terms = getattr(getattr(ex, "discovery", None), "terms", None) or []
+    out = []
+    for t in terms:
+        d = t if isinstance(t, dict) else (t.to_json() if hasattr(t, "to_json") else {})
+        out.append(f"{d.get('family')}({d.get('coordinate')})")
+    return out
+
+
+def one(folder: str, timeout: float) -> dict:
+    """Fit and explain one engine recording: a dict (never raises)."""
+    from fitlug.explain import explain
+    from fitlug.fit import fit
+    from fitlug.io import read_rig, read_trajectories
+
+    t0 = time.perf_counter()
+    truth = json.load(open(os.path.join(folder, "truth.json")))
+    out = {"case": os.path.basename(folder.rstrip("/")), "engine_slip": truth["slip"]}
+    if timeout and hasattr(signal, "SIGALRM"):
+        signal.signal(signal.SIGALRM, _alarm)
+        signal.alarm(int(timeout))
+    try:
+        rig = read_rig(os.path.join(folder, "rig.toml"))
+        rec = read_trajectories(os.path.join(folder, "trajectories.csv"), rig=rig)
+        res = fit(rec, rig)
+        out["chi2_before"] = float(res.chi2_per_dof)
+        out["slip_base"] = float(res.slip.value)
+        out["std_base"] = float(res.slip.std)
+        ex = explain(res, seed=0)
+        fin = ex.final
+        out.update(verdict=ex.verdict, named=sorted(ex.effects), kept=_kept_terms(ex),
+                   chi2_after=float(fin.chi2_per_dof), slip=float(fin.slip.value),
+                   std=float(fin.slip.std))
+        out["z"] = (out["slip"] - out["engine_slip"]) / out["std"] if out["std"] > 0 else None
+    except _Timeout:
+        out["error"] = f"timeout after {timeout:g} s"
+    except Exception as exc:  # noqa: BLE001 - a benchmark reports failures
+        out["error"] = f"{type(exc).__name__}: {exc}"[:300]
+    finally:
+        if timeout and hasattr(signal, "SIGALRM"):
+            signal.alarm(0)
+    out["seconds"] = round(time.perf_counter() - t0, 1)
+    return out
+
+
+def _row(r: dict) -> str:
+    if "error" in r and "slip" not in r:
+        base = (f" base {r['slip_base']:.4f}+-{r['std_base']:.4f} chi2 {r['chi2_before']:.2f}"
+                if "slip_base" in r else "")
+        return f"{r['case']:18s} {r['engine_slip']:.4f}{base}  {r['error']}  {r['seconds']:.0f} s"
+    named = ",".join(r["named"] + r["kept"]) or "-"
+    return (f"{r['case']:18s} {r['engine_slip']:.4f} {r['slip']:.4f}+-{r['std']:.4f} "
+            f"{r['z']:7.1f} {r['std'] / r['slip']:6.3f} {r['chi2_before']:8.2f} "
+            f"{r['chi2_after']:8.2f} {r['verdict']:12s} {named}  {r['seconds']:.0f} s")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("cases", nargs="*")
+    ap.add_argument("--data", default=os.path.join(HERE, "..", "data", "engine"))
+    ap.add_argument("--simulate", action="store_true",
+                    help="simulate the cases first (into --data)")
+    ap.add_argument("--timeout", type=float, default=1800.0, help="seconds per case")
+    ap.add_argument("--log", help="append one JSON line per case")
+    args = ap.parse_args(argv)
+    if args.simulate:
+        from fitlug.sim.engine import CASES, simulate_engine
+
+        for name in args.cases or list(CASES):
+            simulate_engine(CASES[name], os.path.join(args.data, name),
+                            seed=1 + list(CASES).index(name))
+    names = args.cases or sorted(d for d in os.listdir(args.data)
+                                 if os.path.exists(os.path.join(args.data, d, "truth.json")))
+    print(f"{'case':18s} {'engine':6s} {'fit +- std':15s} {'z':>7s} {'std/s':>6s} "
+          f"{'chi2 bef':>8s} {'chi2 aft':>8s} {'verdict':12s} named  seconds", flush=True)
+    for name in names:
+        r = one(os.path.join(args.data, name), args.timeout)
+        print(_row(r), flush=True)
+        if args.log:
+            with open(args.log, "a") as f:
+                f.write(json.dumps(r, default=str) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

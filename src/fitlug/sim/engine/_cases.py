@@ -1,0 +1,31 @@
+"""The engine's named cases: the other team's failed cases on the reference rig, then
+adversarial variants (rubber belt, wheel size, marker height, frame rate, spread markers)."""
+
+from __future__ import annotations
+
+from ._case import EngineCase
+
+_REF = dict(k_N_per_mm=0.25, fps=100.0)
+
+CASES: dict[str, EngineCase] = {c.name: c for c in [
+    EngineCase(name="ref_100fps", **_REF,
+               notes="reference rig: 22 links of 18.36 mm round 25 mm wheels, k 0.25 N/mm"),
+    EngineCase(name="ref_250fps", **dict(_REF, fps=250.0), notes="the same at 250 fps"),
+    EngineCase(name="stiff_k06", **dict(_REF, k_N_per_mm=0.6), notes="stiffer lugs"),
+    EngineCase(name="soft_drawbar5", **dict(_REF, k_N_per_mm=0.15), drawbar_pull_N=5.0,
+               cruise_s=4.0, notes="softer lugs pulling a 5 N drawbar load (a longer cruise: "
+               "its slip settles slowly)"),
+    EngineCase(name="mu025", **_REF, mu=0.25, notes="low friction: rear tips slide"),
+    EngineCase(name="markers_on_links", **_REF, marker_h=1.0,
+               notes="lug markers on the links (pitch line), not the lug tips"),
+    EngineCase(name="rubber_belt", **_REF, n_links=88, link_pitch_mm=4.59, lug_every=4,
+               link_mass_g=2.5, link_radius_mm=1.0, bend_Nm_per_rad=0.1,
+               notes="a rubber belt: 4.59 mm links (almost smooth), lugs every 18.36 mm"),
+    EngineCase(name="wheel35", **_REF, wheel_radius_mm=35.0,
+               notes="35 mm wheels: shorter straight runs (the same 22 links)"),
+    EngineCase(name="drive_through", **_REF, camera_window_mm=(150.0, 500.0),
+               notes="the reference run seen through a 350 mm window: the robot drives in "
+                     "and out of it"),
+    EngineCase(name="h05_spread", **_REF, marker_h=0.5, lug_markers=(0, 5, 11, 16),
+               notes="markers half-way up the lugs, on four lugs spread round the belt"),
+]}
