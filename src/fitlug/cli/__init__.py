@@ -60,6 +60,24 @@ def _one_line_warning(message, category, filename, lineno, line=None) -> str:
     return f"fit-lug: warning: {kind}{text}\n"
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """fitlug's own warnings on stderr, one line each; a third-party library's (raised in
+    its own code: ArviZ's refactor notice, numpy's 'invalid value') to the log, the
+    logger ``fitlug.third_party`` at DEBUG, not the terminal (FITLUG_WARNINGS=all shows
+    them too)."""
+    import os
+
+    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    ours = os.path.abspath(str(filename)).startswith(here + os.sep)
+    if not ours and os.environ.get("FITLUG_WARNINGS") != "all":
+        import logging
+
+        logging.getLogger("fitlug.third_party").debug(
+            "%s:%s: %s: %s", filename, lineno, category.__name__, message)
+        return
+    (file or sys.stderr).write(_one_line_warning(message, category, filename, lineno))
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of `fit-lug`; returns the process exit status."""
     from .._errors import FitlugError
@@ -82,6 +100,7 @@ def main(argv: list[str] | None = None) -> int:
         with warnings.catch_warnings():
             # a warning is one line too ("fit-lug: warning: file:line: ..."), not two
             warnings.formatwarning = _one_line_warning
+            warnings.showwarning = _show_warning
             return int(mod.run(args) or 0)
     except FitlugError as exc:
         print(f"fit-lug: error: {exc}", file=sys.stderr)
