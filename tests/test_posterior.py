@@ -1,10 +1,13 @@
 """The posterior of the slip law: calibrated against known truth, and the sampler itself.
 
-Statistical tests with fixed seeds (emcee's own integration tests are the model): 16
-simulated recordings with known slip and rolling resistance, each fitted and sampled; the
-intervals must cover the truth as often as they claim, within bounds that a sampler with
-intervals twice too wide or too narrow fails. The ensemble driver is checked on
-distributions known in closed form.
+Statistical tests with fixed seeds (emcee's own integration tests are the model): 4
+simulated recordings with known slip and rolling resistance, each fitted and sampled; per
+recording the posterior std must equal the least-squares one (a nearly linear problem)
+and the chain must be converged. The calibration over many recordings (how often the 90 %
+and 95 % intervals hold the truth, z and the probability integral transform) is
+benchmarks/bench_posterior.py's part (a), over >= 100 recordings: a 16-recording sweep
+here took a quarter of this file's time (issue 43, item 6). The ensemble driver is
+checked on distributions known in closed form.
 """
 
 import json
@@ -25,7 +28,7 @@ from fitlug.sim import Scenario, rig_of, simulate
 
 # short recordings (300 frames, 6 lug + 2 body markers): ~4 s per fit on 2 cores
 SHORT = Scenario(duration_s=3.0, travel_mm=300, rest_s=0.3, ramp_s=0.8, lug_markers=6)
-SEEDS = tuple(range(7100, 7116))  # 16 recordings (CI time: each compiles its own)
+SEEDS = tuple(range(7100, 7104))  # 4 recordings (CI time: each compiles its own)
 QUANTITIES = ("slip", "rolling_resistance", "stiffness_N_per_mm")
 
 
@@ -48,35 +51,6 @@ def runs():
         # drop them, or a long test session runs out of LLVM code memory
         jax.clear_caches()
     return out
-
-
-def _interval(x, level):
-    a = 50 * (1 - level)
-    return np.percentile(x, [a, 100 - a])
-
-
-def test_intervals_cover_the_truth(runs):
-    for q in QUANTITIES:
-        hits = {0.9: 0, 0.95: 0}
-        for truth, _, post in runs:
-            for level in hits:
-                lo, hi = _interval(post.samples[q], level)
-                hits[level] += lo <= truth[q] <= hi
-        # binomial(16, 0.9): P(<= 11) = 0.017; binomial(16, 0.95): P(<= 12) = 0.007
-        assert hits[0.9] >= 12, (q, hits)
-        assert hits[0.95] >= 13, (q, hits)
-
-
-def test_errors_scaled_by_the_posterior_std_are_standard_normal(runs):
-    # mean z^2 over 16 is chi2_16 / 16: [0.32, 2.14] holds 99 %; intervals 2x too wide
-    # give ~0.25, 2x too narrow ~4
-    for q in QUANTITIES:
-        z = np.array([(np.median(p.samples[q]) - t[q]) / np.std(p.samples[q])
-                      for t, _, p in runs])
-        assert 0.32 <= np.mean(z ** 2) <= 2.14, (q, z)
-        # probability integral transform: the truth's quantile in the posterior is uniform
-        pit = [np.mean(p.samples[q] < t[q]) for t, _, p in runs]
-        assert stats.kstest(pit, "uniform").pvalue > 0.01, (q, pit)
 
 
 def test_posterior_std_agrees_with_least_squares(runs):
@@ -114,8 +88,9 @@ def test_exact_marginal_agrees_with_its_gaussian_limit(runs):
     _, res, gauss = runs[0]
     # the sampler stops once converged; the wall budget is only a guard (120 s ran out on
     # a machine with load average 14)
-    exact = sample_posterior(res, seed=3, method="exact", target_ess=300,
-                             min_tau_multiple=30, time_budget_s=900)
+    # ESS 200: the means' Monte Carlo error 0.07 sd, the std's 5 % (bounds 0.3 sd, 20 %)
+    exact = sample_posterior(res, seed=3, method="exact", target_ess=200,
+                             min_tau_multiple=20)
     assert exact.method.startswith("exact")
     assert exact.converged
     for q in ("slip", "stiffness_N_per_mm"):
