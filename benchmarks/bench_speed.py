@@ -5,7 +5,7 @@
 
 Per kind of recording (the bundled one; a null drive-through: the reference robot seen
 through a 400 mm window with a tracker's faults; an effect: the same with lug_sliding,
-slide_mu 1.2; an engine recording given by --engine, skipped without it), each run is a
+slide_mu 6.0; an engine recording given by --engine, skipped without it), each run is a
 fresh `python -m fitlug.cli CSV --out DIR -q` process (posterior and report: the default
 run):
 
@@ -90,7 +90,7 @@ def _recordings(kinds, folder, engine):
         out["bundled"] = os.path.join(ROOT, "data", "reference", "trajectories.csv")
     sys.path.insert(0, os.path.join(ROOT, "tests"))
     sys.path.insert(0, os.path.join(ROOT, "src"))
-    for kind, effects in (("null", {}), ("effect", {"lug_sliding": {"slide_mu": 1.2}})):
+    for kind, effects in (("null", {}), ("effect", {"lug_sliding": {"slide_mu": 6.0}})):
         if kind not in kinds:
             continue
         from fitlug.sim import Scenario, rig_of, simulate
