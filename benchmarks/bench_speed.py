@@ -4,8 +4,8 @@
         [--repeat 2] [--engine CSV] [--json FILE]
 
 Per kind of recording (the bundled one; a null drive-through: the reference robot seen
-through a 400 mm window with a tracker's faults; an effect: the same with lug_sliding,
-slide_mu 6.0; an engine recording given by --engine, skipped without it), each run is a
+through a 400 mm window with a tracker's faults; an effect: lug_sliding, slide_mu 6,
+through a drawn window that sees a speed change; an engine recording given by --engine, skipped without it), each run is a
 fresh `python -m fitlug.cli CSV --out DIR -q` process (posterior and report: the default
 run):
 
@@ -98,7 +98,10 @@ def _recordings(kinds, folder, engine):
 
         sc = Scenario(effects=effects)
         rec = simulate(sc, seed=5)[0]
-        cut, _ = drive_through(rec, seed=5, window=(100.0, 500.0), faults=True)
+        # the null through a fixed 400 mm window; the effect through a drawn one that sees
+        # a speed change (lug_sliding shows only where the traction changes)
+        cut, _ = (drive_through(rec, seed=5, window=(100.0, 500.0), faults=True) if not effects
+                  else drive_through(rec, seed=5, faults=True, need_motion=True))
         out[kind] = write_realistic(os.path.join(folder, kind), cut, rig_of(sc), wide=False)
     if "engine" in kinds:
         if engine:
