@@ -78,11 +78,25 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
     (file or sys.stderr).write(_one_line_warning(message, category, filename, lineno))
 
 
+def _one_blas_thread() -> None:
+    """numpy's OpenBLAS on one thread (unless the caller chose): its matrices here are
+    small (~100 wide), and its idle threads spin while they wait: on the 2-core machine
+    with other work (load 15-20), warm runs of the bundled recording took 12.9, 13.6 and
+    16.9 s CPU with one thread against 18.0 and 15.5 s with the default, the same digits
+    (issue 43; noisy figures: a modest gain, not a proven one).    Only before numpy is imported (the command imports it later)."""
+    import os
+
+    if "numpy" not in sys.modules:
+        for var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ.setdefault(var, "1")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of `fit-lug`; returns the process exit status."""
     from .._errors import FitlugError
 
     argv = list(sys.argv[1:] if argv is None else argv)
+    _one_blas_thread()
     if not argv or argv[0] in ("-h", "--help"):
         print(_top_help())
         return 0 if argv else 2
