@@ -83,7 +83,8 @@ def _one_blas_thread() -> None:
     small (~100 wide), and its idle threads spin while they wait: on the 2-core machine
     with other work (load 15-20), warm runs of the bundled recording took 12.9, 13.6 and
     16.9 s CPU with one thread against 18.0 and 15.5 s with the default, the same digits
-    (issue 43; noisy figures: a modest gain, not a proven one).    Only before numpy is imported (the command imports it later)."""
+    (issue 43; noisy figures: a modest gain, not a proven one). Only before numpy is
+    imported (the command imports it later)."""
     import os
 
     if "numpy" not in sys.modules:
