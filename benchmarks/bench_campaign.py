@@ -110,7 +110,7 @@ def timing(n_rec: int, worker_counts, full: bool, keep: str | None) -> None:
         t = time.perf_counter()
         simulate_campaign(data, runs=default_runs(n_rec), k=K, grounds=GROUNDS, law="linear")
         print(f"simulated {n_rec} recordings in {time.perf_counter() - t:.1f} s")
-    opts = dict(explain=full, mcmc=full, report=False, mcmc_budget=10.0)
+    opts = dict(explain=full, mcmc=full, report=False)  # the chain stops on ESS (issue 43)
     rates = {}
     for w in worker_counts:
         out = os.path.join(root, f"fits_w{w}")

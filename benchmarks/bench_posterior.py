@@ -135,6 +135,12 @@ def summarise(rows):
               f"    {100 * c95 / n:5.1f} % [{100 * lo95:4.1f}, {100 * hi95:5.1f}]"
               f"    {z.mean():+.3f}   {z.std(ddof=1):.3f}")
     print("    targets: s0 90 % interval covers in 85-95 %, 95 % interval in 90-99 %")
+    from scipy import stats  # the probability integral transform: the truth's quantile
+    for q in QUANTITIES:  # in its posterior is uniform (was tests/test_posterior, issue 43)
+        pit = [r[q]["pit"] for r in rows]
+        z2 = np.mean([((r[q]["median"] - r[q]["truth"]) / r[q]["std"]) ** 2 for r in rows])
+        print(f"    {q:<19} PIT uniform: KS p = {stats.kstest(pit, 'uniform').pvalue:.3f};"
+              f" mean z^2 {z2:.3f} (chi2_n / n: 1 +- {math.sqrt(2 / n):.2f})")
     ratio = np.array([r["slip"]["std"] / r["crb_s0"] for r in rows])
     ratio = ratio[np.isfinite(ratio)]
     lsq = np.array([r["slip"]["std"] / r["slip"]["lsq_std"] for r in rows])

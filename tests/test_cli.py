@@ -223,3 +223,71 @@ def test_bad_recordings_get_one_line_and_no_output(tmp_path, capsys, kind, where
     assert problem in err
     assert not out.exists()
     assert (folder / "trajectories.csv").read_text() == text  # inputs never modified
+
+
+def test_progress_lines_and_the_compile_notice_only_when_compiling(tmp_path, capsys,
+                                                                     monkeypatch):
+    """Issue 43 item 5: the sampler's steps and ESS so far, each line with its stage's
+    elapsed seconds; no compile notice on a run that compiles nothing."""
+    from fitlug.cli import _common
+
+    monkeypatch.setattr(_common, "PROGRESS_EVERY_S", 0.0)  # every record a line
+    args = [REF, "--no-report", "--seed", "2"]
+    assert main(args + ["--out", str(tmp_path / "a")]) == 0  # compiles what it must
+    capsys.readouterr()
+    assert main(args + ["--out", str(tmp_path / "b")]) == 0  # the same shapes: nothing new
+    out = capsys.readouterr().out
+    lines = [ln for ln in out.splitlines() if ln.startswith("[sampling] ") and "steps" in ln]
+    assert lines and all(ln.endswith(" s)") and "ESS" in ln for ln in lines)
+    assert lines[-1].split(" (")[-2].endswith("converged")
+    assert "compiling" not in out
+    assert "first run compiles" not in out
+
+
+def test_compile_watch_sees_real_compiles_only():
+    import jax
+    import jax.numpy as jnp
+
+    from fitlug import _progress
+
+    seen = []
+    cb = lambda name, s: seen.append(name)  # noqa: E731
+    _progress.watch_compiles(cb)
+    try:
+        f = jax.jit(lambda x: jnp.sin(x) * 3.25 + 0.125)
+        x = jnp.ones(7)
+        seen.clear()
+        with _no_cache():  # a real compile, whatever the persistent cache holds
+            f(x).block_until_ready()
+        assert seen == ["jit(<lambda>)"]
+        f(x).block_until_ready()  # in memory: no compile at all
+        assert seen == ["jit(<lambda>)"]
+    finally:
+        _progress.unwatch_compiles(cb)
+
+
+class _no_cache:
+    def __enter__(self):
+        import jax
+
+        self.was = jax.config.jax_enable_compilation_cache
+        jax.config.update("jax_enable_compilation_cache", False)
+
+    def __exit__(self, *exc):
+        import jax
+
+        jax.config.update("jax_enable_compilation_cache", self.was)
+
+
+def test_third_party_warnings_stay_off_the_terminal(capsys, monkeypatch):
+    import fitlug
+    from fitlug.cli import _show_warning
+
+    monkeypatch.delenv("FITLUG_WARNINGS", raising=False)
+    _show_warning(FutureWarning("ArviZ is undergoing a major refactor"), FutureWarning,
+                  "/somewhere/site-packages/arviz/__init__.py", 50)
+    assert capsys.readouterr().err == ""
+    ours = os.path.join(os.path.dirname(fitlug.__file__), "posterior", "_mcmc.py")
+    _show_warning(RuntimeWarning("the sampler reached\n its guard"), RuntimeWarning, ours, 9)
+    assert capsys.readouterr().err == ("fit-lug: warning: RuntimeWarning: the sampler "
+                                       "reached its guard\n")

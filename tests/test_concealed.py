@@ -52,9 +52,15 @@ def test_the_set_is_complete():
 #: recordings whose exact case tests/test_explain_independent.py checks on an independent
 #: implementation's recording (a stronger check): left out of the blind run to keep .ci/run
 #: under its 20 minutes (issue 28's family tests took their time; the marker shift, the
-#: 3.3 Hz vibration and marker_depth since the three new families' tests)
+#: 3.3 Hz vibration and marker_depth since the three new families' tests). Issue 43 (CI
+#: <= 12 min): belt_sag, frame_drop and sinkage+frame_drop too, two thirds of this file's
+#: time (389 s CPU in all on 2 cores); test_explain_independent names belt_sag and
+#: frame_drop alone and a combination of two effects (ripple+sag), and ground_sinkage
+#: stays here alone (rec04); the three still run blind in benchmarks/bench_explain.py
+#: --part concealed
 CHECKED_INDEPENDENTLY = {"ripple+sag", "wheel_runout", "lens_distortion", "camera_tilt",
-                         "marker_shift", "vibration", "marker_depth"}
+                         "marker_shift", "vibration", "marker_depth",
+                         "belt_sag", "frame_drop", "sinkage+frame_drop"}
 
 
 def _case(folder):

@@ -64,7 +64,7 @@ def test_least_squares_never_returns_a_negative_beta(cruise, monkeypatch):
 
 @pytest.fixture(scope="module")
 def cruise_post(cruise):
-    return fitlug.sample_posterior(cruise, seed=3, time_budget_s=8.0, target_ess=200)
+    return fitlug.sample_posterior(cruise, seed=3, target_ess=200)
 
 
 def test_posterior_none_with_reason_and_inference_data_in_memory(cruise_post):

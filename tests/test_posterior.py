@@ -1,10 +1,13 @@
 """The posterior of the slip law: calibrated against known truth, and the sampler itself.
 
-Statistical tests with fixed seeds (emcee's own integration tests are the model): 16
-simulated recordings with known slip and rolling resistance, each fitted and sampled; the
-intervals must cover the truth as often as they claim, within bounds that a sampler with
-intervals twice too wide or too narrow fails. The ensemble driver is checked on
-distributions known in closed form.
+Statistical tests with fixed seeds (emcee's own integration tests are the model): 4
+simulated recordings with known slip and rolling resistance, each fitted and sampled; per
+recording the posterior std must equal the least-squares one (a nearly linear problem)
+and the chain must be converged. The calibration over many recordings (how often the 90 %
+and 95 % intervals hold the truth, z and the probability integral transform) is
+benchmarks/bench_posterior.py's part (a), over >= 100 recordings: a 16-recording sweep
+here took a quarter of this file's time (issue 43, item 6). The ensemble driver is
+checked on distributions known in closed form.
 """
 
 import json
@@ -25,7 +28,7 @@ from fitlug.sim import Scenario, rig_of, simulate
 
 # short recordings (300 frames, 6 lug + 2 body markers): ~4 s per fit on 2 cores
 SHORT = Scenario(duration_s=3.0, travel_mm=300, rest_s=0.3, ramp_s=0.8, lug_markers=6)
-SEEDS = tuple(range(7100, 7116))  # 16 recordings (CI time: each compiles its own)
+SEEDS = tuple(range(7100, 7104))  # 4 recordings (CI time: each compiles its own)
 QUANTITIES = ("slip", "rolling_resistance", "stiffness_N_per_mm")
 
 
@@ -42,41 +45,12 @@ def runs():
         sc = _scenario(seed)
         rec, truth = simulate(sc, seed)
         res = fit(rec, rig_of(sc), noise={"lug": sc.noise_lug_mm, "body": sc.noise_body_mm})
-        post = sample_posterior(res, seed=seed, time_budget_s=60.0)
+        post = sample_posterior(res, seed=seed)
         out.append((truth, res, post))
         # each recording's knots are static in its layout, so it compiles its own functions:
         # drop them, or a long test session runs out of LLVM code memory
         jax.clear_caches()
     return out
-
-
-def _interval(x, level):
-    a = 50 * (1 - level)
-    return np.percentile(x, [a, 100 - a])
-
-
-def test_intervals_cover_the_truth(runs):
-    for q in QUANTITIES:
-        hits = {0.9: 0, 0.95: 0}
-        for truth, _, post in runs:
-            for level in hits:
-                lo, hi = _interval(post.samples[q], level)
-                hits[level] += lo <= truth[q] <= hi
-        # binomial(16, 0.9): P(<= 11) = 0.017; binomial(16, 0.95): P(<= 12) = 0.007
-        assert hits[0.9] >= 12, (q, hits)
-        assert hits[0.95] >= 13, (q, hits)
-
-
-def test_errors_scaled_by_the_posterior_std_are_standard_normal(runs):
-    # mean z^2 over 16 is chi2_16 / 16: [0.32, 2.14] holds 99 %; intervals 2x too wide
-    # give ~0.25, 2x too narrow ~4
-    for q in QUANTITIES:
-        z = np.array([(np.median(p.samples[q]) - t[q]) / np.std(p.samples[q])
-                      for t, _, p in runs])
-        assert 0.32 <= np.mean(z ** 2) <= 2.14, (q, z)
-        # probability integral transform: the truth's quantile in the posterior is uniform
-        pit = [np.mean(p.samples[q] < t[q]) for t, _, p in runs]
-        assert stats.kstest(pit, "uniform").pvalue > 0.01, (q, pit)
 
 
 def test_posterior_std_agrees_with_least_squares(runs):
@@ -114,8 +88,9 @@ def test_exact_marginal_agrees_with_its_gaussian_limit(runs):
     _, res, gauss = runs[0]
     # the sampler stops once converged; the wall budget is only a guard (120 s ran out on
     # a machine with load average 14)
-    exact = sample_posterior(res, seed=3, method="exact", target_ess=300,
-                             min_tau_multiple=30, time_budget_s=900)
+    # ESS 200: the means' Monte Carlo error 0.07 sd, the std's 5 % (bounds 0.3 sd, 20 %)
+    exact = sample_posterior(res, seed=3, method="exact", target_ess=200,
+                             min_tau_multiple=20)
     assert exact.method.startswith("exact")
     assert exact.converged
     for q in ("slip", "stiffness_N_per_mm"):
@@ -124,20 +99,23 @@ def test_exact_marginal_agrees_with_its_gaussian_limit(runs):
         assert 0.8 < e.std / g.std < 1.25, q
 
 
-def test_time_budget_stops_and_says_not_converged(runs):
+def test_step_limit_and_wall_guard_stop_and_say_not_converged(runs):
     _, res, _ = runs[1]
-    post = sample_posterior(res, seed=0, time_budget_s=1e-6)
+    post = sample_posterior(res, seed=0, max_steps=100)  # deterministic: a step limit
     m = post.mcmc_json()
     assert m["converged"] is False and m["status"] == "not converged"
-    assert m["message"].startswith("not converged")
+    assert m["message"].startswith("not converged: stopped at 100 steps")
     assert np.isfinite(post.estimates["slip"].value)
+    with pytest.warns(RuntimeWarning, match="wall-time guard.*NOT reproducible"):
+        post = sample_posterior(res, seed=0, time_budget_s=1e-6)  # the guard: says so
+    assert post.mcmc_json()["message"].startswith("not converged: stopped by the wall-time")
 
 
 def test_seeded_and_reproducible(runs):
     _, res, post = runs[2]
-    again = sample_posterior(res, seed=SEEDS[2], time_budget_s=60.0)
+    again = sample_posterior(res, seed=SEEDS[2])
     np.testing.assert_array_equal(again.samples["slip"], post.samples["slip"])
-    other = sample_posterior(res, seed=SEEDS[2] + 1, time_budget_s=60.0)
+    other = sample_posterior(res, seed=SEEDS[2] + 1)
     assert not np.array_equal(other.samples["slip"], post.samples["slip"])
 
 
@@ -250,6 +228,32 @@ def test_driver_respects_a_truncating_prior(capsys):
     assert abs(x.mean() - tn.mean()) < 5 * tn.std() / np.sqrt(ch.ess[0])
     thin = ch.samples[::int(math.ceil(2 * ch.tau.max()))].ravel()
     assert stats.kstest(thin, tn.cdf).pvalue > 1e-3
+
+
+def _gauss_2d(x):
+    x = np.atleast_2d(x)
+    return -0.5 * (x[:, 0] ** 2 + ((x[:, 1] - 0.9 * x[:, 0]) / 0.3) ** 2)
+
+
+def test_chain_is_the_same_on_a_busy_machine(monkeypatch):
+    """Issue 43: the stopping rule reads the chain, not the clock. A clock 50 s further on
+    at every read (a machine 100x slower) leaves the samples bit for bit the same."""
+    import fitlug.posterior._mcmc as mcmc
+
+    p0 = np.random.default_rng(3).normal(0, 0.3, (16, 2))
+    quiet = run_ensemble(_gauss_2d, p0, names=("a", "b"), seed=4, target_ess=300)
+    ticks = iter(range(0, 10 ** 9, 50))
+    monkeypatch.setattr(mcmc, "_clock", lambda: float(next(ticks)))
+    busy = run_ensemble(_gauss_2d, p0, names=("a", "b"), seed=4, target_ess=300)
+    assert quiet.converged and busy.converged
+    assert busy.steps == quiet.steps
+    np.testing.assert_array_equal(busy.samples, quiet.samples)
+    # the guard is reached only when something is wrong, and then says so loudly
+    ticks = iter(range(0, 10 ** 9, 1000))
+    with pytest.warns(RuntimeWarning, match="wall-time guard of 900 s"):
+        stuck = run_ensemble(_gauss_2d, p0, names=("a", "b"), seed=4, target_ess=300)
+    assert not stuck.converged and "wall-time guard" in stuck.reason
+    assert stuck.steps == mcmc.CHECK_EVERY
 
 
 def test_driver_refuses_a_bad_start():

@@ -90,7 +90,7 @@ def point_of_fit(res, name: str, verdict: str | None = None) -> dict:
 
 def fit_recording(csv_path: str, out_dir: str, *, rig_path: str | None = None, name=None,
                   seed: int = 0, explain: bool = True, mcmc: bool = True,
-                  report: bool = True, mcmc_budget: float = 60.0, resume: bool = True,
+                  report: bool = True, mcmc_budget: float = 900.0, resume: bool = True,
                   recording=None, rig=None) -> dict:
     """Fit one recording into `out_dir` (fit.json, report.html) and return its summary:
     {"name", "input", "out", "status": "fitted" | "unchanged" | "failed", "error",

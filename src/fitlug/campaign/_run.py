@@ -117,7 +117,7 @@ def _run_dask(jobs, *, scheduler, workers, progress):
 
 def campaign(recordings, *, out: str | None = None, scheduler: str | None = None,
              workers: int = 1, seed: int = 0, explain: bool = True, mcmc: bool = True,
-             report: bool = True, resume: bool = True, mcmc_budget: float = 60.0,
+             report: bool = True, resume: bool = True, mcmc_budget: float = 900.0,
              progress: bool = False, write: bool = True, alpha: float = _model.FLAG_ALPHA,
              campaign_budget_s: float = 600.0) -> CampaignResult:
     """Fit a campaign: every recording in full, then the track's shared slip law.

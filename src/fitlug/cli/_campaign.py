@@ -26,8 +26,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-report", action="store_true", help="no per-recording report.html")
     p.add_argument("--no-resume", action="store_true",
                    help="refit every recording even when its inputs are unchanged")
-    p.add_argument("--mcmc-budget", type=positive_seconds, default=60.0, metavar="S",
-                   help="time budget of each recording's sampler in seconds (default 60)")
+    p.add_argument("--mcmc-budget", type=positive_seconds, default=900.0, metavar="S",
+                   help="wall-time guard of each recording's sampler in seconds (default "
+                        "900); the chain stops on effective samples, the same on any machine")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
 
 

@@ -17,11 +17,83 @@ def say(args, *lines: str) -> None:
             print(line, flush=True)
 
 
+PROGRESS_EVERY_S = 3.0  # at most one progress line this often (a stage's last one always)
+_STAGE = {"name": "", "t0": 0.0, "printed": 0.0, "compiled": set()}
+
+
 def stage(args, name: str, detail: str = "") -> None:
     """One line as a stage starts (reading, fitting, explaining, sampling, report), so a
     long compile or fit never leaves the terminal silent."""
+    import time
+
+    now = time.perf_counter()
+    _STAGE.update(name=name, t0=now, printed=now)
     if not getattr(args, "quiet", False):
         print(f"[{name}] {detail}".rstrip(), flush=True)
+
+
+class _Lines:
+    """fitlug.progress's records as '[stage] what (12.3 s)' lines on stdout, at most one
+    every PROGRESS_EVERY_S seconds (a stage's last record always), and one line the first
+    time a stage compiles a program for real (fitlug._progress.watch_compiles)."""
+
+    def __init__(self):
+        import logging
+
+        class Handler(logging.Handler):
+            def emit(inner, record):  # noqa: N805 - the handler's self; the outer is ours
+                self.line(getattr(record, "stage", "") or _STAGE["name"],
+                          record.getMessage(), bool(getattr(record, "last", False)))
+
+        self.handler = Handler(level=logging.INFO)
+
+    def line(self, name, message, last):
+        import time
+
+        now = time.perf_counter()
+        if not last and now - _STAGE["printed"] < PROGRESS_EVERY_S:
+            return
+        _STAGE["printed"] = now
+        print(f"[{name}] {message} ({now - _STAGE['t0']:.1f} s)", flush=True)
+
+    def compiled(self, fun_name, seconds):
+        name = _STAGE["name"]
+        if name in _STAGE["compiled"]:
+            return
+        _STAGE["compiled"].add(name)
+        print(f"[{name}] compiling for this recording's shapes (new to this machine's "
+              "cache: a first run takes tens of seconds more)", flush=True)
+
+
+class progress_lines:
+    """Context manager of the command's progress lines (nothing with --quiet): stage
+    counts from fitlug.progress, the compile notice only when a compile happens."""
+
+    def __init__(self, args):
+        self.on = not getattr(args, "quiet", False)
+
+    def __enter__(self):
+        if self.on:
+            import logging
+
+            from .._progress import LOG, watch_compiles
+
+            _STAGE["compiled"] = set()
+            self.lines = _Lines()
+            self.level = LOG.level
+            LOG.addHandler(self.lines.handler)
+            LOG.setLevel(logging.INFO)
+            watch_compiles(self.lines.compiled)
+        return self
+
+    def __exit__(self, *exc):
+        if self.on:
+            from .._progress import LOG, unwatch_compiles
+
+            unwatch_compiles(self.lines.compiled)
+            LOG.removeHandler(self.lines.handler)
+            LOG.setLevel(self.level)
+        return False
 
 
 def progress_bar(total=None, desc: str = "", unit: str = "it", enabled: bool = True):

@@ -7,8 +7,11 @@ import os
 import time
 
 from . import _outdir
-from ._common import (check_out_folder, positive_seconds, progress_enabled, recording_name, say,
-                      seed_arg, stage)
+from ._common import (check_out_folder, positive_seconds, progress_enabled, progress_lines,
+                      recording_name, say, seed_arg, stage)
+
+
+GUARD_S = 900.0  # fitlug.posterior._mcmc.GUARD_S (not imported: the command starts cheap)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -21,8 +24,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-explain", action="store_true",
                    help="do not look for left-out physics (base model only)")
     p.add_argument("--no-report", action="store_true", help="write fit.json but no report.html")
-    p.add_argument("--mcmc-budget", type=positive_seconds, default=60.0, metavar="S",
-                   help="time budget of the sampler in seconds (default 60)")
+    p.add_argument("--mcmc-budget", type=positive_seconds, default=GUARD_S, metavar="S",
+                   help="wall-time guard of the sampler in seconds (default 900), reached only "
+                        "when something is wrong: the chain stops on effective samples, the "
+                        "same on any machine")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
     from ._import import add_source_options
 
@@ -41,8 +46,16 @@ def run(args) -> int:
     out = args.out or _outdir.default_folder(args.csv, recording_name(args.csv))
     check_out_folder(out, "--out" if args.out else "output folder")
     run_id = _outdir.new_run_id()
-    with _outdir.locked(out, run_id, "--out" if args.out else "output folder"):
+    with _outdir.locked(out, run_id, "--out" if args.out else "output folder"), \
+            progress_lines(args):
         return _run(args, rec, rig, out, run_id, t_start)
+
+
+def _frames(rec) -> int:
+    """The recording's frame count (distinct times), for the fitting line."""
+    import numpy as np
+
+    return int(np.unique(np.asarray(rec.t)).size) if hasattr(rec, "t") else 0
 
 
 def _size_note(path: str) -> str:
@@ -62,8 +75,7 @@ def _run(args, rec, rig, out, run_id, t_start) -> int:
 
     prog = progress_enabled(args)
 
-    stage(args, "fitting", f"{len(rec.markers)} markers; the first run compiles the model "
-                           "(tens of seconds)")
+    stage(args, "fitting", f"{len(rec.markers)} markers, {_frames(rec)} frames")
     from ..fit import fit
 
     preload = not (args.no_report and args.no_mcmc)  # posterior.nc or the report follows
@@ -83,7 +95,7 @@ def _run(args, rec, rig, out, run_id, t_start) -> int:
         final = expl.final
     post = None
     if not args.no_mcmc:
-        stage(args, "sampling", f"posterior (emcee), budget {args.mcmc_budget:g} s")
+        stage(args, "sampling", "posterior (emcee), until the effective samples suffice")
         from ..posterior import sample_posterior
 
         post = sample_posterior(final, seed=args.seed, progress=prog,
@@ -140,7 +152,7 @@ def _command_line(args) -> str:
             parts += [opt, str(getattr(args, key))]
     if getattr(args, "seed", 0):
         parts += ["--seed", str(args.seed)]
-    if getattr(args, "mcmc_budget", 60.0) != 60.0:
+    if getattr(args, "mcmc_budget", GUARD_S) != GUARD_S:
         parts += ["--mcmc-budget", f"{args.mcmc_budget:g}"]
     for opt in ("format", "fps", "mm_per_px", "calib", "body", "length_unit", "y_origin",
                 "likelihood"):  # other trackers' files (cli/_import.py)

@@ -38,6 +38,7 @@ import time
 
 import numpy as np
 
+from .. import _progress
 from .._errors import FitlugError
 from ..model import CATALOG
 from . import _display
@@ -126,6 +127,8 @@ def _explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA
             # a base that the sliding law distorts can hide it from the screening's
             # linear step (issue 32): its direct fit below decides
             to_fit.append("lug_sliding")
+        _progress.note("explaining", f"round {rnd + 1}: {len(cands)} candidates screened, "
+                       f"{len(to_fit)} to fit")
         M_cur, _ = structured_misfit(geo, r)
         tried = {e: {"id": e, "delta_bic_linear": lin[e], "start": scr[e].label}
                  for e in order}
@@ -136,7 +139,9 @@ def _explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA
             # even 3 times the Gauss-Newton prediction cannot bring it below the bar
             return c2 - 3.0 * predicted - chi2 + k_e * lnN > bar_bic
 
-        for e in to_fit:
+        for i_fit, e in enumerate(to_fit):
+            _progress.note("explaining", f"round {rnd + 1}: fitting candidate {i_fit + 1}/"
+                           f"{len(to_fit)} ({e})")
             t1 = time.perf_counter()
             k_e = eng.n_free(e)
             out = eng.fit(_start(eng, scr[e], chi2, extra + eng.free_names(e)),

@@ -1,12 +1,20 @@
-"""emcee driven until the chain is long enough to trust, or a time budget runs out.
+"""emcee driven until the chain is long enough to trust, or a step limit is reached.
 
 The stopping rule is emcee's own advice made mechanical: estimate the integrated
 autocorrelation time tau of every parameter on the chain after burn-in, and stop once
 the kept chain is at least `min_tau_multiple` tau long (below ~50 tau the estimate of
 tau itself is biased low) and the effective sample size walkers * kept / tau reaches
 `target_ess` for every parameter. Burn-in is 2 tau (walkers start from the least-squares
-solution and its covariance, already in the typical set). A chain stopped by the time
-budget is returned with converged=False and a reason, never silently.
+solution and its covariance, already in the typical set).
+
+The rule looks at the chain only, every CHECK_EVERY steps, and the chain is a function
+of the seed: the same seed gives the same samples on a quiet or a busy machine (issue 43:
+a 60 s wall budget stopped a busy machine's chain at 218 steps, unconverged, where the
+same command alone converged). A chain that reaches `max_steps` unconverged is returned
+with converged=False and a reason, never silently. The wall-time guard (`time_budget_s`)
+is a safety net, checked at the same points: it is reached only when something is wrong
+(a log-probability far slower than it should be), and then a RuntimeWarning says so and
+that the result depends on the machine's speed.
 
 Move: differential evolution (emcee's DEMove) instead of the default stretch move. On the
 slip law's nearly Gaussian, strongly correlated 2-3 dimensional posteriors it gives
@@ -21,12 +29,18 @@ from __future__ import annotations
 import math
 import sys
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
+from .. import _progress
+
 CHECK_EVERY = 100  # steps between convergence checks (a check costs ~1 ms)
 MIN_STEPS = 200
+MAX_STEPS = 20_000  # ~30 x the steps a converged slip-law chain takes (tau ~ 10: ~600)
+GUARD_S = 900.0  # the default wall-time guard: reached only when something is wrong
+_clock = time.perf_counter  # the guard's clock (tests put a slow one in its place)
 
 
 @dataclass
@@ -75,13 +89,18 @@ def autocorr_time(chain: np.ndarray) -> np.ndarray:
 
 
 def run_ensemble(log_prob, p0: np.ndarray, *, names, seed: int = 0,
-                 time_budget_s: float = 60.0, min_tau_multiple: float = 50.0,
-                 target_ess: float = 1000.0, max_steps: int = 1_000_000,
+                 time_budget_s: float = GUARD_S, min_tau_multiple: float = 50.0,
+                 target_ess: float = 1000.0, max_steps: int = MAX_STEPS,
                  progress: bool = False) -> Chain:
-    """Run emcee's affine-invariant ensemble from `p0` until converged or out of time.
+    """Run emcee's affine-invariant ensemble from `p0` until converged or `max_steps`.
 
     log_prob: vectorised, (m, ndim) -> (m,) (emcee's vectorize=True); -inf outside the
     prior. p0: (walkers, ndim) starting positions, all with finite log_prob.
+    max_steps: the deterministic limit (then converged=False and the reason).
+    time_budget_s: wall-clock guard in seconds, checked with the convergence every
+    CHECK_EVERY steps; reaching it warns (RuntimeWarning): the chain then depends on the
+    machine's speed. progress: a tqdm bar on stderr (only on a terminal). Each check is
+    noted to fitlug.progress (steps, ESS and tau so far: the command line's lines).
     Raises ValueError if p0 has a non-finite log-probability or too few walkers.
     """
     import emcee
@@ -90,6 +109,8 @@ def run_ensemble(log_prob, p0: np.ndarray, *, names, seed: int = 0,
     walkers, ndim = p0.shape
     if walkers < 2 * ndim or walkers % 2:
         raise ValueError(f"walkers must be even and >= 2 * ndim = {2 * ndim}; got {walkers}")
+    if int(max_steps) < 1:
+        raise ValueError(f"max_steps must be >= 1, not {max_steps}")
     lp0 = np.asarray(log_prob(p0))
     if not np.all(np.isfinite(lp0)):
         raise ValueError(f"{int(np.sum(~np.isfinite(lp0)))} of {walkers} starting positions "
@@ -100,17 +121,17 @@ def run_ensemble(log_prob, p0: np.ndarray, *, names, seed: int = 0,
     state = emcee.State(p0, log_prob=lp0,
                         random_state=np.random.RandomState(rng.integers(2 ** 31)).get_state())
     bar = _progress_bar(progress)
-    t0 = time.perf_counter()
+    t0 = _clock()
+    wall0 = time.perf_counter()
     converged, reason = False, ""
     tau = np.full(ndim, np.inf)
     discard = 0
     try:
         while True:
-            for state in sampler.sample(state, iterations=CHECK_EVERY,
+            block = int(min(CHECK_EVERY, max_steps - sampler.iteration))
+            for state in sampler.sample(state, iterations=block,
                                         skip_initial_state_check=True):
                 bar.update(1)
-                if time.perf_counter() - t0 > time_budget_s:
-                    break
             n = sampler.iteration
             chain = sampler.get_chain()
             tau_all = autocorr_time(chain)
@@ -120,15 +141,29 @@ def run_ensemble(log_prob, p0: np.ndarray, *, names, seed: int = 0,
             ess = walkers * kept / tau
             long_enough = bool(np.all(kept >= min_tau_multiple * tau))
             bar.set_postfix_str(f"tau={np.max(tau):.1f} ESS={np.min(ess):.0f}")
-            if n >= MIN_STEPS and long_enough and np.all(ess >= target_ess):
+            done = n >= MIN_STEPS and long_enough and np.all(ess >= target_ess)
+            _progress.note("sampling", f"{n} steps, ESS {np.min(ess):.0f} (target "
+                           f"{target_ess:g}), chain {kept / np.max(tau):.0f} tau long "
+                           f"(needs {min_tau_multiple:g})" + (", converged" if done else ""),
+                           last=bool(done or n >= max_steps))
+            if done:
                 converged = True
                 break
-            if time.perf_counter() - t0 > time_budget_s or n >= max_steps:
-                limit = (f"time budget of {time_budget_s:g} s" if n < max_steps
-                         else f"{max_steps} steps")
-                reason = (f"not converged: stopped at the {limit} with the chain "
-                          f"{kept / np.max(tau):.1f} tau long (needs {min_tau_multiple:g}) "
-                          f"and ESS {np.min(ess):.0f} (target {target_ess:g})")
+            state_of = (f"the chain {kept / np.max(tau):.1f} tau long (needs "
+                        f"{min_tau_multiple:g}) and ESS {np.min(ess):.0f} (target "
+                        f"{target_ess:g})")
+            if n >= max_steps:
+                reason = f"not converged: stopped at {max_steps} steps with {state_of}"
+                break
+            if _clock() - t0 > time_budget_s:
+                reason = (f"not converged: stopped by the wall-time guard of "
+                          f"{time_budget_s:g} s at {n} steps with {state_of}; this chain "
+                          "depends on the machine's speed")
+                warnings.warn(f"the sampler reached its wall-time guard of {time_budget_s:g} "
+                              f"s after {n} steps, long before its step limit ({max_steps}): "
+                              "something is wrong (a log-probability far slower than "
+                              "expected, or a starved machine); its result is NOT "
+                              "reproducible and not converged", RuntimeWarning, stacklevel=2)
                 break
     finally:
         bar.close()
@@ -140,7 +175,7 @@ def run_ensemble(log_prob, p0: np.ndarray, *, names, seed: int = 0,
                  tau=tau, ess=walkers * kept / tau,
                  acceptance=np.asarray(sampler.acceptance_fraction), steps=int(n),
                  discard=int(discard), converged=converged, reason=reason,
-                 seconds=time.perf_counter() - t0)
+                 seconds=time.perf_counter() - wall0)
 
 
 def _burn_in(tau: np.ndarray, n: int) -> int:

@@ -6,7 +6,8 @@ derivation is at the top of :mod:`._marginal`, with its two evaluations, 'exact'
 method='auto' (default) evaluates the exact marginal at 2-sigma points around the
 optimum (principal axes and diagonals) and uses the Gaussian limit only when it agrees
 to `LINEARITY_TOL` in delta-chi^2 everywhere there; otherwise it samples the exact
-marginal under the time budget. The check's largest discrepancy is reported.
+marginal. The check's largest discrepancy is reported. The chain stops on effective
+samples (`._mcmc`): the same seed gives the same digits on a quiet or a busy machine.
 
 When fitlug.explain leaves a misfit unexplained (res.robust set), the white-noise
 likelihood is orders of magnitude too confident: it is stretched to the cluster-robust
@@ -31,7 +32,7 @@ from ..fit._result import Estimate, FitResult
 from ._derived import REPORTED, _derived_samples, _estimate
 from ._identify import not_identifiable
 from ._marginal import LINEARITY_TOL, _Marginal, slip_law_parameters
-from ._mcmc import run_ensemble
+from ._mcmc import GUARD_S, MAX_STEPS, run_ensemble
 from ._posterior import Posterior
 from ._priors import _log_prior
 from ._tempering import tempered_marginal
@@ -65,14 +66,19 @@ def _exact_log_prob(marg: _Marginal):
 
 
 def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
-                     time_budget_s: float = 60.0, walkers: int = 32,
+                     time_budget_s: float = GUARD_S, walkers: int = 32,
                      min_tau_multiple: float = 50.0, target_ess: float = 1000.0,
-                     method: str = "auto", prior=None) -> Posterior:
+                     method: str = "auto", prior=None,
+                     max_steps: int = MAX_STEPS) -> Posterior:
     """Sample the posterior of the slip law of a least-squares fit; see the module docstring.
 
     res: a converged FitResult. seed: everything random (walker starts, emcee moves).
-    progress: a tqdm bar on stderr (only on a terminal). time_budget_s: wall-clock limit of
-    the chain (then converged=False and the reason in mcmc_json()). method: 'auto',
+    progress: a tqdm bar on stderr (only on a terminal). The chain stops once its effective
+    sample size reaches `target_ess` and it is `min_tau_multiple` autocorrelation times
+    long, or at `max_steps` (then converged=False and the reason in mcmc_json()): a
+    function of the seed, not of the machine's speed. time_budget_s: a wall-clock guard
+    in seconds, reached only when something is wrong (it warns; see `._mcmc`).
+    method: 'auto',
     'gaussian' or 'exact'. prior: fitlug.Parameters or {name: fitlug.Prior} on s0, beta,
     k, C_rr or a replacing slip law's parameters (default: the priors `res` was fitted
     with, ``res.constraints``); parameters the fit held stay held.
@@ -113,12 +119,9 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
 
     rng = np.random.default_rng(seed)
     p0 = _start(marg, walkers, rng)
-    # the chain keeps at least half the budget, however long the set-up took (compiles
-    # on a loaded machine): a chain starved to a few steps would report its start spread
-    budget = max(time_budget_s - (time.perf_counter() - t0), 0.5 * time_budget_s)
     chain = run_ensemble(log_prob, p0, names=names, seed=int(rng.integers(2 ** 31)),
-                         time_budget_s=budget, min_tau_multiple=min_tau_multiple,
-                         target_ess=target_ess, progress=progress)
+                         time_budget_s=time_budget_s, min_tau_multiple=min_tau_multiple,
+                         target_ess=target_ess, max_steps=max_steps, progress=progress)
     t2 = time.perf_counter()
     samples = _derived_samples(res, names, chain.flat())
     _slip_term(samples, res, rng)
@@ -149,7 +152,8 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
                      method=f"{use}: {desc}", check=check, seed=seed,
                      not_identifiable=unident, uncertainty_method=how, temper=temper,
                      seconds=time.perf_counter() - t0, n_marginalised=marg.n_marginalised,
-                     settings={"time_budget_s": time_budget_s, "min_tau_multiple":
+                     settings={"time_budget_s": time_budget_s, "max_steps": max_steps,
+                               "min_tau_multiple":
                                min_tau_multiple, "target_ess": target_ess,
                                "requested_method": method},
                      timings={"marginal_and_check": t1 - t0, "chain": t2 - t1,

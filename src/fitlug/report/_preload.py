@@ -52,6 +52,12 @@ def _run() -> None:
         matplotlib.use("Agg", force=False)
         import matplotlib.pyplot  # noqa: F401
         import corner  # noqa: F401
+        import warnings
+
+        # ArviZ's FutureWarning about its refactor, on every import: one targeted filter
+        # (not catch_warnings, which would swap the process's filters under the main thread)
+        warnings.filterwarnings("ignore", message="ArviZ is undergoing a major refactor",
+                                category=FutureWarning)
         import arviz  # noqa: F401
     except Exception:  # noqa: BLE001 - the report imports them again and says what failed
         return

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import jax.numpy as jnp
 import numpy as np
 
+from ... import _progress
 from ..._errors import FitlugError
 from ...fit._glitches import MAX_RUN, threshold
 from .._detect import detect
@@ -128,6 +129,8 @@ def discover(res, parts: list, det, J=None) -> Discovery:
         for F in fams:
             if any(t.choice.family == F.name for t in kept):
                 continue
+            _progress.note("explaining", f"family terms: trying {F.name} (term {len(kept) + 1}, "
+                           f"{len(tried) + 1} tried), {len(fams)} families apply")
             ch = F.fit(ctx, proj, parts)
             if ch is None:
                 tried.append({"family": F.name, "rejected_because": (
