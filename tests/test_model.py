@@ -66,7 +66,8 @@ def _small_layout(effects):
               "bounce_A": 0.05, "bounce_B": 1e-3, "bounce_phi": 0.3, "slide_mu": 4.0,
               "sag_d": 0.5, "sink_z": 0.3, "sink_us": 20.0, "lens_k1": 2e-7, "lens_cx": 10.0,
               "lens_cy": 20.0, "depth_eps": 0.01, "depth_cx": 5.0, "depth_cy": 2.0,
-              "tilt_theta": 0.01, "drop_dt": 0.01, "drop_tstar": 0.52}
+              "tilt_theta": 0.01, "drop_dt": 0.01, "drop_tstar": 0.52,
+              "shear_h": 0.3, "shear_tau": 0.03}
     for e in effects:
         for k in CATALOG[e].defaults:
             p[k] = jnp.asarray(values[k])

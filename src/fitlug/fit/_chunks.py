@@ -236,11 +236,26 @@ def time_blocks(lay, obs: dict, max_rows: int | None = None,
 
 def chunkable(p: dict, lay, packing: Packing) -> bool:
     """Whether the chunked normal equations apply: speed spline, s0, beta and sigma0 free,
-    and no belt-locked speed modulation (which makes psi's ODE non-local in theta)."""
+    no belt-locked speed modulation (which makes psi's ODE non-local in theta) and no lug
+    marker below the pitch line away from h = 1 (its lag reads where its lug touched
+    down)."""
     from ..model._model import _hook
 
     return (all(k in packing.names for k in ("v", "s0", "beta", "sigma0"))
-            and not _hook(lay, "speed"))
+            and not _hook(lay, "speed") and not _lagging(p, lay))
+
+
+def _lagging(p: dict, lay) -> bool:
+    """Whether a lug marker below the pitch line (lug_shear at h != 1) makes a sample's
+    position depend on the motion where its lug touched down: not local in time."""
+    from ..model._model import _hook
+
+    if not _hook(lay, "lug_lag"):
+        return False
+    try:
+        return float(np.asarray(p.get("shear_h", 1.0))) != 1.0
+    except (TypeError, ValueError):  # a traced value: cannot tell, so not chunkable
+        return True
 
 
 @eqx.filter_jit
