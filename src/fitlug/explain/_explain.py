@@ -42,6 +42,7 @@ from .._errors import FitlugError
 from ..model import CATALOG
 from . import _display
 from ._candidates import physical, screen, sliding_starts
+from ._correlated import effective_delta_bic, inflation_geo
 from ._criterion import BIC_THRESHOLD, MIN_SHARE_REMOVED, STRONG_MISFIT_Z
 from .families import after_catalog
 from ._detect import ALPHA, detect
@@ -142,9 +143,16 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
             M_new, _ = structured_misfit(geo, out.r)
             gain = chi2 - out.chi2
             removed = gain / max(excess, gain) if gain > 0 else 0.0
+            # the tracker's correlated error left with the effect in (issue 42)
+            c_corr = inflation_geo(geo, out.r)
+            dbic_corr = effective_delta_bic(gain, eng.n_free(e), lnN, c_corr)
             why = physical(e, eng.params(out.theta))
             if why is None and dbic >= BIC_THRESHOLD:
                 why = f"delta BIC {dbic:.1f} is not below {BIC_THRESHOLD:g}"
+            if why is None and dbic_corr >= BIC_THRESHOLD:
+                why = (f"delta BIC {dbic_corr:.1f} with the chi2 it removes deflated by the "
+                       f"residuals' correlation ({c_corr:.3g}, what a tracker's correlated "
+                       f"error makes) is not below {BIC_THRESHOLD:g}")
             if why is None and strong and removed < MIN_SHARE_REMOVED:
                 why = (f"removes {100 * removed:.0f} % of the excess chi2 (needs "
                        f"{100 * MIN_SHARE_REMOVED:.0f} %)")
@@ -153,7 +161,9 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
             fits[e] = (out, dbic, removed, why)
             if why is None:
                 bar_bic = min(bar_bic, dbic)
-            tried[e].update({"delta_bic": dbic, "chi2_per_dof": out.chi2 / (N - k_cur - eng.n_free(e)),
+            tried[e].update({"delta_bic": dbic, "correlation_inflation": c_corr,
+                             "delta_bic_correlated": dbic_corr,
+                             "chi2_per_dof": out.chi2 / (N - k_cur - eng.n_free(e)),
                              "misfit_removed_share": removed,
                              "structured_misfit_removed_share":
                                  (M_cur - M_new) / M_cur if M_cur > 0 else None,
