@@ -90,3 +90,41 @@ def describe(geo, r) -> dict:
         out[name] = {"inflation": c, "white_um": white,
                      "correlated_um": white * float(np.sqrt(q))}
     return out
+
+
+#: the largest systematic error a sub-pixel tracker makes at one place: pixel locking up to
+#: LOCK_PX px plus a drift of DRIFT_UM (issue 42: 0.004-0.012 px, 1-3 um)
+LOCK_PX = 0.012
+DRIFT_UM = 3.0
+MM_PER_PX_DEFAULT = 0.45  # the coarsest image scale of the issue's cameras
+
+
+def tracker_level_um(rec) -> float:
+    """The tracker's systematic level (um) for recording `rec`: LOCK_PX at its image scale
+    (from its x_px column, else MM_PER_PX_DEFAULT) plus DRIFT_UM. A feature no larger than
+    this, the tracker can make."""
+    scale = MM_PER_PX_DEFAULT
+    if getattr(rec, "x_px", None) is not None:
+        ok = np.isfinite(rec.x_px) & np.isfinite(rec.x)
+        if ok.sum() > 10 and np.ptp(rec.x_px[ok]) > 0:
+            s = float(abs(np.polyfit(rec.x_px[ok], rec.x[ok], 1)[0]))
+            if np.isfinite(s) and s > 0:
+                scale = s
+    return 1000.0 * LOCK_PX * scale + DRIFT_UM
+
+
+def implausible(choice, res) -> str | None:
+    """Why a family term's reading is not physics the rig can have (issue 42), or None:
+    a ground profile whose peak is no larger than the tracker's systematic level, or
+    narrower than the grid it is read on (a spike of the spline, 'over 0 mm')."""
+    if choice.family != "ground profile":
+        return None
+    params, _ = choice.describe(choice.fitted.c)
+    level = tracker_level_um(res.problem.rec)
+    peak = 1000.0 * abs(float(params["peak_mm"]))
+    if peak <= level:
+        return (f"its peak {peak:.3g} um is no larger than the tracker's systematic level "
+                f"{level:.3g} um (pixel locking and drift): the tracker can make it")
+    if not float(params["half_height_width_mm"]) > 0:
+        return "its peak is narrower than the grid it is read on: a spike of the spline"
+    return None

@@ -41,7 +41,7 @@ import numpy as np
 from .._errors import FitlugError
 from ..model import CATALOG
 from . import _display
-from ._candidates import physical, screen, sliding_starts
+from ._candidates import in_picture, physical, screen, sliding_starts
 from ._correlated import effective_delta_bic, inflation_geo
 from ._criterion import BIC_THRESHOLD, MIN_SHARE_REMOVED, STRONG_MISFIT_Z
 from .families import after_catalog
@@ -146,7 +146,8 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
             # the tracker's correlated error left with the effect in (issue 42)
             c_corr = inflation_geo(geo, out.r)
             dbic_corr = effective_delta_bic(gain, eng.n_free(e), lnN, c_corr)
-            why = physical(e, eng.params(out.theta))
+            why = physical(e, eng.params(out.theta)) or in_picture(
+                e, eng.params(out.theta), res.problem.rec.x, res.problem.rec.y)
             if why is None and dbic >= BIC_THRESHOLD:
                 why = f"delta BIC {dbic:.1f} is not below {BIC_THRESHOLD:g}"
             if why is None and dbic_corr >= BIC_THRESHOLD:

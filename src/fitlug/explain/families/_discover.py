@@ -30,7 +30,7 @@ from ._ground import GroundProfile
 from ._image import ImageMap
 from ._path import PathShape
 from ._relin import relinearised
-from .._correlated import inflation
+from .._correlated import implausible, inflation
 from ._solve import Projector, chooses
 from ._slip import SlipLaw
 from ._speed import SpeedModulation
@@ -137,7 +137,7 @@ def discover(res, parts: list, det, J=None) -> Discovery:
             # the tracker's correlated error left with the term in (issue 42)
             c_corr = inflation(ctx.marker * 4 + ctx.role * 2 + ctx.axis, ctx.t,
                                r_cur + proj.moved(ch.fitted.B, ch.fitted.c), ctx.valid)
-            why = chooses(ch.fitted, excess, strong, c_corr)
+            why = chooses(ch.fitted, excess, strong, c_corr) or implausible(ch, res)
             tried.append({"family": F.name, "coordinate": ch.coordinate, "form": ch.label,
                           "delta_bic": ch.fitted.delta_bic, "delta_chi2": ch.fitted.dchi2,
                           "correlation_inflation": c_corr, "rejected_because": why})
