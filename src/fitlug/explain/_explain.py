@@ -212,8 +212,9 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
     if not accepted:
         timing["total"] = time.perf_counter() - t_start
         if not loc0.parts:  # a marginal test result that points nowhere: noise
-            return Explanation("none", res, res, [], [], [], det0, det0, loc0, loc0, rounds,
-                               "least squares", timing, geo)
+            final, method = _correlated_errors(res, geo, alpha)
+            return Explanation("none", res, final, [], [], [], det0, det0, loc0, loc0, rounds,
+                               method, timing, geo)
         sysb = tracker_systematics(res, geo, alpha)
         timing["total"] = time.perf_counter() - t_start
         if sysb["why_not"] is None:  # below the tracker's floor: a measurement, not physics
@@ -239,8 +240,11 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
         steps[-1].chi2_per_dof_after = float(final.chi2_per_dof)
         steps[-1].params = final.effect_params(steps[-1].effect)
     sysb = disc = None
-    if det1.consistent or not loc1.parts:
+    if det1.consistent:
         verdict, located, method = "explained", loc0.parts, "least squares"
+    elif not loc1.parts:
+        verdict, located = "explained", loc0.parts
+        final, method = _correlated_errors(final, geo, alpha)
     else:
         sysb = tracker_systematics(final, geo, alpha)
         if sysb["why_not"] is None:  # what is left sits below the tracker's floor
@@ -298,6 +302,20 @@ def _family_instead(res, geo, loc0, det0, sig_est, alpha, final, accepted, verdi
                                                f"with a BIC {bic_cat - bic_alt:.0f} lower "
                                                f"than these catalog entries together")})
     return fam
+
+
+#: the residuals' correlation (explain._correlated) above which a fit whose residuals fail
+#: detection without a located part carries robust errors: a tracker's drift and pixel
+#: locking shift the slip by far more than the least-squares error (issue 42: z 17)
+ROBUST_C = 2.0
+
+
+def _correlated_errors(res, geo, alpha):
+    """(result, method): `res` with robust errors when its residuals are correlated in
+    time beyond ROBUST_C, else as it is."""
+    if inflation_geo(geo, res.residuals) <= ROBUST_C:
+        return res, _method(res)
+    return robust_result(res, geo, alpha)
 
 
 def _method(res) -> str:
