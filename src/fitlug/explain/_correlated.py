@@ -34,37 +34,52 @@ WHITE_C = 1.0
 
 
 def inflation(series: np.ndarray, t: np.ndarray, r: np.ndarray, valid: np.ndarray,
-              blocks_s=BLOCKS_S) -> float:
+              blocks_s=BLOCKS_S, change: np.ndarray | None = None) -> float:
     """c >= 1: the residuals' batch-means variance ratio (see the module), largest over
-    `blocks_s`; 1 when there are too few blocks to tell."""
+    `blocks_s`; 1 when there are too few blocks to tell.
+
+    Per series s, c_s = sum over its blocks of (block sum)^2 over its sum of r^2; c is
+    their average weighted by `change`'s energy per series (a candidate's change of the
+    residuals: its Delta chi^2 is inflated by the correlation of the series it draws
+    from: a term fitted into two body markers' drift by theirs, not by the lugs'), by
+    r^2 without it (the pooled ratio). Less twice its spread under white residuals."""
     ok = valid & np.isfinite(r)
+    if change is not None:
+        ok &= np.isfinite(change)
     if ok.sum() < 20:
         return 1.0
     s, tt, rr = np.asarray(series)[ok], np.asarray(t)[ok], np.asarray(r, float)[ok]
-    tot = float(rr @ rr)
-    if not tot > 0:
-        return 1.0
     _, inv = np.unique(s, return_inverse=True)
-    t0 = np.full(inv.max() + 1, np.inf)
+    n_s = int(inv.max()) + 1
+    r2 = np.bincount(inv, rr * rr, n_s)
+    wt = r2 if change is None else np.bincount(inv, np.asarray(change, float)[ok] ** 2, n_s)
+    if not wt.sum() > 0:
+        return 1.0
+    wt = np.where(r2 > 0, wt, 0.0) / wt.sum()
+    t0 = np.full(n_s, np.inf)
     np.minimum.at(t0, inv, tt)
     best = 1.0
     for b in blocks_s:
         blk = np.floor((tt - t0[inv]) / b).astype(np.int64)
         key = inv.astype(np.int64) * (int(blk.max()) + 1) + blk
-        _, kinv = np.unique(key, return_inverse=True)
-        nb = int(kinv.max()) + 1
+        ukey, kinv = np.unique(key, return_inverse=True)
+        nb = len(ukey)
         if nb < 20:  # too few blocks for a variance
             continue
         sums = np.bincount(kinv, rr)
-        # less twice the estimate's spread under white residuals (relative sqrt(2 / nb)):
-        # white residuals give c = 1 but for a few per cent, not the max of three draws
-        best = max(best, float(sums @ sums) / tot - 2.0 * np.sqrt(2.0 / nb))
+        ser = ukey // (int(blk.max()) + 1)  # the series of each block
+        c_s = np.bincount(ser, sums * sums, n_s) / np.where(r2 > 0, r2, 1.0)
+        nb_s = np.maximum(np.bincount(ser, minlength=n_s), 1)
+        # less twice the estimate's spread under white residuals (per series relative
+        # sqrt(2 / blocks)): white residuals give c = 1 but for a few per cent
+        spread = float(np.sqrt(np.sum(wt * wt * 2.0 / nb_s)))
+        best = max(best, float(wt @ c_s) - 2.0 * spread)
     return best
 
 
-def inflation_geo(geo, r) -> float:
+def inflation_geo(geo, r, change=None) -> float:
     """:func:`inflation` of residuals laid out as fitlug.explain.Geometry `geo`."""
-    return inflation(geo.series, geo.t, np.asarray(r, float), geo.valid)
+    return inflation(geo.series, geo.t, np.asarray(r, float), geo.valid, change=change)
 
 
 def effective_delta_bic(dchi2_removed: float, k: float, lnN: float, c: float) -> float:

@@ -144,7 +144,7 @@ def explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA)
             gain = chi2 - out.chi2
             removed = gain / max(excess, gain) if gain > 0 else 0.0
             # the tracker's correlated error left with the effect in (issue 42)
-            c_corr = inflation_geo(geo, out.r)
+            c_corr = inflation_geo(geo, out.r, np.asarray(out.r) - np.asarray(r))
             dbic_corr = effective_delta_bic(gain, eng.n_free(e), lnN, c_corr)
             why = physical(e, eng.params(out.theta)) or in_picture(
                 e, eng.params(out.theta), res.problem.rec.x, res.problem.rec.y)

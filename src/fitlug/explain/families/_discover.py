@@ -135,8 +135,9 @@ def discover(res, parts: list, det, J=None) -> Discovery:
                     "nothing to fit at its place (no samples there, or none that show it)")})
                 continue
             # the tracker's correlated error left with the term in (issue 42)
+            moved = proj.moved(ch.fitted.B, ch.fitted.c)
             c_corr = inflation(ctx.marker * 4 + ctx.role * 2 + ctx.axis, ctx.t,
-                               r_cur + proj.moved(ch.fitted.B, ch.fitted.c), ctx.valid)
+                               r_cur + moved, ctx.valid, change=moved)
             why = chooses(ch.fitted, excess, strong, c_corr) or implausible(ch, res)
             tried.append({"family": F.name, "coordinate": ch.coordinate, "form": ch.label,
                           "delta_bic": ch.fitted.delta_bic, "delta_chi2": ch.fitted.dchi2,
