@@ -20,12 +20,12 @@ sys.path.insert(0, os.path.dirname(__file__))
 import independent_sim as isim  # noqa: E402
 from realism import tracker_error  # noqa: E402
 
-from fitlug.explain._correlated import inflation  # noqa: E402
-
 QUIET = dict(noise_lug=0.0, noise_body=0.0)
 
 
 def test_transform_draws_the_trackers_error():
+    from fitlug.explain._correlated import inflation
+
     rec, _, _ = isim.make(3, v_max=240.0, **QUIET)
     out, info = tracker_error(rec, seed=3)
     assert 0.2 <= info["mm_per_px"] <= 0.45
@@ -43,6 +43,8 @@ def test_transform_draws_the_trackers_error():
 
 
 def test_inflation_of_white_residuals_is_one():
+    from fitlug.explain._correlated import inflation
+
     rng = np.random.default_rng(0)
     n, T = 20, 600
     t = np.tile(np.arange(T) / 120.0, n)
@@ -52,3 +54,40 @@ def test_inflation_of_white_residuals_is_one():
     assert np.mean(c) < 1.05 and max(c) < 1.25
     offsets = np.repeat(0.5 * rng.standard_normal(n * 10), 60)  # one per 0.5 s block
     assert inflation(s, t, rng.standard_normal(n * T) + offsets, ok) > 5.0
+
+
+# a null at the top of the ranges (pixel locking 0.012 px at 0.45 mm/px, drift
+# 3 um, read noise 1.5 um: the correlated error dominates the white) and one at drawn sizes
+ADVERSE = dict(read_um=1.5, lock_px=0.012, mm_per_px=0.45, drift_um=3.0)
+NULLS = ((1, ADVERSE), (5, {}))
+LENS = {"lens_distortion": {"lens_k1": 2e-8, "lens_cx": 300.0, "lens_cy": 40.0}}
+
+
+def _explained(seed, effects=None, **kw):
+    from fitlug.explain import explain
+    from fitlug.fit import fit
+
+    rec, rig, truth = isim.make(seed, fps=60.0, v_max=240.0, effects=effects, **QUIET)
+    rec, _ = tracker_error(rec, seed=seed, **kw)
+    return explain(fit(rec, rig)), truth
+
+
+@pytest.mark.parametrize("seed,kw", NULLS, ids=["adverse", "drawn"])
+def test_no_physics_claimed_on_trackers_error(seed, kw):
+    ex, truth = _explained(seed, **kw)
+    doc = ex.to_json()
+    assert ex.effects == [] and not ex.discovered, (ex.verdict, ex.effects, ex.discovered)
+    assert ex.verdict in ("none", "unexplained")
+    slip = ex.final.slip
+    assert abs(slip.value - truth["slip"]) <= 3 * slip.std, (slip, truth["slip"])
+    if ex.verdict == "unexplained":  # the tracker's correlated error is reported
+        assert doc["correlated_error"]["per_role"]
+
+
+def test_lens_still_named_under_trackers_error():
+    ex, truth = _explained(3, LENS)
+    assert (ex.verdict, ex.effects) == ("explained", ["lens_distortion"])
+    k1 = ex.final.effect_params("lens_distortion")["k1_per_mm2"]
+    assert k1 == pytest.approx(2e-8, rel=0.2)
+    slip = ex.final.slip
+    assert abs(slip.value - truth["slip"]) <= 3 * slip.std
