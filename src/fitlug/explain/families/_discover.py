@@ -21,7 +21,7 @@ from ..._errors import FitlugError
 from ...fit._glitches import MAX_RUN, threshold
 from .._detect import detect
 from .._locate import locate
-from .._criterion import BIC_THRESHOLD, MODELLED_CHI2, STRONG_MISFIT_Z
+from .._criterion import BIC_THRESHOLD, MIN_SHARE_REMOVED, MODELLED_CHI2, STRONG_MISFIT_Z
 from ._body import BodyMotion
 from ._context import context
 from ._exact import base_residuals, refine
@@ -368,6 +368,18 @@ def after_catalog(res, geo, parts, det, sig_est, alpha):
     loc_f = locate(geo, final.residuals, det_f)
     ok = final.chi2_per_dof <= MODELLED_CHI2 or det_f.consistent
     disc.seconds = time.perf_counter() - t0
+    before = disc.terms[0].chi2_per_dof_before
+    share = (before - final.chi2_per_dof) / (before - 1.0) if before > 1.0 else 1.0
+    if not ok and share < MIN_SHARE_REMOVED:
+        # a partial reading that leaves most of the misfit is no reading (issue 42: a
+        # speed modulation fitted into a tracker's drift)
+        disc.tried.append({"family": ", ".join(t.choice.family for t in disc.terms),
+                           "rejected_because": (
+                               f"partial: removes {100 * share:.0f} % of the excess chi2 "
+                               f"(a partial reading needs {100 * MIN_SHARE_REMOVED:.0f} %)")})
+        disc.terms = []
+        disc.final = None
+        return ("partial", None, None, None, disc)
     for t in disc.terms:
         t.partial = not ok
     return ("modelled" if ok else "partial", final, det_f, loc_f, disc)
