@@ -366,10 +366,13 @@ def after_catalog(res, geo, parts, det, sig_est, alpha):
     final = disc.final
     det_f = detect(geo, final.residuals, final.dof, sigma_estimated=sig_est, alpha=alpha)
     loc_f = locate(geo, final.residuals, det_f)
-    ok = final.chi2_per_dof <= MODELLED_CHI2 or det_f.consistent
     disc.seconds = time.perf_counter() - t0
     before = disc.terms[0].chi2_per_dof_before
     share = (before - final.chi2_per_dof) / (before - 1.0) if before > 1.0 else 1.0
+    # chi^2/dof under MODELLED_CHI2 counts only for terms that removed a fair share of the
+    # excess (issue 42: a body motion took a tracker's drift from just above 1.3 to 1.299)
+    ok = (final.chi2_per_dof <= MODELLED_CHI2 and share >= MIN_SHARE_REMOVED) \
+        or det_f.consistent
     if not ok and share < MIN_SHARE_REMOVED:
         # a partial reading that leaves most of the misfit is no reading (issue 42: a
         # speed modulation fitted into a tracker's drift)
