@@ -21,6 +21,13 @@ robot outside the picture at the start, the end or both; only the cruise, only a
 markers lost within a few mm of the picture's edge (a marker is found only once it is
 fully inside) - and puts every fault of `realistic` on top.
 
+`tracker_error(rec, seed=...)` (issue 42) puts what a sub-pixel centroid tracker adds to a
+noise-free recording: pixel locking (a bias periodic in the marker's image position, period
+one pixel in x and in y, with a random phase and a random second harmonic), a slow
+per-marker drift (lighting, focus: a smooth random function of time) and white read noise.
+The image scale (mm/px), the amplitudes and the drift's time scale are drawn per recording
+in ranges wider than the issue's (nothing tuned).
+
 Everything random comes from `seed`. `info["fragments"]` maps each new id to its
 original marker and role; `write_realistic(dir, rec, rig, wide=True)` writes the wide
 export form (DATA.md: time_s, <id>_x_mm, <id>_y_mm) and a rig.toml that lists the roles.
@@ -258,6 +265,70 @@ def _sees_speed_change(rec, inside, fps) -> bool:
         if len(vs) and np.ptp(vs) > 0.3 * max(np.max(np.abs(vs)), 1e-9):
             return True
     return False
+
+
+def tracker_error(rec: Recording, *, seed: int = 0, mm_per_px=(0.2, 0.45),
+                  lock_px=(0.004, 0.012), drift_um=(1.0, 3.0), drift_s=(0.3, 1.5),
+                  read_um=(1.5, 6.0), px_columns: bool = False):
+    """(Recording, info): `rec` (noise-free positions, mm) with a centroid tracker's error.
+
+    - pixel locking: the marker's image position x_px = (x - x_origin) / scale (y_px from
+      y, downwards), the origin at a random sub-pixel place; per axis a bias
+      a1 sin(2 pi u + p1) + a2 sin(4 pi u + p2) px of the fractional position u, with
+      a1 drawn in `lock_px` and a2 up to half of it (a centroid pulled towards pixel
+      centres; the harmonic and phases differ between recordings, the same tracker for
+      every marker). A marker at rest on the ground keeps its bias: an offset per contact.
+    - drift: per marker and axis, Gaussian-filtered white noise of time scale drawn in
+      `drift_s` (s), scaled to a standard deviation drawn in `drift_um` (um);
+    - read noise: white, per marker a standard deviation drawn in `read_um` (um).
+    Each range is (lo, hi) drawn uniformly per recording (scale, locking, drift time) or
+    per marker (drift, read noise); a number fixes it. `px_columns`: also deliver x_px and
+    y_px (as a tracker's export with pixel columns). info: the drawn values.
+    """
+    rng = np.random.default_rng([seed, 42])
+
+    def draw(v, size=None):
+        return rng.uniform(*v, size) if isinstance(v, tuple) else (
+            np.full(size, float(v)) if size is not None else float(v))
+
+    scale = draw(mm_per_px)
+    a1 = np.array([draw(lock_px), draw(lock_px)])
+    a2 = a1 * rng.uniform(0.0, 0.5, 2)
+    ph = rng.uniform(0, 2 * np.pi, (2, 2))
+    tau = draw(drift_s)
+    valid = np.isfinite(rec.x) & np.isfinite(rec.y)
+    x0 = float(np.min(rec.x[valid])) - 50.0 + rng.uniform(0, scale)
+    y0 = float(np.max(rec.y[valid])) + 50.0 + rng.uniform(0, scale)
+    xpx = (rec.x - x0) / scale
+    ypx = (y0 - rec.y) / scale
+
+    def lock(u, ax):
+        return (a1[ax] * np.sin(2 * np.pi * u + ph[ax, 0])
+                + a2[ax] * np.sin(4 * np.pi * u + ph[ax, 1]))
+
+    dx = lock(xpx, 0) * scale
+    dy = -lock(ypx, 1) * scale
+    fps = _fps(rec)
+    d_um = draw(drift_um, rec.n_markers)
+    r_um = draw(read_um, rec.n_markers)
+    times = np.unique(rec.t)
+    sig = max(tau * fps, 1.0)
+    kern = np.exp(-0.5 * (np.arange(-int(4 * sig), int(4 * sig) + 1) / sig) ** 2)
+    for m in range(rec.n_markers):
+        sel = rec.marker_index == m
+        k = np.searchsorted(times, rec.t[sel])
+        for arr in (dx, dy):
+            w = np.convolve(rng.standard_normal(len(times) + len(kern) - 1), kern, "valid")
+            w *= 1e-3 * d_um[m] / max(float(np.std(w)), 1e-12)
+            arr[sel] += w[k] + 1e-3 * r_um[m] * rng.standard_normal(int(sel.sum()))
+    extra = {}
+    if px_columns:
+        extra = {"x_px": xpx + dx / scale, "y_px": ypx - dy / scale}
+    out = dataclasses.replace(rec, x=rec.x + dx, y=rec.y + dy, sigma=None, **extra)
+    info = {"mm_per_px": scale, "lock_px": a1.tolist(), "lock2_px": a2.tolist(),
+            "drift_s": tau, "drift_um": d_um.tolist(), "read_um": r_um.tolist(),
+            "lock_um": (1e3 * a1 * scale).tolist()}
+    return out, info
 
 
 def shift_time(rec: Recording, offset_s: float) -> Recording:

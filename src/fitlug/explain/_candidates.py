@@ -267,6 +267,35 @@ def physical(eid: str, p: dict) -> str | None:
     return None
 
 
+#: the largest radial distortion a lens left uncorrected makes at the farthest point seen,
+#: k1 r^2 (a sane lens: a few per cent at the picture's corner)
+LENS_MAX_DISTORTION = 0.1
+
+
+def in_picture(eid: str, p: dict, x: np.ndarray, y: np.ndarray) -> str | None:
+    """Why an image effect's fitted parameters are not a camera's (issue 42), given the
+    points seen (ground mm): a lens centre far outside the picture (more than its width
+    from its middle) or a distortion beyond LENS_MAX_DISTORTION at the farthest point
+    seen is a smooth warp fitted to something else (a tracker's drift), not a lens."""
+    if eid != "lens_distortion":
+        return None
+    ok = np.isfinite(x) & np.isfinite(y)
+    if ok.sum() < 2:
+        return None
+    x, y = x[ok], y[ok]
+    cx, cy, k1 = (float(np.asarray(p[k])) for k in ("lens_cx", "lens_cy", "lens_k1"))
+    width = max(float(np.ptp(x)), float(np.ptp(y)), 1.0)
+    mx, my = 0.5 * (float(x.min()) + float(x.max())), 0.5 * (float(y.min()) + float(y.max()))
+    if abs(cx - mx) > width or abs(cy - my) > width:
+        return (f"the lens centre ({cx:.0f}, {cy:.0f}) mm lies more than the picture's width "
+                f"({width:.0f} mm) from its middle: not a camera's lens")
+    r2 = float(np.max((x - cx) ** 2 + (y - cy) ** 2))
+    if abs(k1) * r2 > LENS_MAX_DISTORTION:
+        return (f"a radial distortion of {100 * abs(k1) * r2:.0f} % at the farthest point "
+                f"seen (k1 r^2; a lens: at most {100 * LENS_MAX_DISTORTION:.0f} %): not a lens")
+    return None
+
+
 def n_free(eid: str, n_body: int) -> int:
     return CATALOG[eid].n_free(n_body)
 

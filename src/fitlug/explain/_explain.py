@@ -42,7 +42,8 @@ from .. import _progress
 from .._errors import FitlugError
 from ..model import CATALOG
 from . import _display
-from ._candidates import physical, screen, sliding_starts
+from ._candidates import in_picture, physical, screen, sliding_starts
+from ._correlated import effective_delta_bic, inflation_geo
 from ._criterion import BIC_THRESHOLD, MIN_SHARE_REMOVED, STRONG_MISFIT_Z
 from .families import after_catalog
 from ._detect import ALPHA, detect
@@ -154,9 +155,17 @@ def _explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA
             M_new, _ = structured_misfit(geo, out.r)
             gain = chi2 - out.chi2
             removed = gain / max(excess, gain) if gain > 0 else 0.0
-            why = physical(e, eng.params(out.theta))
+            # the tracker's correlated error left with the effect in (issue 42)
+            c_corr = inflation_geo(geo, out.r, np.asarray(out.r) - np.asarray(r))
+            dbic_corr = effective_delta_bic(gain, eng.n_free(e), lnN, c_corr)
+            why = physical(e, eng.params(out.theta)) or in_picture(
+                e, eng.params(out.theta), res.problem.rec.x, res.problem.rec.y)
             if why is None and dbic >= BIC_THRESHOLD:
                 why = f"delta BIC {dbic:.1f} is not below {BIC_THRESHOLD:g}"
+            if why is None and dbic_corr >= BIC_THRESHOLD:
+                why = (f"delta BIC {dbic_corr:.1f} with the chi2 it removes deflated by the "
+                       f"residuals' correlation ({c_corr:.3g}, what a tracker's correlated "
+                       f"error makes) is not below {BIC_THRESHOLD:g}")
             if why is None and strong and removed < MIN_SHARE_REMOVED:
                 why = (f"removes {100 * removed:.0f} % of the excess chi2 (needs "
                        f"{100 * MIN_SHARE_REMOVED:.0f} %)")
@@ -165,7 +174,9 @@ def _explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA
             fits[e] = (out, dbic, removed, why)
             if why is None:
                 bar_bic = min(bar_bic, dbic)
-            tried[e].update({"delta_bic": dbic, "chi2_per_dof": out.chi2 / (N - k_cur - eng.n_free(e)),
+            tried[e].update({"delta_bic": dbic, "correlation_inflation": c_corr,
+                             "delta_bic_correlated": dbic_corr,
+                             "chi2_per_dof": out.chi2 / (N - k_cur - eng.n_free(e)),
                              "misfit_removed_share": removed,
                              "structured_misfit_removed_share":
                                  (M_cur - M_new) / M_cur if M_cur > 0 else None,
@@ -213,8 +224,9 @@ def _explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA
     if not accepted:
         timing["total"] = time.perf_counter() - t_start
         if not loc0.parts:  # a marginal test result that points nowhere: noise
-            return Explanation("none", res, res, [], [], [], det0, det0, loc0, loc0, rounds,
-                               "least squares", timing, geo)
+            final, method = _correlated_errors(res, geo, alpha)
+            return Explanation("none", res, final, [], [], [], det0, det0, loc0, loc0, rounds,
+                               method, timing, geo)
         sysb = tracker_systematics(res, geo, alpha)
         timing["total"] = time.perf_counter() - t_start
         if sysb["why_not"] is None:  # below the tracker's floor: a measurement, not physics
@@ -240,8 +252,11 @@ def _explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA
         steps[-1].chi2_per_dof_after = float(final.chi2_per_dof)
         steps[-1].params = final.effect_params(steps[-1].effect)
     sysb = disc = None
-    if det1.consistent or not loc1.parts:
+    if det1.consistent:
         verdict, located, method = "explained", loc0.parts, "least squares"
+    elif not loc1.parts:
+        verdict, located = "explained", loc0.parts
+        final, method = _correlated_errors(final, geo, alpha)
     else:
         sysb = tracker_systematics(final, geo, alpha)
         if sysb["why_not"] is None:  # what is left sits below the tracker's floor
@@ -299,6 +314,20 @@ def _family_instead(res, geo, loc0, det0, sig_est, alpha, final, accepted, verdi
                                                f"with a BIC {bic_cat - bic_alt:.0f} lower "
                                                f"than these catalog entries together")})
     return fam
+
+
+#: the residuals' correlation (explain._correlated) above which a fit whose residuals fail
+#: detection without a located part carries robust errors: a tracker's drift and pixel
+#: locking shift the slip by far more than the least-squares error (issue 42: z 17)
+ROBUST_C = 2.0
+
+
+def _correlated_errors(res, geo, alpha):
+    """(result, method): `res` with robust errors when its residuals are correlated in
+    time beyond ROBUST_C, else as it is."""
+    if inflation_geo(geo, res.residuals) <= ROBUST_C:
+        return res, _method(res)
+    return robust_result(res, geo, alpha)
 
 
 def _method(res) -> str:

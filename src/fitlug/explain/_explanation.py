@@ -78,6 +78,27 @@ class Explanation:
             params, std = step.params, None
         return {"params": params, "params_std": std, "params_when_added": step.params}
 
+    def _correlated(self) -> dict:
+        """The base fit's residuals' correlation per role (issue 42: a tracker's pixel
+        locking and drift, :mod:`._correlated`), and the candidates it turned down."""
+        from ._correlated import describe
+
+        per_role = describe(self.geometry, self.base.residuals)
+        turned = [t["id"] for rd in self.rounds for t in rd.get("tried", []) if _deflated(t)]
+        if self.discovery is not None:
+            turned += [t["family"] for t in self.discovery.tried if _deflated(t)]
+        out = {"per_role": per_role, "turned_down": sorted(set(turned))}
+        if turned and not self.effects and not self.discovered:
+            out["note"] = ("tracker systematic: the misfit is correlated in time per marker "
+                           "as a tracker's pixel locking and drift make it ("
+                           + ", ".join(f"{k} {v['correlated_um']:.2g} um beside "
+                                       f"{v['white_um']:.2g} um white"
+                                       for k, v in per_role.items())
+                           + "); " + ", ".join(sorted(set(turned)))
+                           + " removed no more than that correlated error does, so none is "
+                             "claimed")
+        return out
+
     def to_json(self) -> dict:
         """The `discrepancy` block of fit.json (DATA.md)."""
         def slip(res):
@@ -143,6 +164,9 @@ class Explanation:
                 out["systematics_check"] = {**sysb, "not_systematics_because":
                                             self.systematics["why_not"],
                                             "note": "checked: not a tracker floor"}
+        if self.geometry is not None and self.detection_before is not None \
+                and not self.detection_before.consistent:
+            out["correlated_error"] = self._correlated()
         if self.geometry is not None:
             g = self.geometry
             out["maps"] = {"before": residual_map(g, self.base.residuals)}
@@ -151,6 +175,10 @@ class Explanation:
                 out["maps"]["after"] = residual_map(g, self.final.residuals)
                 out["spectra"]["after"] = spectrum_summary(g, self.final.residuals)
         return _plain(out)
+
+
+def _deflated(d: dict) -> bool:
+    return "residuals' correlation" in (d.get("rejected_because") or "")
 
 
 def _plain(x):

@@ -22,7 +22,7 @@ from ..._errors import FitlugError
 from ...fit._glitches import MAX_RUN, threshold
 from .._detect import detect
 from .._locate import locate
-from .._criterion import BIC_THRESHOLD, MODELLED_CHI2, STRONG_MISFIT_Z
+from .._criterion import BIC_THRESHOLD, MIN_SHARE_REMOVED, MODELLED_CHI2, STRONG_MISFIT_Z
 from ._body import BodyMotion
 from ._context import context
 from ._exact import base_residuals, refine
@@ -31,6 +31,7 @@ from ._ground import GroundProfile
 from ._image import ImageMap
 from ._path import PathShape
 from ._relin import relinearised
+from .._correlated import implausible, inflation
 from ._solve import Projector, chooses
 from ._slip import SlipLaw
 from ._speed import SpeedModulation
@@ -136,10 +137,14 @@ def discover(res, parts: list, det, J=None) -> Discovery:
                 tried.append({"family": F.name, "rejected_because": (
                     "nothing to fit at its place (no samples there, or none that show it)")})
                 continue
-            why = chooses(ch.fitted, excess, strong)
+            # the tracker's correlated error left with the term in (issue 42)
+            moved = proj.moved(ch.fitted.B, ch.fitted.c)
+            c_corr = inflation(ctx.marker * 4 + ctx.role * 2 + ctx.axis, ctx.t,
+                               r_cur + moved, ctx.valid, change=moved)
+            why = chooses(ch.fitted, excess, strong, c_corr) or implausible(ch, res)
             tried.append({"family": F.name, "coordinate": ch.coordinate, "form": ch.label,
                           "delta_bic": ch.fitted.delta_bic, "delta_chi2": ch.fitted.dchi2,
-                          "rejected_because": why})
+                          "correlation_inflation": c_corr, "rejected_because": why})
             if why is None:
                 passed.append(ch)
             if why is None and (best is None or ch.fitted.delta_bic < best.fitted.delta_bic):
@@ -364,8 +369,23 @@ def after_catalog(res, geo, parts, det, sig_est, alpha):
     final = disc.final
     det_f = detect(geo, final.residuals, final.dof, sigma_estimated=sig_est, alpha=alpha)
     loc_f = locate(geo, final.residuals, det_f)
-    ok = final.chi2_per_dof <= MODELLED_CHI2 or det_f.consistent
     disc.seconds = time.perf_counter() - t0
+    before = disc.terms[0].chi2_per_dof_before
+    share = (before - final.chi2_per_dof) / (before - 1.0) if before > 1.0 else 1.0
+    # chi^2/dof under MODELLED_CHI2 counts only for terms that removed a fair share of the
+    # excess (issue 42: a body motion took a tracker's drift from just above 1.3 to 1.299)
+    ok = (final.chi2_per_dof <= MODELLED_CHI2 and share >= MIN_SHARE_REMOVED) \
+        or det_f.consistent
+    if not ok and share < MIN_SHARE_REMOVED:
+        # a partial reading that leaves most of the misfit is no reading (issue 42: a
+        # speed modulation fitted into a tracker's drift)
+        disc.tried.append({"family": ", ".join(t.choice.family for t in disc.terms),
+                           "rejected_because": (
+                               f"partial: removes {100 * share:.0f} % of the excess chi2 "
+                               f"(a partial reading needs {100 * MIN_SHARE_REMOVED:.0f} %)")})
+        disc.terms = []
+        disc.final = None
+        return ("partial", None, None, None, disc)
     for t in disc.terms:
         t.partial = not ok
     return ("modelled" if ok else "partial", final, det_f, loc_f, disc)

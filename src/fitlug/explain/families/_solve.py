@@ -200,10 +200,17 @@ def peak_frequency(t: np.ndarray, r: np.ndarray, f_max: float, T: float) -> floa
     return float(f[int(np.argmax(p))])
 
 
-def chooses(fitted: Fitted, excess: float, strong: bool) -> str | None:
-    """None when the term earns its place by the catalog's criterion, else why not."""
+def chooses(fitted: Fitted, excess: float, strong: bool, c_corr: float = 1.0) -> str | None:
+    """None when the term earns its place by the catalog's criterion, else why not.
+    `c_corr`: the correlation of the residuals with the term in (explain._correlated):
+    the chi^2 it removes is deflated by it first (a tracker's correlated error)."""
     if fitted.delta_bic >= BIC_THRESHOLD:
         return f"delta BIC {fitted.delta_bic:.1f} is not below {BIC_THRESHOLD:g}"
+    dbic_c = fitted.delta_bic + fitted.dchi2 * (1.0 - 1.0 / max(c_corr, 1.0))
+    if dbic_c >= BIC_THRESHOLD:
+        return (f"delta BIC {dbic_c:.1f} with the chi2 it removes deflated by the "
+                f"residuals' correlation ({c_corr:.3g}, what a tracker's correlated error "
+                f"makes) is not below {BIC_THRESHOLD:g}")
     removed = fitted.dchi2 / max(excess, fitted.dchi2) if fitted.dchi2 > 0 else 0.0
     if strong and removed < MIN_SHARE_REMOVED:
         return (f"removes {100 * removed:.0f} % of the excess chi2 (needs "
