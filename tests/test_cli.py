@@ -252,10 +252,12 @@ def test_compile_watch_sees_real_compiles_only():
 
     seen = []
     cb = lambda name, s: seen.append(name)  # noqa: E731
+    # the input first: in a worker whose persistent cache holds jnp.ones' program, its
+    # cache hit (which has no compile event of its own) was taken for the next compile's
+    x = jnp.ones(7).block_until_ready()
     _progress.watch_compiles(cb)
     try:
         f = jax.jit(lambda x: jnp.sin(x) * 3.25 + 0.125)
-        x = jnp.ones(7)
         seen.clear()
         with _no_cache():  # a real compile, whatever the persistent cache holds
             f(x).block_until_ready()
