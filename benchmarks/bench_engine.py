@@ -67,7 +67,10 @@ def one(folder: str, timeout: float) -> dict:
         out["std_base"] = float(res.slip.std)
         ex = explain(res, seed=0)
         fin = ex.final
-        out.update(verdict=ex.verdict, named=sorted(ex.effects), kept=_kept_terms(ex),
+        out.update(verdict=ex.verdict,
+                   named=sorted(ex.effects) + [f"{st.effect} (base: marker on the lug)"
+                                               for st in getattr(ex, "base_steps", [])],
+                   kept=_kept_terms(ex),
                    chi2_after=float(fin.chi2_per_dof), slip=float(fin.slip.value),
                    std=float(fin.slip.std))
         out["z"] = (out["slip"] - out["engine_slip"]) / out["std"] if out["std"] > 0 else None
