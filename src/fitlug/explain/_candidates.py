@@ -258,8 +258,8 @@ def physical(eid: str, p: dict) -> str | None:
     if eid == "ground_sinkage" and g("sink_z") <= 0:
         return "the lugs rise (z <= 0), not sinkage"
     if eid == "lug_shear" and not -0.25 <= g("shear_h") <= 1.0:
-        return (f"the lug markers would sit {'above the pitch line' if g('shear_h') > 1 else 'below the lug tips'} "
-                f"(h = {g('shear_h'):.2f}), not on the lugs")
+        where = "above the pitch line" if g("shear_h") > 1 else "below the lug tips"
+        return f"the lug markers would sit {where} (h = {g('shear_h'):.2f}), not on the lugs"
     if eid == "lug_shear" and abs(g("shear_tau")) > 2.0:
         return f"the lugs' shear would take {abs(g('shear_tau')):.1f} s to relax, not rubber"
     if eid == "frame_drop" and g("drop_dt") <= 0:

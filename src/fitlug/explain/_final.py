@@ -24,6 +24,7 @@ from ..fit._residuals import Packing
 from ..fit._rowchunks import RowChunks
 from ..fit._result import compute_quantities
 from ._engine import jacobian_of
+from ._explanation import BASE_EFFECTS
 from ._normal import normal_of, pinv_factor
 
 MAX_STEPS = 8
@@ -116,10 +117,11 @@ def final_fit(res, eng, accepted, theta) -> FitResult:
         if all(np.isfinite(v) and v > 0 for v in new.values()) and any(
                 abs(new[k] / old[k] - 1.0) > NOISE_REFIT_TOL for k in new):
             final = _polish(reweighted(final.problem, new), final.params, free)
-    if "lug_shear" in accepted and (prob.init_info.get("glitches") or []):
-        # the base model (markers on the pitch line) misfits tip markers by millimetres
-        # where the lugs lift off, and its glitch rule took real samples for glitches (8 on
-        # a tip-marker recording); the rounds again under the final model give them back
+    if set(accepted) & set(BASE_EFFECTS) and (prob.init_info.get("glitches") or []):
+        # a base model that lacked a part of its own (markers on the pitch line) misfits
+        # tip markers by millimetres where the lugs lift off, and its glitch rule took real
+        # samples for glitches (8 on a tip-marker recording); the rounds again under the
+        # final model give them back
         from ..fit._fit import remove_glitches
 
         final = remove_glitches(final, renoise=renoise, free=free, require_convergence=False)

@@ -27,18 +27,18 @@ from ._base import Ctx, Effect
 _V_REST = 1e-3
 
 
-def _at_psi(q, psi_n, f_n, slope0):
-    """f as a function of belt travel: f_n at the nodes psi_n (non-decreasing), linear
-    between them, continued with `slope0` (df/dpsi) before the first node."""
+def _at_psi(q, psi_n, fs):
+    """Functions of belt travel at q: each (f_n, slope0) of `fs` is f_n at the nodes psi_n
+    (non-decreasing), linear between them, continued with slope0 (df/dpsi) before the
+    first node. One search serves them all."""
     G = psi_n.shape[0]
     i = jnp.clip(jnp.searchsorted(psi_n, q, side="right"), 1, G - 1)
     p0, p1 = psi_n[i - 1], psi_n[i]
     dp = p1 - p0
     w = jnp.where(dp > 0, (q - p0) / jnp.where(dp > 0, dp, 1.0), 0.0)
     w = jnp.clip(w, 0.0, 1.0)
-    inside = f_n[i - 1] + w * (f_n[i] - f_n[i - 1])
-    before = f_n[0] + slope0 * (q - psi_n[0])
-    return jnp.where(q < psi_n[0], before, inside)
+    return [jnp.where(q < psi_n[0], f_n[0] + slope0 * (q - psi_n[0]),
+                      f_n[i - 1] + w * (f_n[i] - f_n[i - 1])) for f_n, slope0 in fs]
 
 
 class LugShear(Effect):
@@ -68,11 +68,10 @@ class LugShear(Effect):
         v0 = jnp.maximum(dpn[0], _V_REST)
         # the slip at the first node, or the steady slip where the robot stands still
         s_start = jnp.where(dpn[0] > _V_REST, 1.0 - vn[0] / v0, p["s0"])
-        S_e = _at_psi(psi_e, psin, Sn, s_start)
+        (S_e,) = _at_psi(psi_e, psin, [(Sn, s_start)])
         S_now = psi - X
         on_run = u < D
-        S_l = _at_psi(jnp.minimum(psi_l, psi), psin, Sn, s_start)
-        t_l = _at_psi(jnp.minimum(psi_l, psi), psin, grid, 1.0 / v0)
+        S_l, t_l = _at_psi(jnp.minimum(psi_l, psi), psin, [(Sn, s_start), (grid, 1.0 / v0)])
         tau = jnp.abs(p["shear_tau"])
         dt = jnp.maximum(t - t_l, 0.0)
         decay = jnp.exp(-dt / jnp.maximum(tau, 1e-6))
