@@ -67,7 +67,7 @@ def _small_layout(effects):
               "sag_d": 0.5, "sink_z": 0.3, "sink_us": 20.0, "lens_k1": 2e-7, "lens_cx": 10.0,
               "lens_cy": 20.0, "depth_eps": 0.01, "depth_cx": 5.0, "depth_cy": 2.0,
               "tilt_theta": 0.01, "drop_dt": 0.01, "drop_tstar": 0.52,
-              "shear_h": 0.3, "shear_tau": 0.03}
+              "shear_h": 0.3, "shear_tau": 0.03, "memory_lambda": 0.8, "link_pitch": 18.0}
     for e in effects:
         for k in CATALOG[e].defaults:
             p[k] = jnp.asarray(values[k])

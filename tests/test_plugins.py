@@ -47,7 +47,7 @@ def test_entry_point_plugin_is_loaded_at_the_catalogs_first_use():
         ids = list(CATALOG)
         print(before, ids[-1], CATALOG["belt_wave"].__module__, len(ids))
     """, PLUGIN_PKG)
-    assert out.split() == ["False", "belt_wave", "fitlug_belt_wave", "12"]  # 11 own + 1
+    assert out.split() == ["False", "belt_wave", "fitlug_belt_wave", "14"]  # 13 own + 1
 
 
 def _wave(**over):

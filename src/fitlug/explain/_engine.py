@@ -129,7 +129,8 @@ class Engine:
     def __init__(self, res):
         self.res = res
         prob = res.problem
-        self.prob_all, p_all = prob.with_effects(tuple(CATALOG), res.params)
+        self.prob_all, p_all = prob.with_effects(
+            tuple(e for e in CATALOG if CATALOG[e].searched or e in res.effects), res.params)
         self.lay_all = self.prob_all.lay
         self.obs = prob.obs
         self.packing = Packing.of(p_all, param_names(self.lay_all))

@@ -111,7 +111,8 @@ def _explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA
     bar = _bar(progress, MAX_EFFECTS, "explain")
     det_cur = det0
     for rnd in range(MAX_EFFECTS):
-        cands = [e for e in CATALOG if e not in res.effects and e not in accepted]
+        cands = [e for e in CATALOG if CATALOG[e].searched and e not in res.effects
+                 and e not in accepted]
         if not cands:
             break
         t0 = time.perf_counter()

@@ -242,7 +242,8 @@ def chunkable(p: dict, lay, packing: Packing) -> bool:
     from ..model._model import _hook
 
     return (all(k in packing.names for k in ("v", "s0", "beta", "sigma0"))
-            and not _hook(lay, "speed") and not _lagging(p, lay))
+            and not _hook(lay, "speed") and not _hook(lay, "memory")
+            and not _lagging(p, lay))
 
 
 def _lagging(p: dict, lay) -> bool:

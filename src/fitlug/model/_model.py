@@ -23,6 +23,7 @@ from .. import _jaxconfig  # noqa: F401  (x64, cache)
 from . import _spline
 from ._path import belt_length, stadium
 from .effects import CATALOG, Ctx
+from .effects._lug_memory import LAMBDA_MIN, belt_travel
 
 BASE_SCALARS = ("s0", "beta", "R", "D", "e", "x_off", "y_off")
 _FIXED_POINT_ITERATIONS = 4
@@ -132,7 +133,9 @@ def default_params(lay: Layout) -> dict:
 
 def ctx_of(p, lay: Layout) -> Ctx:
     P = belt_length(p["R"], p["D"])
-    return Ctx(R=p["R"], D=p["D"], e=p["e"], P=P, pitch=P / lay.n_belt)
+    links = _hook(lay, "link")
+    return Ctx(R=p["R"], D=p["D"], e=p["e"], P=P, pitch=P / lay.n_belt,
+               link=sum(f(p) for f in links) if links else None)
 
 
 def _hook(lay, name):
@@ -194,6 +197,13 @@ def integrate(p, lay: Layout):
         cum = lambda fn, fm: jnp.concatenate(  # noqa: E731  Simpson, cumulative
             [jnp.zeros(1), jnp.cumsum(h / 6.0 * (fn[:-1] + 4.0 * fm + fn[1:]))])
         X, psi = cum(vn, vm), cum(dpn, dpm)
+        mem = _hook(lay, "memory")
+        if mem:  # the slip's memory (lug_memory): psi from the brush's relation
+            lam = sum(f(p) for f in mem)
+            on = lam > LAMBDA_MIN
+            psi_m, dp_m = belt_travel(X, slip_law(p, lay, a0n),
+                                      jnp.where(on, lam, 1.0) * lay.L, h)
+            psi, dpn = jnp.where(on, psi_m, psi), jnp.where(on, dp_m, dpn)
     else:
         def step(state, k):
             X0, s0 = state

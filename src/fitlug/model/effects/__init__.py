@@ -6,10 +6,12 @@ from ._base import Ctx as Ctx, Effect as Effect
 from ._body_bounce import BodyBounce
 from ._belt_sag import BeltSag
 from ._camera_tilt import CameraTilt
+from ._chain_polygon import ChainPolygon
 from ._frame_drop import FrameDrop
 from ._ground_sinkage import GroundSinkage
 from ._lens_distortion import LensDistortion
 from ._lug_ripple import LugRipple
+from ._lug_memory import LugMemory
 from ._lug_shear import LugShear
 from ._lug_sliding import LugSliding
 from ._marker_depth import MarkerDepth
@@ -27,7 +29,8 @@ from ._registry import (
 
 #: id -> effect class, in the order of MODEL.md's table, then plugins
 _builtin(LugRipple, BodyBounce, LugSliding, BeltSag, GroundSinkage, WheelRunout,
-         LensDistortion, MarkerDepth, CameraTilt, FrameDrop, LugShear)
+         LensDistortion, MarkerDepth, CameraTilt, FrameDrop, LugShear, LugMemory,
+         ChainPolygon)
 _exported.add_identity(code_identity)
 
 

@@ -10,7 +10,9 @@ serves the base fit and every extension. Hooks a subclass may override (all opti
 - ``body_dy(p, psi, cx, ctx)``: extra body-marker y;
 - ``image(p, x, y, is_lug) -> (x, y)``: image effect, applied in `IMAGE_ORDER`;
 - ``lug_lag(p, sigma, psi, X, t, nodes, grid, ctx)``: how far (mm) a lug marker trails its
-  pitch-line point along the belt (lug_shear).
+  pitch-line point along the belt (lug_shear);
+- ``memory(p)``: the slip's memory length as a fraction of L (lug_memory);
+- ``link(p)``: the link pitch (mm) of a chain of rigid links (chain_polygon).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ class Ctx(NamedTuple):
     e: jnp.ndarray
     P: jnp.ndarray  # belt length
     pitch: jnp.ndarray  # lug pitch P / N
+    link: jnp.ndarray | None = None  # link pitch of a chain (chain_polygon); None: a belt
 
 
 class Effect:
@@ -53,6 +56,10 @@ class Effect:
         lug_lag(p, sigma, psi, X, t, nodes, grid, ctx): how far (mm) lug samples at belt
             coordinate sigma (body position X, time t) trail their pitch-line point along
             the belt; `nodes` = (X, psi, dX/dt, dpsi/dt) of the integration on `grid`.
+        memory(p): the length, as a fraction of L, over which the slip remembers the
+            load (the belt travel then solves the lug brush's relation; lug_memory).
+        link(p): the link pitch (mm) of a track built of rigid links, whose markers
+            then follow the chain's polygon round the wheels (chain_polygon).
 
     Attributes:
         id: the name in fit.json, the report, ``effects=`` and ``--effect``.
@@ -75,6 +82,9 @@ class Effect:
     meaning: ClassVar[str] = ""
     #: what the effect acts on, used to match located mismatches (role, axis)
     signature: ClassVar[str] = ""
+    #: whether the explanation searches for the effect on every recording (False: a model
+    #: part a user fits by name, ``effects=[id]``, that the explanation does not try)
+    searched: ClassVar[bool] = True
 
     time_map = None
     speed = None
@@ -84,6 +94,8 @@ class Effect:
     body_dy = None
     image = None
     lug_lag = None
+    memory = None
+    link = None
 
     @classmethod
     def n_free(cls, n_body: int) -> int:

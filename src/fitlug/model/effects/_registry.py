@@ -19,7 +19,8 @@ GROUP = "fitlug.effects"
 #: parameter names of the base model (MODEL.md §2): no effect may take one
 _BASE_NAMES = frozenset({"v", "s0", "beta", "R", "D", "e", "x_off", "y_off", "sigma0",
                          "cx", "cy"})
-_HOOKS = ("time_map", "speed", "slip", "top_dy", "bottom_dy", "body_dy", "image", "lug_lag")
+_HOOKS = ("time_map", "speed", "slip", "top_dy", "bottom_dy", "body_dy", "image", "lug_lag",
+          "memory", "link")
 _ID = re.compile(r"^[a-z][a-z0-9_]*$")
 
 
