@@ -266,8 +266,12 @@ def _solve_terms(res, ctx, proj, kept, B_all, k_all, slip_h, rank, bar, drop=Non
     for j, t in enumerate(kept):  # a term with an exact (nonlinear) form is refitted in it
         m = t.choice.fitted.B.shape[1]
         if t.choice.exact is not None:
-            flat, c, r_ex, free, jac = refine(proj, ctx, B_all, joint.c, t.choice.exact,
-                                              np.arange(i, i + m))
+            done = t.choice.extra.get("refined")
+            if done is not None and len(kept) == 1 and drop is None:  # refitted already
+                flat, c, r_ex, free, jac = done
+            else:
+                flat, c, r_ex, free, jac = refine(proj, ctx, B_all, joint.c, t.choice.exact,
+                                                  np.arange(i, i + m))
             final, joint = _exact_fit(res, ctx, proj, jac, c, free, k_all, flat, r_ex,
                                       slip_h, rank)
             if free.size:
