@@ -53,8 +53,8 @@ Physics of MODEL.md §5 (beyond the catalog), each written from first principles
   h (1 + cos(2π(x − x_b)/w))/2 for |x − x_b| < w/2. Each wheel rides over it (its centre
   lifted by the highest point of the floor under a circle of radius R), the frame (body,
   wheels and the belt off the ground) heaves and pitches rigidly as the two wheels say
-  (exact rotation about the middle of the bottom run's pitch line), and a lug on the
-  bottom run sits on the higher of the floor and the line between the wheels' feet.
+  (exact rotation about the middle of the bottom run's pitch line, so the body markers
+  move in x too), and a lug on the bottom run sits on the floor.
 """
 
 from __future__ import annotations
@@ -498,8 +498,8 @@ def _ride(cx_, cy_, n_lug, sigma0, psis, Xs, x_off, y_off, R, D, P, e, bump):
         if i < n_lug:
             u = np.mod(sigma0[i] + psis, P)
             bottom = u < D
-            # on the ground: its x is the belt's, its y the higher of floor and chord
-            chord = heave + np.tan(th) * qx
-            yb = cy_[i] + np.maximum(chord, bump_height(cx_[i], bump))
+            # on the ground: its x is the belt's, its y the floor's (the lug's rubber takes
+            # up the difference to the line between the wheels' feet)
+            yb = cy_[i] + bump_height(cx_[i], bump)
             rx, ry = np.where(bottom, cx_[i], rx), np.where(bottom, yb, ry)
         cx_[i], cy_[i] = rx, ry

@@ -202,6 +202,8 @@ def _exactly(ctx, proj, found, cols, v_ref, ds):
 
     from ._exact import refine
 
+    if proj.Js.shape[1] != len(ctx.res.flat):  # a second term: the first's columns in proj
+        return found, {}
     pick = []
     for form in FORMS:
         best = [q for q in found if q[0] == form]
