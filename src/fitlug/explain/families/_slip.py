@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ...model import slip_law
+from .._criterion import BIC_THRESHOLD, MIN_SHARE_REMOVED
 from ._base import Choice, Family, names
 from ._exact import residuals_with
 
@@ -204,6 +205,11 @@ def _exactly(ctx, proj, found, cols, v_ref, ds):
 
     if proj.Js.shape[1] != len(ctx.res.flat):  # a second term: the first's columns in proj
         return found, {}
+    chi2_0 = float(ctx.r[ctx.valid] @ ctx.r[ctx.valid])
+    best = found[0][2]
+    if not (best.delta_bic < BIC_THRESHOLD
+            and best.dchi2 >= MIN_SHARE_REMOVED * (chi2_0 - ctx.res.dof)):
+        return found, {}  # no form earns its place: the exact refits would not change that
     pick = []
     for form in FORMS:
         best = [q for q in found if q[0] == form]
@@ -211,7 +217,6 @@ def _exactly(ctx, proj, found, cols, v_ref, ds):
             if q not in pick:
                 pick.append(q)
     pick = sorted(pick, key=lambda q: q[2].delta_bic)[:EXACT_CANDIDATES]
-    chi2_0 = float(ctx.r[ctx.valid] @ ctx.r[ctx.valid])
     out, refined = [], {}
     for form, n, f in found:
         if (form, n, f) not in pick:
