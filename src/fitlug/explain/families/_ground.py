@@ -15,12 +15,16 @@ import numpy as np
 
 from .._criterion import BIC_THRESHOLD
 from ._base import Choice, Family, best_size, bspline_on, names
+from ._ride import ride_residuals
 
 INTERVALS = (2, 4, 8, 16, 32, 64)
 MIN_SPACING_MM = 4.0
 MAX_ADDED = 24  # knots added where the ground changes fast
 MIN_ADDED_SPACING_MM = 0.25
 CANDIDATES = 3  # the intervals of most misfit tried for each added knot
+#: where the profile acts (:func:`_cols`); "lugs" first: a profile the lugs do not show is
+#: not the ground's
+MODES = ("lugs", "shared", "separate", "frame", "frame_own")
 
 
 class GroundProfile(Family):
@@ -54,7 +58,7 @@ class GroundProfile(Family):
         # the lugs on the profile; the wheels (and the frame) on it too; or the wheels on
         # a profile of their own (a wheel rolling over a bump rides the bump's envelope
         # under its rim, wider and flatter than the bump itself)
-        for mode in ("lugs", "shared", "separate", "frame", "frame_own"):
+        for mode in MODES:
             found = best_size(proj, [(n, cols(n, mode), 0) for n in sizes])
             if mode == "lugs" and (found is None or found[1].delta_bic > BIC_THRESHOLD):
                 # the ground is where the bottom run's lugs are: a profile they do not
@@ -146,7 +150,9 @@ class GroundProfile(Family):
                       ambiguity=("a recording driving over the same place again (or in "
                                  "the other direction) would tell a feature of the ground "
                                  "from one of the belt"),
-                      columns=lambda c: _cols(c, breaks, mode))
+                      columns=lambda c: _cols(c, breaks, mode),
+                      exact=ride_residuals(ctx, breaks, mode) if mode in ("frame", "frame_own")
+                      else None, extra={"exact_first": mode in ("frame", "frame_own")})
 
 
 #: a point of the profile is read where a lug sample lies this close (mm)

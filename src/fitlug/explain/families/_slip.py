@@ -90,6 +90,11 @@ class SlipLaw(Family):
         # the headline's speed: the cruise of the refitted model (the base fit's speed is
         # pulled by the misfit: 120.2 mm/s on a 120.0 mm/s cruise)
         v_head = _cruise_at(ctx, refined[(form, n)][0]) if (form, n) in refined else v_ref
+        s_rest = None
+        if (form, n) in refined:
+            from ._extend import params_at
+
+            s_rest = float(params_at(ctx.res, refined[(form, n)][0])["s0"])
         rivals = [q for q in found if q[0] != form]
         close = [q for q in rivals if q[2].delta_bic - fitted.delta_bic < AMBIGUOUS_DBIC]
         coord = FORMS[form]
@@ -115,9 +120,11 @@ class SlipLaw(Family):
                 return params, text
             g = float(g_of(v_head, c))
             params.update({"v_ref_mm_s": v_head, "slip_change_at_v_ref": g,
-                           "slip_at_rest_linear": s_ref})
+                           "slip_at_rest_linear": s_rest if s_rest is not None
+                           else s_ref - g})
             grow = "grows" if g > 0 else "falls"
-            rest = s_ref - g  # the base fit's slip is near the one at cruise
+            # the refitted law's slip at rest (else: the base fit's is near the cruise's)
+            rest = s_rest if s_rest is not None else s_ref - g
             text = (f"the slip {grow} with speed, by {abs(g):.2g} ({abs(100 * g / rest):.2g} % "
                     f"of the slip at rest) at {v_head:.0f} mm/s")
             text += (": in proportion to the traction, as lug tips dragging or a rubber "
