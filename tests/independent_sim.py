@@ -35,6 +35,26 @@ run, grows at dd/dt = s·v_t while the lug is on the run, and relaxes as dd/dt =
 lift-off; the marker is drawn at the stadium point of σ − (1 − h)·d. A lug already on the
 run at t = 0 starts with the shear s(0)·u (the recording starts at rest, at the steady
 slip's law).
+
+Physics of MODEL.md §5 (beyond the catalog), each written from first principles here:
+
+- arc radii per wheel (``R_front``, ``R_rear``): both wheels stand on the ground (the bottom
+  run level, y = 0 at its pitch line, the rear centre at (−D/2, R_r), the front at (D/2,
+  R_f)); the top run is the second common tangent, the mirror of the ground line in the
+  line of centres: tilted by 2α, tan α = (R_f − R_r)/D, also D long; the rear wheel is
+  wrapped over π − 2α, the front over π + 2α; P = 2D + R_r(π − 2α) + R_f(π + 2α) = N p
+  fixes D (`stadium2`).
+- a speed-dependent rolling resistance (``C_rr_v1``): C_rr(v) = C_rr (1 + |v|/v1), so
+  F = m (a/1000 + C_rr(v) g) + F_d and the steady slip depends on the speed; ``speeds``
+  gives any motor profile as a sum of smoothstep ramps (t0, t1, Δv) (accelerate, cruise,
+  change speed, stop). The truth's slip is the steady slip at the highest cruise speed;
+  ``slip_at_speed`` lists it at every plateau.
+- a ground bump (``ground_bump``: height, x, width): the floor rises as
+  h (1 + cos(2π(x − x_b)/w))/2 for |x − x_b| < w/2. Each wheel rides over it (its centre
+  lifted by the highest point of the floor under a circle of radius R), the frame (body,
+  wheels and the belt off the ground) heaves and pitches rigidly as the two wheels say
+  (exact rotation about the middle of the bottom run's pitch line, so the body markers
+  move in x too), and a lug on the bottom run sits on the floor.
 """
 
 from __future__ import annotations
@@ -82,6 +102,68 @@ def stadium(u, R, D, e):
     phi = (u[s4] - 2 * D - math.pi * R) / R
     x[s4], y[s4] = D / 2 + (R + e) * np.sin(phi), R + (R + e) * np.cos(phi)
     return x, y
+
+
+def stadium2(u, R_r, R_f, D, e):
+    """The belt's pitch-line path with a rear wheel of radius R_r and a front wheel of R_f
+    (both on the ground; see the module's text), marker offset e outward. Equal radii give
+    `stadium`."""
+    al = math.atan2(R_f - R_r, D)
+    wr, wf = math.pi - 2 * al, math.pi + 2 * al  # wrap angles
+    P = 2 * D + R_r * wr + R_f * wf
+    u = np.mod(u, P)
+    x = np.empty_like(u)
+    y = np.empty_like(u)
+    b1, b2, b3 = D, D + R_r * wr, 2 * D + R_r * wr
+    s1 = u < b1
+    s2 = (u >= b1) & (u < b2)
+    s3 = (u >= b2) & (u < b3)
+    s4 = u >= b3
+    x[s1], y[s1] = D / 2 - u[s1], -e
+    phi = (u[s2] - b1) / R_r
+    x[s2], y[s2] = -D / 2 - (R_r + e) * np.sin(phi), R_r - (R_r + e) * np.cos(phi)
+    # top run: from the rear tangent point, along (cos 2α, sin 2α), offset e along its normal
+    c2, s2a = math.cos(2 * al), math.sin(2 * al)
+    q = u[s3] - b2
+    x0, y0 = -D / 2 - R_r * s2a, R_r + R_r * c2
+    x[s3] = x0 + q * c2 - e * s2a
+    y[s3] = y0 + q * s2a + e * c2
+    phi = -2 * al + (u[s4] - b3) / R_f
+    x[s4], y[s4] = D / 2 + (R_f + e) * np.sin(phi), R_f + (R_f + e) * np.cos(phi)
+    return x, y
+
+
+def belt_length2(R_r, R_f, D):
+    """P of `stadium2`."""
+    al = math.atan2(R_f - R_r, D)
+    return 2 * D + R_r * (math.pi - 2 * al) + R_f * (math.pi + 2 * al)
+
+
+def _solve_D(P, R_r, R_f):
+    """D with belt_length2(R_r, R_f, D) = P (bisection)."""
+    lo, hi = 1e-3, P / 2
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if belt_length2(R_r, R_f, mid) < P:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+def bump_height(x, bump):
+    """The floor's height (mm) at ground x under ``ground_bump`` {height, x, width}."""
+    h, xb, w = bump["height"], bump["x"], bump["width"]
+    z = (np.asarray(x, float) - xb) / (w / 2)
+    return np.where(np.abs(z) < 1, h * 0.5 * (1 + np.cos(np.pi * z)), 0.0)
+
+
+def wheel_lift(xc, R, bump):
+    """Lift of the centre of a wheel of radius R at ground x `xc` rolling on the floor."""
+    s = np.linspace(-R, R, 401)
+    prof = bump_height(np.asarray(xc)[:, None] + s[None, :], bump) + \
+        np.sqrt(R * R - s * s)[None, :] - R
+    return np.maximum(prof.max(axis=1), 0.0)
 
 
 def path_corrections(u, R, D, sag=None, sink=None):
@@ -138,7 +220,8 @@ def make(seed=0, *, fps=120.0, duration=5.0, v_max=120.0, t_acc=(0.4, 1.6), t_de
          m=6.0, k=0.3, C_rr=0.08, n=8, L=127.0, R=30.0, pitch=20.0, N=20, e=2.5,
          x_off=3.0, y_off=4.0, n_lug=8, body=((-50.0, 70.0), (45.0, 72.0)),
          noise_lug=0.0065, noise_body=0.0041, effects=None, F_d=0.0, ground=None,
-         marker_h=1.0, shear_tau=0.0):
+         marker_h=1.0, shear_tau=0.0, R_front=None, R_rear=None, speeds=None, C_rr_v1=None,
+         ground_bump=None):
     """A recording (Recording, Rig, truth dict) from the contract's equations.
 
     F_d: drawbar pull (N), added to the traction load F = m (a/1000 + C_rr g) + F_d.
@@ -150,7 +233,8 @@ def make(seed=0, *, fps=120.0, duration=5.0, v_max=120.0, t_acc=(0.4, 1.6), t_de
         seed, fps=fps, duration=duration, v_max=v_max, t_acc=t_acc, t_dec=t_dec, m=m, k=k,
         C_rr=C_rr, n=n, L=L, R=R, pitch=pitch, N=N, e=e, x_off=x_off, y_off=y_off,
         n_lug=n_lug, body=body, noise_lug=noise_lug, noise_body=noise_body, effects=effects,
-        F_d=F_d, ground=ground, marker_h=marker_h, shear_tau=shear_tau)
+        F_d=F_d, ground=ground, marker_h=marker_h, shear_tau=shear_tau, R_front=R_front,
+        R_rear=R_rear, speeds=speeds, C_rr_v1=C_rr_v1, ground_bump=ground_bump)
     return rec, rig, truth
 
 
@@ -158,15 +242,28 @@ def make_detailed(seed=0, *, fps=120.0, duration=5.0, v_max=120.0, t_acc=(0.4, 1
                   t_dec=(3.4, 4.6), m=6.0, k=0.3, C_rr=0.08, n=8, L=127.0, R=30.0, pitch=20.0,
                   N=20, e=2.5, x_off=3.0, y_off=4.0, n_lug=8,
                   body=((-50.0, 70.0), (45.0, 72.0)), noise_lug=0.0065, noise_body=0.0041,
-                  effects=None, F_d=0.0, ground=None, marker_h=1.0, shear_tau=0.0):
+                  effects=None, F_d=0.0, ground=None, marker_h=1.0, shear_tau=0.0,
+                  R_front=None, R_rear=None, speeds=None, C_rr_v1=None, ground_bump=None):
     """As `make`, plus a dict of noise-free series at the frame stamps for tests.
+
+    R_front, R_rear: the wheels' pitch radii (mm; either None: R for it), `stadium2`.
+    speeds: ((t0, t1, dv), ...) smoothstep ramps of the motor speed (None: up to v_max over
+    t_acc, down over t_dec). C_rr_v1: mm/s, C_rr(v) = C_rr (1 + |v| / C_rr_v1).
+    ground_bump: {"height", "x", "width"} (mm), a raised-cosine rise of the floor.
 
     series: t (stamps, one per frame), tau (true times), X, psi, v (the possibly modulated
     speed), vt (belt speed), s (slip) at tau; sigma0 (lug markers' σ_i0); P, D.
     """
     eff = _resolve(effects)
     P = N * pitch
-    D = (P - 2 * math.pi * R) / 2
+    two = R_front is not None or R_rear is not None
+    R_f = float(R if R_front is None else R_front)
+    R_r = float(R if R_rear is None else R_rear)
+    D = _solve_D(P, R_r, R_f) if two else (P - 2 * math.pi * R) / 2
+    if two and (marker_h != 1.0 or "belt_sag" in eff or "ground_sinkage" in eff):
+        raise ValueError("R_front/R_rear with marker_h or a path effect: not implemented")
+    ramps = (((t_acc[0], t_acc[1], v_max), (t_dec[0], t_dec[1], -v_max)) if speeds is None
+             else tuple(tuple(map(float, q)) for q in speeds))
 
     def smoothstep(x):
         x = np.clip(x, 0, 1)
@@ -176,12 +273,16 @@ def make_detailed(seed=0, *, fps=120.0, duration=5.0, v_max=120.0, t_acc=(0.4, 1
         return np.where((x > 0) & (x < 1), 6 * x * (1 - x), 0.0)
 
     def profile(tt):
-        xa = (tt - t_acc[0]) / (t_acc[1] - t_acc[0])
-        xd = (tt - t_dec[0]) / (t_dec[1] - t_dec[0])
-        v = v_max * (smoothstep(xa) - smoothstep(xd))
-        a = v_max * (dsmooth(xa) / (t_acc[1] - t_acc[0])
-                     - dsmooth(xd) / (t_dec[1] - t_dec[0]))
+        v = 0.0 * tt
+        a = 0.0 * tt
+        for t0, t1, dv in ramps:
+            xa = (tt - t0) / (t1 - t0)
+            v = v + dv * smoothstep(xa)
+            a = a + dv * dsmooth(xa) / (t1 - t0)
         return v, a
+
+    def crr(v):
+        return C_rr if C_rr_v1 is None else C_rr * (1 + np.abs(v) / C_rr_v1)
 
     sK = eff["lug_sliding"]["s_K"] if "lug_sliding" in eff else None
 
@@ -212,7 +313,7 @@ def make_detailed(seed=0, *, fps=120.0, duration=5.0, v_max=120.0, t_acc=(0.4, 1
         h = 1e-5
         tt = np.arange(0, t_end + h / 2, h)
         v, a = profile(tt)
-        F = m * (a / 1000.0 + C_rr * G) + F_d
+        F = m * (a / 1000.0 + crr(v) * G) + F_d
         s = 2 * F / (k * n * L)
         if sK is not None:
             s = slip_law(s)
@@ -226,8 +327,9 @@ def make_detailed(seed=0, *, fps=120.0, duration=5.0, v_max=120.0, t_acc=(0.4, 1
                                shear_tau)
             lag = (1.0 - marker_h) * np.stack([np.interp(tau, tt, d) for d in shear])
     else:
-        if marker_h != 1.0:
-            raise ValueError("marker_h != 1 with a speed modulation is not implemented here")
+        if marker_h != 1.0 or C_rr_v1 is not None:
+            raise ValueError("marker_h != 1 or C_rr_v1 with a speed modulation: not "
+                             "implemented here")
         er = eff.get("lug_ripple", {}).get("ripple_eps", 0.0)
         pr = eff.get("lug_ripple", {}).get("ripple_phi", 0.0)
         ew = eff.get("wheel_runout", {}).get("runout_eps", 0.0)
@@ -280,7 +382,7 @@ def make_detailed(seed=0, *, fps=120.0, duration=5.0, v_max=120.0, t_acc=(0.4, 1
     cx_, cy_ = [], []
     for i in range(n_lug):
         ui = sigma0[i] + psis - (lag[i] if marker_h != 1.0 else 0.0)
-        px, py = stadium(ui, R, D, e)
+        px, py = stadium2(ui, R_r, R_f, D, e) if two else stadium(ui, R, D, e)
         if sag is not None or sink is not None:
             py = py + path_corrections(ui, R, D, sag, sink)
         cx_.append(Xs + x_off + px)
@@ -293,6 +395,8 @@ def make_detailed(seed=0, *, fps=120.0, duration=5.0, v_max=120.0, t_acc=(0.4, 1
             yb = cy + (bb["bounce_A"] + bb["bounce_B"] * cx) * np.sin(
                 2 * math.pi * psis / pitch + bb["bounce_phi"])
         cy_.append(yb)
+    if ground_bump is not None:
+        _ride(cx_, cy_, n_lug, sigma0, psis, Xs, x_off, y_off, R, D, P, e, ground_bump)
 
     def image(qx, qy, lug):
         if "marker_depth" in eff and lug:
@@ -332,12 +436,26 @@ def make_detailed(seed=0, *, fps=120.0, duration=5.0, v_max=120.0, t_acc=(0.4, 1
     rec = Recording(markers=markers, roles=roles, t=np.concatenate(ts),
                     marker_index=np.concatenate(mi).astype(np.int64), x=np.concatenate(xs),
                     y=np.concatenate(ys), meta={"fps": str(fps)})
-    s_lin0 = 2 * (m * C_rr * G + F_d) / (k * n * L)
+    plateaus = sorted({round(float(np.sum([dv for t0_, t1_, dv in ramps if t1_ <= tq])), 9)
+                       for tq in [r_[1] for r_ in ramps]} - {0.0})
+    v_top = max(plateaus, key=abs) if plateaus else 0.0
+    s_lin0 = 2 * (m * float(crr(v_top)) * G + F_d) / (k * n * L)
     s0 = float(slip_law(s_lin0)) if sK is not None else s_lin0
     truth = {"slip": s0, "delta_l_mm": s_lin0 * L / (n - 1), "stiffness_N_per_mm": k,
              "rolling_resistance": C_rr, "R_mm": R, "D_mm": D, "e_mm": e, "pitch_mm": pitch,
              "effects": copy.deepcopy(eff), "drawbar_pull_N": F_d,
-             "traction_N": m * C_rr * G + F_d, "marker_h": marker_h, "shear_tau": shear_tau}
+             "traction_N": m * float(crr(v_top)) * G + F_d, "marker_h": marker_h,
+             "shear_tau": shear_tau}
+    if two:
+        truth.update({"R_front_mm": R_f, "R_rear_mm": R_r, "R_mm": 0.5 * (R_f + R_r),
+                      "delta_R_mm": R_f - R_r})
+    if C_rr_v1 is not None:
+        truth.update({"v_ref_mm_s": v_top, "C_rr_v1_mm_s": C_rr_v1,
+                      "slip_at_rest": 2 * (m * C_rr * G + F_d) / (k * n * L),
+                      "slip_at_speed": {v_: 2 * (m * float(crr(v_)) * G + F_d) / (k * n * L)
+                                        for v_ in plateaus}})
+    if ground_bump is not None:
+        truth["ground_bump"] = dict(ground_bump)
     if sK is not None:
         truth["slip_linear"] = s_lin0
     rig = Rig(load_bearing_length_mm=L, lugs_in_contact=n, lug_pitch_mm=pitch, mass_kg=m,
@@ -363,3 +481,25 @@ def _lug_shear(sigma0, psi, v, vt, s, h, D, P, tau):
         out[:, k] = d
         was = now
     return list(out)
+
+
+def _ride(cx_, cy_, n_lug, sigma0, psis, Xs, x_off, y_off, R, D, P, e, bump):
+    """The frame riding over the floor's bump (module text): in place on the noise-free
+    lists of points cx_, cy_ (lugs first, then the body markers)."""
+    mid = Xs + x_off  # ground x of the middle of the bottom run
+    lr = wheel_lift(mid - D / 2, R, bump)
+    lf = wheel_lift(mid + D / 2, R, bump)
+    th = np.arcsin((lf - lr) / D)
+    heave = 0.5 * (lf + lr)
+    c, sn = np.cos(th), np.sin(th)
+    for i in range(len(cx_)):
+        qx, qy = cx_[i] - mid, cy_[i] - y_off  # about the bottom run's pitch-line middle
+        rx, ry = mid + c * qx - sn * qy, y_off + heave + sn * qx + c * qy
+        if i < n_lug:
+            u = np.mod(sigma0[i] + psis, P)
+            bottom = u < D
+            # on the ground: its x is the belt's, its y the floor's (the lug's rubber takes
+            # up the difference to the line between the wheels' feet)
+            yb = cy_[i] + bump_height(cx_[i], bump)
+            rx, ry = np.where(bottom, cx_[i], rx), np.where(bottom, yb, ry)
+        cx_[i], cy_[i] = rx, ry

@@ -88,6 +88,10 @@ def fit_json(res, *, input_path: str | None = None, mcmc=None, discrepancy=None,
         "markers": list(prob.init_info.get("markers", [])),
         "joined": list(prob.init_info.get("joined", [])),
     }
+    law = ((getattr(res, "robust", None) or {}).get("slip_term") or {}).get("law") or {}
+    if out["slip"] is not None and law.get("v_headline_mm_s"):
+        # a slip law in the speed (MODEL.md §5): the headline is the steady slip at this speed
+        out["slip"]["at_speed_mm_s"] = _num(law["v_headline_mm_s"])
     if getattr(rig, "drawbar_pull_N", 0.0) and rig.mass_kg is None:
         out.setdefault("not_identifiable", {})["rolling_resistance"] = (
             "a drawbar pull without [vehicle] mass_kg in rig.toml: only C_rr + F_d/(m g) "

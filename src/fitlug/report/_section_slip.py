@@ -327,10 +327,9 @@ def plot_slip_force(st: dict, fj: dict | None = None, ax=None, bins: int = 14):
         from ..explain.families._slip import slip_change
 
         s_lin = st["fine_s_linear"][moving][o]
-        s_law = s_lin + slip_change(law, np.full(len(s_lin), law["v_ref_mm_s"]), s_lin,
-                                    law["steady_slip"])
-        ax.plot(Fm[o], s_law, "-", color="k", lw=1.5,
-                label=f"fitted law s(F) at {law['v_ref_mm_s']:.0f} mm/s")
+        v_c = law.get("v_headline_mm_s") or law["v_ref_mm_s"]  # the headline's speed
+        s_law = s_lin + slip_change(law, np.full(len(s_lin), v_c), s_lin, law["steady_slip"])
+        ax.plot(Fm[o], s_law, "-", color="k", lw=1.5, label=f"fitted law s(F) at {v_c:.0f} mm/s")
     else:
         ax.plot(Fm[o], st["fine_s"][moving][o], "-", color="k", lw=1.5,
                 label="fitted law s(F)")

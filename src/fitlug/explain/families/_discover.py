@@ -124,6 +124,7 @@ def discover(res, parts: list, det, J=None) -> Discovery:
     kept, tried = [], []
     B_all, k_all = np.zeros((len(ctx.r), 0)), 0
     r_cur, chi2_cur, dof_cur = ctx.r, chi2, dof
+    early = None  # (final, joint) of an exact first term solved already
     for _ in range(MAX_TERMS):
         best = None
         passed = []
@@ -172,17 +173,31 @@ def discover(res, parts: list, det, J=None) -> Discovery:
         strong = excess > STRONG_MISFIT_Z * det.chi2_spread * dof_cur
         if chi2_cur / dof_cur <= MODELLED_CHI2:
             break
+        if len(kept) == 1 and best.exact is not None and best.extra.get("exact_first"):
+            # an exact term far from linear (the wheels' radii: the top run's tilt and the
+            # arcs' lengths at second order) is refitted before a second term is sought:
+            # its linear prediction (chi2/dof 38) drew a bogus second term where the exact
+            # refit alone reaches the noise
+            solved = _solve_terms(res, ctx, proj0, kept, B_all, k_all, _slip_h(kept), False,
+                                  chi2_cur + 3.0 * math.sqrt(2.0 * dof))
+            chi2_x = float(np.sum(np.asarray(solved[0].residuals)[ctx.valid] ** 2))
+            if chi2_x / dof_cur <= MODELLED_CHI2:
+                early = solved
+                kept[0].chi2_per_dof_after = chi2_x / dof_cur
+                chi2_cur = chi2_x
+                break
     if not kept:
         return Discovery([], None, tried)
     # a term counted by its rank (an image or time map) is solved with its near-gauge
     # directions left out in the joint fit too
     rank = any(t.choice.extra.get("rank") for t in kept)
-    slip_h = np.concatenate([t.choice.extra.get("slip_headline",
-                                                np.zeros(t.choice.fitted.B.shape[1]))
-                             for t in kept])
+    slip_h = _slip_h(kept)
     held = 1.5 * chi2_cur + 10.0 * math.sqrt(2.0 * dof)
-    final, joint = _solve_terms(res, ctx, proj0, kept, B_all, k_all, slip_h, rank,
-                                chi2_cur + 3.0 * math.sqrt(2.0 * dof))
+    if early is not None:
+        final, joint = early
+    else:
+        final, joint = _solve_terms(res, ctx, proj0, kept, B_all, k_all, slip_h, rank,
+                                    chi2_cur + 3.0 * math.sqrt(2.0 * dof))
     if not final.chi2 < held:
         # the exact model did not hold the linear prediction: no term is reported
         return Discovery([], None, tried, why_not=(
@@ -220,6 +235,8 @@ def discover(res, parts: list, det, J=None) -> Discovery:
         t.c, t.cov = joint.c[i:i + m], joint.cov[i:i + m, i:i + m]
         if t.choice.retuned is not None:  # its refitted frequency, under the final fit
             t.choice = t.choice.retuned(joint.free.get(j, np.zeros(0)), vt_final)
+        if t.choice.extra.get("at_final"):  # read with the final fit's geometry
+            t.choice = t.choice.extra["at_final"](final)
         i += m
     kept[-1].chi2_per_dof_after = float(final.chi2_per_dof)
     for t in kept:
@@ -228,6 +245,13 @@ def discover(res, parts: list, det, J=None) -> Discovery:
     for t in kept:
         t.partial = partial
     return Discovery(kept, final, tried, glitches=glitches)
+
+
+def _slip_h(kept) -> np.ndarray:
+    """d headline slip / d coefficient over the kept terms' columns."""
+    return np.concatenate([t.choice.extra.get("slip_headline",
+                                               np.zeros(t.choice.fitted.B.shape[1]))
+                           for t in kept])
 
 
 def _solve_terms(res, ctx, proj, kept, B_all, k_all, slip_h, rank, bar, drop=None):
@@ -242,8 +266,12 @@ def _solve_terms(res, ctx, proj, kept, B_all, k_all, slip_h, rank, bar, drop=Non
     for j, t in enumerate(kept):  # a term with an exact (nonlinear) form is refitted in it
         m = t.choice.fitted.B.shape[1]
         if t.choice.exact is not None:
-            flat, c, r_ex, free, jac = refine(proj, ctx, B_all, joint.c, t.choice.exact,
-                                              np.arange(i, i + m))
+            done = t.choice.extra.get("refined")
+            if done is not None and len(kept) == 1 and drop is None:  # refitted already
+                flat, c, r_ex, free, jac = done
+            else:
+                flat, c, r_ex, free, jac = refine(proj, ctx, B_all, joint.c, t.choice.exact,
+                                                  np.arange(i, i + m))
             final, joint = _exact_fit(res, ctx, proj, jac, c, free, k_all, flat, r_ex,
                                       slip_h, rank)
             if free.size:

@@ -7,13 +7,16 @@ ground_sinkage are its catalog cases):
   rear one), a cubic B-spline whose knot spacing the criterion picks;
 - the arcs, the marker's distance from the wheel's centre += delta(phi / pi), each wheel
   its own B-spline in the place along its half-turn (a pitch radius per wheel, the lugs
-  splaying as the belt bends round it).
+  splaying as the belt bends round it);
+- arc radii per wheel: the front and rear wheels' pitch radii differ (:mod:`._radii`, an
+  exact term: the arcs' lengths and the top run's tilt change with them).
 """
 
 from __future__ import annotations
 
 import numpy as np
 from ._base import Choice, Family, best_size, bspline, names
+from ._radii import radii_choice
 
 RUN_INTERVALS = (1, 2, 4, 8, 16)
 ARC_INTERVALS = (0, 1, 2, 4, 8, 16)  # 0: a constant per wheel
@@ -63,9 +66,14 @@ class PathShape(Family):
                                          for n in ARC_INTERVALS])
                 if found:
                     cands.append((which, found, None, sel))
+        radii = radii_choice(ctx, proj, lug) if lug.sum() >= 40 else None
+        if radii is not None:
+            cands.append(("radii", (1, radii.fitted), None, lug))
         if not cands:
             return None
         where, (n, fitted), xi, sel = min(cands, key=lambda q: q[1][1].delta_bic)
+        if where == "radii":
+            return radii
         if isinstance(where, str):
             return _run_choice(ctx, where, n, fitted, xi, sel)
         return _arc_choice(ctx, where, n, fitted, sel)
