@@ -120,3 +120,20 @@ def pad(flat, fixed: dict, lay, obs: dict, packing: Packing) -> Padded | None:
     return Padded(flat=pk.pack(new_p), fixed=fixed_b, lay=pad_layout(lay, **sz), obs=obs_b,
                   packing=pk, cols=np.concatenate(cols) if cols else np.zeros(0, int),
                   rows=rows)
+
+
+def pad_model(p: dict, lay, like=None):
+    """(params, layout) of a model evaluation on bucketed shapes, or None (as :func:`pad`):
+    the samples bucketed by their own counts, the rest by `like`'s (default `lay`: a
+    layout of the same recording at other times, e.g. the report's curves, shares its
+    grid, knots and markers). The outputs' first entries are the real samples'."""
+    if not enabled():
+        return None
+    sz = sizes(lay if like is None else like)
+    for k, axis in _AXES.items():
+        if k in p and np.shape(p[k]) != (int(getattr(lay, axis)),):
+            return None
+    sz.update(n_lug_samples=bucket(lay.lug_t.shape[0]),
+              n_body_samples=bucket(lay.body_t.shape[0]))
+    p_b = {k: (_pad_param(v, sz[_AXES[k]]) if k in _AXES else v) for k, v in p.items()}
+    return p_b, pad_layout(lay, **sz)
