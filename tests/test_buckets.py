@@ -23,25 +23,26 @@ def test_buckets_are_few_and_at_most_a_quarter_larger():
     assert all(b >= n for n, b in zip(range(1, 20001), sizes))
     assert all(b <= 1.25 * n for n, b in zip(range(4, 20001), sizes[3:]))
     assert np.all(np.diff(sizes) >= 0)
-    assert len(set(sizes)) == 4 + 4 * 12  # four per octave: 1..4, then 5..20480
+    for k in range(15):  # at most four sizes per octave
+        assert len({b for b in sizes if 2 ** k <= b < 2 ** (k + 1)}) <= 4
 
 
-def _fit_and_marginal(prob):
-    from fitlug.fit import fit_problem
+def _marginal(res):
     from fitlug.posterior._marginal import _Marginal, slip_law_parameters
 
-    res = fit_problem(prob)
     marg = _Marginal(res, slip_law_parameters(res), batch=4)
     pts = marg.theta_hat + np.array([[0.0, 0.0], [2.0, 0.0], [0.0, -2.0]]) * marg._sd0
-    return res, marg, marg.exact_chi2(pts)
+    return marg, marg.exact_chi2(pts)
 
 
 def test_padded_programs_give_the_unpadded_numbers(monkeypatch):
-    """The least squares, its covariance, the posterior's marginal (Gaussian limit and
-    exact chi^2) and the report's model arrays, with and without the padding, on a
-    recording whose every size is padded (1 400 -> 1 536 lug samples, 41 -> 48 knots,
-    291 -> 320 grid nodes)."""
-    from fitlug.fit import build_problem
+    """On a recording whose every size is padded (1 400 -> 1 536 lug samples, 41 -> 48
+    knots, 291 -> 320 grid nodes): the same fit's posterior marginal (Gaussian limit and
+    exact chi^2) and report arrays to 1e-10 with and without the padding; the least
+    squares to its solver's tolerance (the Levenberg-Marquardt path, whose steps end
+    within 1e-6 of a unit column, takes other steps when the sums' rounding changes):
+    chi^2 to 1e-10, each parameter within 1e-5 of its standard error."""
+    from fitlug.fit import build_problem, fit_problem
     from fitlug.fit._buckets import sizes
     from fitlug.report._state import state_arrays
 
@@ -50,26 +51,24 @@ def test_padded_programs_give_the_unpadded_numbers(monkeypatch):
     sz = sizes(prob.lay)
     assert sz["n_lug_samples"] > prob.lay.lug_t.shape[0] and sz["n_coef"] > prob.lay.n_coef
     assert sz["n_grid"] > prob.lay.grid.shape[0]
-    out = {}
+    fits, same = {}, {}
     for off in ("1", "0"):
         monkeypatch.setenv("FITLUG_NO_BUCKETS", off)
-        res, marg, chi = _fit_and_marginal(prob)
-        out[off] = (res, marg, chi, state_arrays(res)[0])
-    (r0, m0, c0, a0), (r1, m1, c1, a1) = out["1"], out["0"]
-    rel = lambda a, b: np.max(np.abs(np.asarray(a) - np.asarray(b))) / np.max(np.abs(a))  # noqa: E731
-    assert r0.steps == r1.steps
-    assert rel(r0.flat, r1.flat) < 1e-10
+        fits[off] = fit_problem(prob)
+        same[off] = (*_marginal(fits["1"]), state_arrays(fits["1"])[0])
+    r0, r1 = fits["1"], fits["0"]
     assert abs(r0.chi2 - r1.chi2) < 1e-10 * r0.chi2
-    # residuals: (model - data) / sigma of positions ~1e4 sigma, so rounding of 1e-16 in
-    # the parameters moves them by ~1e-11 sigma
-    assert np.max(np.abs(r0.residuals - r1.residuals)) < 1e-8
     se0, se1 = np.sqrt(np.diag(r0.cov)), np.sqrt(np.diag(r1.cov))
+    assert np.max(np.abs(r0.flat - r1.flat) / se0) < 1e-5
     assert np.max(np.abs(se0 - se1) / se0) < 1e-8
-    assert rel(m0.cov, m1.cov) < 1e-8
-    assert np.max(np.abs(c0 - c1)) < 1e-8 * np.max(c0)
-    for k in ("lug_model_x", "lug_model_y", "body_model_x", "fine_v", "fine_s", "curve_x"):
-        assert a0[k].shape == a1[k].shape
-        assert np.max(np.abs(a0[k] - a1[k])) < 1e-9 * max(1.0, np.max(np.abs(a0[k]))), k
+    (m0, c0, a0), (m1, c1, a1) = same["1"], same["0"]
+    assert np.max(np.abs(m0.cov - m1.cov) / np.sqrt(np.outer(np.diag(m0.cov),
+                                                              np.diag(m0.cov)))) < 1e-10
+    assert np.max(np.abs(c0 - c1)) < 1e-10 * np.max(c0)
+    for k in ("lug_model_x", "lug_model_y", "body_model_x", "body_model_y", "lug_u",
+              "fine_X", "fine_v", "fine_s", "curve_x", "curve_y"):
+        assert a0[k].shape == a1[k].shape, k
+        assert np.max(np.abs(a0[k] - a1[k])) <= 1e-10 * max(1.0, np.max(np.abs(a0[k]))), k
     assert np.array_equal(a0["lug_seg"], a1["lug_seg"])
 
 

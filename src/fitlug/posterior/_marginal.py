@@ -37,6 +37,7 @@ marginal under the time budget. The check's largest discrepancy is reported.
 
 from __future__ import annotations
 
+import jax
 import numpy as np
 import jax.numpy as jnp
 
@@ -89,7 +90,7 @@ class _Marginal:
         self.idx = np.array([sl[k].start for k in names])
         self.theta_hat = np.asarray(res.flat)[self.idx]
         self.batch = batch
-        self._args = (jnp.asarray(res.flat), jnp.asarray(self.idx),
+        self._args = (jax.device_put(np.asarray(res.flat, float)), None,
                       {k: jnp.asarray(v) for k, v in res.params.items()
                        if k not in res.packing.names}, prob.lay, prob.obs, res.packing)
         self._plan = self._blocks = self._shared = None
