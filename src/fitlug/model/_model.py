@@ -81,7 +81,8 @@ class Layout(eqx.Module):
 
     def with_times(self, lug_t, lug_i, body_t, body_j) -> "Layout":
         """The same model evaluated at other sample times (inside the grid)."""
-        a = [jnp.asarray(v) for v in (lug_t, lug_i, body_t, body_j)]
+        a = [jax.device_put(v) if isinstance(v, np.ndarray) else jnp.asarray(v)  # (no compile)
+             for v in (lug_t, lug_i, body_t, body_j)]
         return eqx.tree_at(lambda l: (l.lug_t, l.lug_i, l.body_t, l.body_j), self, tuple(a))
 
 

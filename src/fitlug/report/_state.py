@@ -135,10 +135,11 @@ def _model_state_call(p, lay, fine, lay_c) -> dict:
 
 def state_arrays(res, posterior=None, explanation=None) -> tuple[dict, dict]:
     """(arrays, meta) of a fit, its posterior and explanation (see the module docstring)."""
+    import jax
     import jax.numpy as jnp
 
     prob, lay = res.problem, res.problem.lay
-    p = {k: jnp.asarray(v) for k, v in res.params.items()}
+    p = {k: jax.device_put(np.asarray(v)) for k, v in res.params.items()}  # no compile
     o = {k: np.asarray(v) for k, v in prob.obs.items()}
     a = {"lug_t": np.asarray(lay.lug_t), "lug_i": np.asarray(lay.lug_i),
          "lug_x": o["lug_x"], "lug_y": o["lug_y"], "lug_valid": o["lug_w"] > 0,
