@@ -20,6 +20,7 @@ their lengths; tests/test_buckets.py). FITLUG_NO_BUCKETS=1 turns it off.
 
 from __future__ import annotations
 
+import contextlib
 import os
 from dataclasses import dataclass
 
@@ -33,8 +34,24 @@ from ._residuals import Packing
 _AXES = {"v": "n_coef", "sigma0": "n_lug", "cx": "n_body", "cy": "n_body"}
 
 
+_FLOOR: dict = {}  # sizes at least this large (fit_many: one shape per group)
+
+
 def enabled() -> bool:
     return os.environ.get("FITLUG_NO_BUCKETS") != "1"
+
+
+@contextlib.contextmanager
+def at_least(floor: dict):
+    """Within the block, every size is at least floor's (:func:`sizes`' keys): the
+    recordings of a batch share one shape (:func:`fitlug.fit.fit_many`)."""
+    old = dict(_FLOOR)
+    _FLOOR.update(floor)
+    try:
+        yield
+    finally:
+        _FLOOR.clear()
+        _FLOOR.update(old)
 
 
 @dataclass(frozen=True)
@@ -69,10 +86,14 @@ class Padded:
 def sizes(lay) -> dict:
     """The bucketed sizes of `lay`'s programs."""
     G = int(lay.grid.shape[0])
-    return {"n_grid": G if reads_grid(lay) else bucket(G), "n_coef": bucket(lay.n_coef),
-            "n_lug_samples": bucket(lay.lug_t.shape[0]),
-            "n_body_samples": bucket(lay.body_t.shape[0]),
-            "n_lug": bucket(lay.n_lug), "n_body": bucket(lay.n_body)}
+    out = {"n_grid": bucket(G), "n_coef": bucket(lay.n_coef),
+           "n_lug_samples": bucket(lay.lug_t.shape[0]),
+           "n_body_samples": bucket(lay.body_t.shape[0]),
+           "n_lug": bucket(lay.n_lug), "n_body": bucket(lay.n_body)}
+    out = {k: max(v, int(_FLOOR.get(k, 0))) for k, v in out.items()}
+    if reads_grid(lay):
+        out["n_grid"] = G
+    return out
 
 
 def _pad_param(v, n: int):
