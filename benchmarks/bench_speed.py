@@ -168,11 +168,12 @@ def main(argv=None) -> int:
         for kind, csv in recs.items():
             for ver, src in versions.items():
                 cache = tempfile.mkdtemp(prefix="jaxcache_", dir=tmp)
+                run = csv
                 if kind == "newlen":  # the kind seen first, then the new recording
-                    seen, csv = csv
+                    seen, run = csv
                     _child(src, seen, cache)
-                first = _child(src, csv, cache)
-                warm = [_child(src, csv, cache) for _ in range(a.repeat)]
+                first = _child(src, run, cache)
+                warm = [_child(src, run, cache) for _ in range(a.repeat)]
                 rows[kind, ver] = (first, warm)
                 ok = [w for w in warm if "error" not in w]
                 med = ({k: statistics.median(w[k] for w in ok) for k in ("wall", "cpu")}
