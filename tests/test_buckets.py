@@ -10,7 +10,6 @@ import subprocess
 import sys
 
 import numpy as np
-import pytest
 
 from fitlug.model._buckets import bucket
 from fitlug.sim import Scenario, rig_of, simulate

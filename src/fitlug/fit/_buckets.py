@@ -75,13 +75,6 @@ class Padded:
     def r_of(self, r_b) -> np.ndarray:
         return np.asarray(r_b)[self.rows]
 
-    def flats(self, flats: np.ndarray) -> np.ndarray:
-        """Real free vectors (m, p) as padded ones (m, p_b): the padding's values are 0."""
-        flats = np.atleast_2d(flats)
-        out = np.zeros((flats.shape[0], sum(self.packing.sizes)))
-        out[:, self.cols] = flats
-        return out
-
 
 def sizes(lay) -> dict:
     """The bucketed sizes of `lay`'s programs."""
