@@ -1,6 +1,7 @@
-"""Issue 43, item 2: shapes in buckets. A fit on bucketed shapes (weightless samples, unread
-parameters and grid nodes added: fitlug.fit._buckets) gives the unpadded fit's numbers to
-rounding, and a recording of a new length in a bucket already seen compiles nothing."""
+"""Issue 43, item 2: shapes in buckets. The programs on bucketed shapes (weightless samples,
+unread parameters and grid nodes added: fitlug.fit._buckets) give the unpadded ones'
+numbers to 1e-10, a fit lands within its solver's tolerance of the unpadded fit, and a
+recording of a new length in a bucket already seen compiles nothing."""
 
 from __future__ import annotations
 
