@@ -34,10 +34,17 @@ from ._residuals import Packing
 _AXES = {"v": "n_coef", "sigma0": "n_lug", "cx": "n_body", "cy": "n_body"}
 
 
+#: samples (both roles) above which nothing is padded: a long recording's passes run in
+#: time blocks of one compiled shape already, its compiles are a small part of its run, and
+#: a padded copy of its sample arrays would add to the memory its stages are held to
+LONG_SAMPLES = 200_000
 _FLOOR: dict = {}  # sizes at least this large (fit_many: one shape per group)
 
 
-def enabled() -> bool:
+def enabled(lay=None) -> bool:
+    """Whether to pad (FITLUG_NO_BUCKETS=1 turns it off; so does a long recording)."""
+    if lay is not None and lay.lug_t.shape[0] + lay.body_t.shape[0] > LONG_SAMPLES:
+        return False
     return os.environ.get("FITLUG_NO_BUCKETS") != "1"
 
 
@@ -97,7 +104,7 @@ def _pad_param(v, n: int):
 def pad(flat, fixed: dict, lay, obs: dict, packing: Packing) -> Padded | None:
     """The problem on bucketed shapes, or None (turned off, or a parameter whose shape is
     not the layout's count: then the caller runs the problem as it is)."""
-    if not enabled():
+    if not enabled(lay):
         return None
     sz = sizes(lay)
     p = packing.unpack(np.asarray(flat, float), {})
@@ -141,7 +148,7 @@ def pad_model(p: dict, lay, like=None):
     the samples bucketed by their own counts, the rest by `like`'s (default `lay`: a
     layout of the same recording at other times, e.g. the report's curves, shares its
     grid, knots and markers). The outputs' first entries are the real samples'."""
-    if not enabled():
+    if not enabled(lay):
         return None
     sz = sizes(lay if like is None else like)
     for k, axis in _AXES.items():
