@@ -14,7 +14,8 @@ layout those sizes without changing a single model value at its real samples:
 - speed-spline coefficients and markers that no sample reads (n_coef, n_lug, n_body: the
   caller pads the parameter vectors with values that nothing reads).
 
-A layout whose effects read the whole integration grid (a ``lug_lag`` hook) keeps its grid.
+A layout whose effects read the whole integration grid (a ``lug_lag`` or ``memory`` hook)
+keeps its grid.
 """
 
 from __future__ import annotations
@@ -42,9 +43,15 @@ def bucket(n: int) -> int:
     return q << e
 
 
+#: hooks whose effects read the integration's nodes as a whole (a search over the belt
+#: travel; a memory solved along it): their layouts keep their own grid
+GRID_HOOKS = ("lug_lag", "memory")
+
+
 def reads_grid(lay: Layout) -> bool:
-    """Whether an effect of the layout reads the whole integration grid (lug_lag)."""
-    return any(getattr(CATALOG[e], "lug_lag", None) is not None for e in lay.effects)
+    """Whether an effect of the layout reads the whole integration grid (GRID_HOOKS)."""
+    return any(getattr(CATALOG[e], h, None) is not None for e in lay.effects
+               for h in GRID_HOOKS)
 
 
 def _rows(a, n: int, fill=0):
