@@ -1,7 +1,7 @@
 """How long a whole `fit-lug` run takes, first and warm, per kind of recording (issue 43).
 
-    python benchmarks/bench_speed.py [--kinds bundled,null,effect,engine] [--before REF]
-        [--repeat 2] [--engine CSV] [--json FILE]
+    python benchmarks/bench_speed.py [--kinds bundled,null,effect,engine,newlen]
+        [--before REF] [--repeat 2] [--engine CSV] [--json FILE]
 
 Per kind of recording (the bundled one; a null drive-through: the reference robot seen
 through a 400 mm window with a tracker's faults; an effect: lug_sliding, slide_mu 6,
@@ -11,6 +11,12 @@ run):
 
 - first: with an empty temporary JAX cache (FITLUG_CACHE_DIR), as on a fresh machine;
 - warm: again with that cache, `--repeat` times (the median is printed).
+
+`newlen` (issue 43, item 2: shape buckets): a recording never seen before of a kind
+already seen. Two simulated recordings of the reference robot, 5.8 s and 6.0 s long
+(other frames and samples, the same buckets); the 5.8 s one is run first into an
+empty cache (the kind seen), then the 6.0 s one's first run (new to that cache) and its
+warm runs, and the first's CPU seconds over the warm median's (issue 43: at most 1.5).
 
 Wall and CPU seconds (user + sys of the whole process, its threads included, interpreter
 start and imports too) come from the parent (getrusage of the children); the stage split
@@ -103,6 +109,18 @@ def _recordings(kinds, folder, engine):
         cut, _ = (drive_through(rec, seed=5, window=(100.0, 500.0), faults=True) if not effects
                   else drive_through(rec, seed=5, faults=True, need_motion=True))
         out[kind] = write_realistic(os.path.join(folder, kind), cut, rig_of(sc), wide=False)
+    if "newlen" in kinds:
+        from fitlug.sim import Scenario, write_simulation
+
+        base, pair = Scenario(), []
+        for d, seed in ((5.8, 5), (6.0, 6)):
+            k = d / base.duration_s  # as `fit-lug simulate --duration`: the profile stretched
+            sc = Scenario(duration_s=d, rest_s=base.rest_s * k, ramp_s=base.ramp_s * k,
+                          travel_mm=base.travel_mm * k)
+            sub = os.path.join(folder, f"newlen{d}")
+            write_simulation(sub, sc, seed, truth=False)
+            pair.append(os.path.join(sub, "trajectories.csv"))
+        out["newlen"] = tuple(pair)
     if "engine" in kinds:
         if engine:
             out["engine"] = os.path.abspath(engine)
@@ -131,7 +149,7 @@ def _fmt(r):
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--worker", nargs=2, metavar=("CSV", "OUT"), help=argparse.SUPPRESS)
-    ap.add_argument("--kinds", default="bundled,null,effect,engine")
+    ap.add_argument("--kinds", default="bundled,null,effect,engine,newlen")
     ap.add_argument("--before", metavar="REF", help="git ref to compare with, side by side")
     ap.add_argument("--repeat", type=int, default=2, help="warm runs per version (median)")
     ap.add_argument("--engine", metavar="CSV", help="an engine recording (rig.toml beside)")
@@ -150,14 +168,22 @@ def main(argv=None) -> int:
         for kind, csv in recs.items():
             for ver, src in versions.items():
                 cache = tempfile.mkdtemp(prefix="jaxcache_", dir=tmp)
-                first = _child(src, csv, cache)
-                warm = [_child(src, csv, cache) for _ in range(a.repeat)]
+                run = csv
+                if kind == "newlen":  # the kind seen first, then the new recording
+                    seen, run = csv
+                    _child(src, seen, cache)
+                first = _child(src, run, cache)
+                warm = [_child(src, run, cache) for _ in range(a.repeat)]
                 rows[kind, ver] = (first, warm)
                 ok = [w for w in warm if "error" not in w]
                 med = ({k: statistics.median(w[k] for w in ok) for k in ("wall", "cpu")}
                        if ok else None)
                 print(f"{kind:8} {ver:7} first {_fmt(first)}   warm median {_fmt(med)}  "
                       f"(wall, CPU s)", flush=True)
+                if kind == "newlen" and med and "error" not in first:
+                    print(f"newlen   {ver:7} a never-seen recording of a seen kind: first "
+                          f"{first['cpu']:.1f} s CPU, second {med['cpu']:.1f} s CPU, "
+                          f"ratio {first['cpu'] / med['cpu']:.2f}", flush=True)
                 if a.json:
                     with open(a.json, "a", encoding="utf-8") as fh:
                         fh.write(json.dumps({"kind": kind, "version": ver, "first": first,

@@ -21,6 +21,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _jaxconfig  # noqa: F401
+from ..fit._buckets import pad_model
+from ..model._buckets import bucket
 
 SEGMENTS = ("bottom", "rear_arc", "top", "front_arc", "body")
 PHASES = ("rest", "accelerate", "cruise", "decelerate")
@@ -104,9 +106,13 @@ def geometry(res) -> Geometry:
     role = np.r_[np.zeros(2 * S_l, int), np.ones(2 * S_b, int)]
     axis = np.r_[np.zeros(S_l, int), np.ones(S_l, int), np.zeros(S_b, int), np.ones(S_b, int)]
     tu = np.unique(t)
-    kin, seg_l = _kinematics_segments({k: jnp.asarray(v, float) for k, v in p.items()}, lay,
-                                      jnp.asarray(tu))
-    seg_l = np.asarray(seg_l).astype(int)
+    # on bucketed shapes (fitlug.fit._buckets: a new length compiles nothing new), cut back
+    pj = {k: jnp.asarray(v, float) for k, v in p.items()}
+    pm = pad_model(pj, lay)
+    tb = np.concatenate([tu, np.full(bucket(len(tu)) - len(tu), tu[-1])]) if pm else tu
+    kin, seg_l = _kinematics_segments(*(pm or (pj, lay))[:2], jnp.asarray(tb))
+    kin = {k: np.asarray(v)[:len(tu)] for k, v in kin.items()}
+    seg_l = np.asarray(seg_l)[:S_l].astype(int)
     segment = np.r_[seg_l, seg_l, np.full(2 * S_b, 4)]
     w = np.concatenate([np.asarray(prob.obs[k]) for k in ("lug_w", "lug_w", "body_w", "body_w")])
     valid = w > 0

@@ -156,7 +156,9 @@ def reweighted(prob: Problem, noise: dict) -> Problem:
     for role, key in (("lug", "lug_w"), ("body", "body_w")):
         # a strong float64 array: a weak-typed one (both branches Python floats) made
         # equinox retrace and recompile the solver for the refit (~15 s of a cold run)
-        obs[key] = jnp.asarray(jnp.where(obs[key] > 0, 1.0 / noise[role], 0.0), float)
+        # (in numpy: an op on the recording's shapes compiles for every new length)
+        obs[key] = jnp.asarray(np.where(np.asarray(obs[key]) > 0, 1.0 / noise[role], 0.0),
+                               float)
     return Problem(**{**prob.__dict__, "obs": obs, "noise": dict(noise),
                       "noise_source": "residual differences"})
 

@@ -102,8 +102,13 @@ def _positions(p: dict, lay, obs) -> tuple:
     from ._chunks import time_blocks
 
     blocks = time_blocks(lay, obs, plans=False)
-    if blocks is None:
-        return tuple(np.asarray(a) for a in _predict(p, lay))
+    if blocks is None:  # on bucketed shapes (_buckets), cut back
+        from ._buckets import pad_model
+
+        pm = pad_model(p, lay)
+        S_l, S_b = lay.lug_t.shape[0], lay.body_t.shape[0]
+        return tuple(np.asarray(a)[:n] for a, n in zip(_predict(*(pm or (p, lay))),
+                                                        (S_l, S_l, S_b, S_b)))
     S_l, S_b = lay.lug_t.shape[0], lay.body_t.shape[0]
     out = (np.zeros(S_l), np.zeros(S_l), np.zeros(S_b), np.zeros(S_b))
     nodes = _integrate(p, lay)

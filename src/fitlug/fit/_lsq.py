@@ -33,6 +33,7 @@ import numpy as np
 import optimistix as optx
 
 from .. import _exported
+from . import _buckets
 from ..model._physics import beta_max
 from ._chunks import ChunkPlan, blocked_chi2, blocked_residuals, chunk_plan, chunkable, time_blocks
 from ._normal import normal_blocks
@@ -157,10 +158,18 @@ def least_squares(p0: dict, free, lay, obs, *, max_steps: int = 200, rtol: float
         return LsqOutput(params=p, flat=flat, J=None, r=np.asarray(r),
                          converged=bool(ok), steps=int(steps), packing=packing,
                          normal=np.asarray(A))
-    # through a module exported to disk: a new process skips the solver's tracing (~6 s)
-    flat, J, r, ok, steps = _exported.call("lsq_solve", _solve,
-                                           (packing, max_steps, rtol, atol),
-                                           packing.pack(p0), fixed, lay, obs)
+    # through a module exported to disk: a new process skips the solver's tracing (~6 s);
+    # on bucketed shapes (_buckets): a recording of a new length compiles nothing new
+    pb = _buckets.pad(packing.pack(p0), fixed, lay, obs, packing)
+    if pb is None:
+        flat, J, r, ok, steps = _exported.call("lsq_solve", _solve,
+                                               (packing, max_steps, rtol, atol),
+                                               packing.pack(p0), fixed, lay, obs)
+    else:
+        flat, J, r, ok, steps = _exported.call("lsq_solve", _solve,
+                                               (pb.packing, max_steps, rtol, atol),
+                                               pb.flat, pb.fixed, pb.lay, pb.obs)
+        flat, J, r = pb.flat_of(flat), pb.J_of(J), pb.r_of(r)
     # unpacked in numpy: jax slices compile once per (offset, size)
     flat = _onto_range(np.asarray(flat), packing)
     p = packing.unpack(flat, fixed)

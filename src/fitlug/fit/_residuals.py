@@ -100,7 +100,11 @@ class Packing(NamedTuple):
         return [int(np.prod(s)) if s else 1 for s in self.shapes]
 
     def pack(self, p: dict):
-        return jnp.concatenate([jnp.ravel(jnp.asarray(p[k], float)) for k in self.names])
+        vals = [p[k] for k in self.names]
+        if any(isinstance(v, jax.core.Tracer) for v in vals):
+            return jnp.concatenate([jnp.ravel(jnp.asarray(v, float)) for v in vals])
+        # concrete values: in numpy (jnp ops on a new recording's shapes compile each)
+        return jax.device_put(np.concatenate([np.ravel(np.asarray(v, float)) for v in vals]))
 
     def unpack(self, flat, fixed: dict) -> dict:
         out = dict(fixed)

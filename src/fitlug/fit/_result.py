@@ -362,13 +362,18 @@ def compute_quantities(res_params, packing, flat, cov, lay, mass_kg, fixed,
     fixed = {k: jnp.asarray(v, float) for k, v in fixed.items()}
     # the mass and pull as traced numbers (a campaign's recordings share one program);
     # whether they are given is static
-    vals, jac = _derived_with_jacobian(jnp.asarray(flat, float), packing, fixed, lay,
-                                       jnp.asarray(mass_kg or 0.0, float),
+    # on bucketed shapes (fit._buckets: a recording of a new length compiles nothing new)
+    from ._buckets import pad
+
+    pb = pad(flat, fixed, lay, {}, packing)
+    args = (pb.flat, pb.packing, pb.fixed, pb.lay) if pb else (jnp.asarray(flat, float),
+                                                               packing, fixed, lay)
+    vals, jac = _derived_with_jacobian(*args, jnp.asarray(mass_kg or 0.0, float),
                                        jnp.asarray(drawbar_N or 0.0, float),
                                        mass_kg is not None, bool(drawbar_N))
     out = {}
     for k, v in vals.items():
-        g = np.asarray(jac[k])
+        g = np.asarray(jac[k]) if pb is None else np.asarray(jac[k])[pb.cols]
         var = float(g @ cov @ g)
         out[k] = Estimate(float(v), float(np.sqrt(max(var, 0.0))))
     from ._identifiable import mark_not_identifiable

@@ -82,7 +82,8 @@ class Layout(eqx.Module):
 
     def with_times(self, lug_t, lug_i, body_t, body_j) -> "Layout":
         """The same model evaluated at other sample times (inside the grid)."""
-        a = [jnp.asarray(v) for v in (lug_t, lug_i, body_t, body_j)]
+        a = [jax.device_put(v) if isinstance(v, np.ndarray) else jnp.asarray(v)  # (no compile)
+             for v in (lug_t, lug_i, body_t, body_j)]
         return eqx.tree_at(lambda l: (l.lug_t, l.lug_i, l.body_t, l.body_j), self, tuple(a))
 
 
@@ -94,7 +95,7 @@ def _speed_bases(grid: np.ndarray, h: float, breaks) -> dict:
     dBn, _ = _spline.banded(grid, br, 1)
     Bm, jm = _spline.banded(mid, br, 0)
     dBm, _ = _spline.banded(mid, br, 1)
-    f = jnp.asarray
+    f = jax.device_put  # (jnp.asarray compiles a small program per new shape)
     return {"Bn": f(Bn), "dBn": f(dBn), "Bm": f(Bm), "dBm": f(dBm), "jn": f(jn), "jm": f(jm),
             "breaks": f(br), "n_coef": _spline.n_coefficients(br)}
 
@@ -107,10 +108,11 @@ def make_layout(*, breaks, t_lo, t_hi, fps, lug_t, lug_i, body_t, body_j, n_lug,
     h = 1.0 / (float(fps) * substeps)
     G = int(np.ceil((t_hi - t_lo) / h)) + 1
     grid = t_lo + h * np.arange(G)
-    lay = Layout(grid=jnp.asarray(grid), **_speed_bases(grid, h, breaks),
+    f = lambda a, dt: jax.device_put(np.asarray(a, dt))  # noqa: E731  (as in _speed_bases)
+    lay = Layout(grid=f(grid, float), **_speed_bases(grid, h, breaks),
                  t_ref=jnp.asarray(float(t_ref)),
-                 lug_t=jnp.asarray(lug_t, float), lug_i=jnp.asarray(lug_i, int),
-                 body_t=jnp.asarray(body_t, float), body_j=jnp.asarray(body_j, int), h=h,
+                 lug_t=f(lug_t, float), lug_i=f(lug_i, int),
+                 body_t=f(body_t, float), body_j=f(body_j, int), h=h,
                  n_lug=int(n_lug), n_body=int(n_body), n_belt=int(n_belt),
                  n_contact=int(n_contact), L=float(L), effects=())
     return lay.with_effects(effects)

@@ -37,10 +37,12 @@ marginal under the time budget. The check's largest discrepancy is reported.
 
 from __future__ import annotations
 
+import jax
 import numpy as np
 import jax.numpy as jnp
 
 from .. import _exported, _jaxconfig  # noqa: F401
+from ..fit import _buckets
 from .._errors import FitError
 from ..model.effects import CATALOG
 from ..fit._chunk_prep import _prepare_jit, block_shared
@@ -50,6 +52,7 @@ from ..fit._lsq import LARGE_ENTRIES
 from ..fit._normal import contract_cross_jit, normal_blocks
 from ..fit._result import FitResult
 from ._priors import _NONNEG, _POSITIVE
+from ._psd import _psd_solve
 from ._projections import (_chi2_block, _chi2_flats, _jacobian_tuple, _project_block,
                            _project_chunked, _project_dense)
 
@@ -77,52 +80,6 @@ def slip_law_parameters(res: FitResult) -> list[str]:
 
 
 
-def _eig_solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """A^+ b for symmetric PSD A (m, n, n), b (m, n): eigenvalues below 1e-12 of the
-    largest do not act (zero, not inverted)."""
-    lam, V = np.linalg.eigh(A)
-    top = lam.max(axis=1, keepdims=True)
-    inv = np.where(lam > 1e-12 * top, 1.0 / np.where(lam > 0, lam, 1.0), 0.0)
-    y = inv * np.einsum("mkj,mk->mj", V, b)  # V^T b, scaled by the inverse
-    return np.einsum("mij,mj->mi", V, y)
-
-
-def _psd_solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """:func:`_eig_solve`'s A^+ b, by Cholesky where that is certain to be the same: where
-    trace(A) trace(A^-1) < 1e12, every eigenvalue is above 1e-12 of the largest (lambda_min
-    >= 1 / trace(A^-1), lambda_max <= trace(A)), so nothing is cut and A^+ = A^-1;
-    trace(A^-1) = |L^-1|_F^2. The other matrices (not positive definite, or near the cut)
-    go through the eigendecomposition. A batch of eigh was ~70 % of an exact-marginal
-    evaluation (issue 43: the exact posterior's steps, the linearity check)."""
-    m = len(A)
-    out = np.empty_like(b)
-    ok = np.zeros(m, bool)
-    try:
-        L = np.linalg.cholesky(A)
-        good = np.ones(m, bool)
-    except np.linalg.LinAlgError:  # one matrix or more is not positive definite
-        L, good = np.zeros_like(A), np.zeros(m, bool)
-        for i in range(m):
-            try:
-                L[i] = np.linalg.cholesky(A[i])
-                good[i] = True
-            except np.linalg.LinAlgError:
-                pass
-    if good.any():
-        with np.errstate(all="ignore"):
-            Li = np.linalg.inv(L[good])
-            tr_inv = np.einsum("mij,mij->m", Li, Li)
-            tr = np.trace(A[good], axis1=1, axis2=2)
-            cert = np.isfinite(tr_inv) & (tr * tr_inv < 1e12)
-            x = np.einsum("mji,mj->mi", Li, np.einsum("mij,mj->mi", Li, b[good]))
-        idx = np.flatnonzero(good)[cert]
-        out[idx] = x[cert]
-        ok[idx] = True
-    if not ok.all():
-        out[~ok] = _eig_solve(A[~ok], b[~ok])
-    return out
-
-
 class _Marginal:
     """The linearised marginal of theta for one FitResult: Gaussian limit and exact."""
 
@@ -133,10 +90,11 @@ class _Marginal:
         self.idx = np.array([sl[k].start for k in names])
         self.theta_hat = np.asarray(res.flat)[self.idx]
         self.batch = batch
-        self._args = (jnp.asarray(res.flat), jnp.asarray(self.idx),
+        self._args = (jax.device_put(np.asarray(res.flat, float)), None,
                       {k: jnp.asarray(v) for k, v in res.params.items()
                        if k not in res.packing.names}, prob.lay, prob.obs, res.packing)
         self._plan = self._blocks = self._shared = None
+        cols = np.arange(len(res.flat))  # where each parameter sits in self._args[0]
         n_res = 2 * (prob.lay.lug_t.shape[0] + prob.lay.body_t.shape[0])
         if (n_res * len(res.flat) > LARGE_ENTRIES
                 and chunkable(res.params, prob.lay, res.packing)):
@@ -155,9 +113,17 @@ class _Marginal:
                 self._shared = block_shared(self._args[0], self._args[2], prob.lay,
                                             res.packing, self._blocks.plans)
         else:
+            # on bucketed shapes (fit._buckets: a recording of a new length compiles
+            # nothing new): the passes below carry the padding's rows and columns, which
+            # are exact zeros, and the solves use the real columns only
+            pb = _buckets.pad(self._args[0], self._args[2], prob.lay, prob.obs, res.packing)
+            if pb is not None:
+                self._args = (pb.flat, None, pb.fixed, pb.lay, pb.obs, pb.packing)
+                cols = pb.cols
             # through a module exported to disk: a new process skips its tracing
-            (J,) = _exported.call("posterior_jacobian", _jacobian_tuple, (res.packing,),
-                                  self._args[0], self._args[2], prob.lay, prob.obs)
+            a = self._args
+            (J,) = _exported.call("posterior_jacobian", _jacobian_tuple, (a[5],),
+                                  a[0], a[2], a[3], a[4])
             J = np.asarray(J)
             JtJ = None
         n_par = len(res.flat)
@@ -165,8 +131,16 @@ class _Marginal:
         held = getattr(res, "held", None)
         if held is not None:  # held by fitlug.Parameters: at their values, not marginalised
             rest = rest[~np.asarray(held, bool)[rest]]
-        self._rest = rest
         self.n_marginalised = len(rest)
+        # _rest: the marginalised columns (of the padded vector where padded); _jrest: the
+        # columns the compiled passes carry (the padding's too, for shapes that do not
+        # depend on the recording); _live: where _rest sits in _jrest
+        self.idx, rest = cols[self.idx], cols[rest]
+        self._rest = rest
+        self._jrest = np.setdiff1d(np.arange(len(np.asarray(self._args[0]))), self.idx)
+        if held is not None:
+            self._jrest = rest
+        self._live = np.searchsorted(self._jrest, rest)
         if JtJ is None:
             Je, Jt = J[:, rest], J[:, self.idx]
             Aee, Aet, Att = Je.T @ Je, Je.T @ Jt, Jt.T @ Jt
@@ -198,7 +172,7 @@ class _Marginal:
         self.cov = np.linalg.inv(Fs) * np.outer(d, d)
         self.cov = 0.5 * (self.cov + self.cov.T)
         self.chol = np.linalg.cholesky(self.cov)
-        self._Je = None if JtJ is not None else jnp.asarray(Je)
+        self._Je = None if JtJ is not None else jnp.asarray(J[:, self._jrest])
         self._sd0 = np.sqrt(np.diag(self.cov))  # the Gaussian limit's, before any widening
         self._step = None  # the nuisance step's model in theta (_step_model), when needed
         self.chi2_hat = None
@@ -295,8 +269,9 @@ class _Marginal:
             for f in pts[1:]:
                 (J,) = _exported.call("posterior_jacobian", _jacobian_tuple, (a[5],),
                                       jnp.asarray(f), a[2], a[3], a[4])
-                Jn.append(np.asarray(J)[:, rest])
+                Jn.append(np.asarray(J)[:, self._jrest])
             self._Jes = jnp.stack(Jn)
+            Jn = [J[:, self._live] for J in Jn]
             for i, j in pairs:
                 C[i, j] = Jn[i].T @ Jn[j]
         else:
@@ -333,7 +308,7 @@ class _Marginal:
         multiple of the batch), J_k the nuisance Jacobian at the step model's points."""
         b = self.batch
         a = self._args
-        rest = jnp.asarray(self._rest)
+        rest = jnp.asarray(self._jrest)  # == _rest but on the dense path
         K = len(self._pts)
         if self._plan is not None and self._blocks is not None:
             # the vectors' node values once over the whole grid, then block by block: the
@@ -370,7 +345,7 @@ class _Marginal:
             out = [_project_dense(jnp.asarray(flats[i:i + b]), a[2], a[3], a[4], a[5],
                                   self._Jes) for i in range(0, len(flats), b)]
         return (np.concatenate([np.asarray(o[0]) for o in out]),
-                np.concatenate([np.asarray(o[1]) for o in out]))
+                np.concatenate([np.asarray(o[1])[:, :, self._live] for o in out]))
 
     def _chi2_of_flats(self, flats: np.ndarray) -> np.ndarray:
         """chi^2 of whole parameter vectors (m, p), m a multiple of the batch."""

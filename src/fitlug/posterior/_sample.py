@@ -41,12 +41,14 @@ from ._tempering import tempered_marginal
 def _gaussian_log_prob(marg: _Marginal):
     th0, F, names = jnp.asarray(marg.theta_hat), jnp.asarray(marg.F), marg.names
 
-    def one(th):
+    def one(th, th0, F):
         z = th - th0
         return -0.5 * z @ F @ z + _log_prior(th, names)
 
-    f = jax.jit(jax.vmap(one))
-    return lambda x: np.asarray(f(x))
+    # theta_hat and F as arguments, not constants of the program: one compile serves
+    # every recording (issue 43, item 2)
+    f = jax.jit(jax.vmap(one, in_axes=(0, None, None)))
+    return lambda x: np.asarray(f(x, th0, F))
 
 
 def _exact_log_prob(marg: _Marginal):

@@ -44,8 +44,14 @@ def _raw_residuals(prob, p, model=None):
     if model is None:
         from .. import _exported
 
-        # through a module exported to disk: a new process skips its tracing
-        model = _exported.call("report_predict", _predict_jit(), (), p, prob.lay)
+        from ..fit._buckets import pad_model
+
+        # through a module exported to disk: a new process skips its tracing; on bucketed
+        # shapes (a recording of a new length compiles nothing new), cut back
+        pm = pad_model(p, prob.lay)
+        model = _exported.call("report_predict", _predict_jit(), (), *(pm or (p, prob.lay)))
+        Sl, Sb = prob.lay.lug_t.shape[0], prob.lay.body_t.shape[0]
+        model = tuple(np.asarray(v)[:n] for v, n in zip(model, (Sl, Sl, Sb, Sb)))
     lx, ly, bx, by = (np.asarray(a) for a in model)
     o = {k: np.asarray(v) for k, v in prob.obs.items()}
     vl, vb = o["lug_w"] > 0, o["body_w"] > 0
@@ -107,22 +113,33 @@ def _model_state_call(p, lay, fine, lay_c) -> dict:
     """:func:`_model_state`, compiled, through a module exported to disk (a new process
     skips tracing and lowering it: about 0.7 s of every warm run)."""
     from .. import _exported
+    from ..fit._buckets import pad_model
 
-    out = _exported.call("report_state", _model_state_jit(), (), p, lay, fine, lay_c)
-    model, rest = out[:4], out[4:]
-    seg, psi_l, rest = rest[0], rest[1], rest[2:]
+    # on bucketed shapes (a recording of a new length compiles nothing new), cut back
+    pm, pc = pad_model(p, lay), pad_model(p, lay_c, like=lay)
+    if pm is not None and pc is not None:
+        out = _exported.call("report_state", _model_state_jit(), (), pm[0], pm[1], fine,
+                             pc[1])
+    else:
+        out = _exported.call("report_state", _model_state_jit(), (), p, lay, fine, lay_c)
+    Sl, Sb, Sc = lay.lug_t.shape[0], lay.body_t.shape[0], lay_c.lug_t.shape[0]
+    out = [np.asarray(v) for v in out]
+    model = [v[:n] for v, n in zip(out[:4], (Sl, Sl, Sb, Sb))]
+    seg, psi_l, rest = out[4][:Sl], out[5][:Sl], out[6:]
     fine_d = dict(zip(_FINE, rest[:len(_FINE)]))
     cx, cy, P = rest[len(_FINE):]
+    cx, cy = cx[:Sc], cy[:Sc]
     return {"model": tuple(model), "seg": seg, "psi_l": psi_l, "fine": fine_d,
             "curve": (cx, cy), "P": P}
 
 
 def state_arrays(res, posterior=None, explanation=None) -> tuple[dict, dict]:
     """(arrays, meta) of a fit, its posterior and explanation (see the module docstring)."""
+    import jax
     import jax.numpy as jnp
 
     prob, lay = res.problem, res.problem.lay
-    p = {k: jnp.asarray(v) for k, v in res.params.items()}
+    p = {k: jax.device_put(np.asarray(v)) for k, v in res.params.items()}  # no compile
     o = {k: np.asarray(v) for k, v in prob.obs.items()}
     a = {"lug_t": np.asarray(lay.lug_t), "lug_i": np.asarray(lay.lug_i),
          "lug_x": o["lug_x"], "lug_y": o["lug_y"], "lug_valid": o["lug_w"] > 0,
@@ -137,7 +154,7 @@ def state_arrays(res, posterior=None, explanation=None) -> tuple[dict, dict]:
     ct = np.arange(t_lo, t_hi + dt / 2, dt)
     ci = np.repeat(np.arange(lay.n_lug), len(ct))
     ct = np.tile(ct, lay.n_lug)
-    lay_c = lay.with_times(ct, ci, lay.body_t[:1], lay.body_j[:1])
+    lay_c = lay.with_times(ct, ci, np.asarray(lay.body_t)[:1], np.asarray(lay.body_j)[:1])
     m = _model_state_call(p, lay, jnp.asarray(fine), lay_c)
 
     a.update(_raw_residuals(prob, p, m["model"]))
