@@ -28,14 +28,9 @@ SEED = 19  # 100 fps, 5.07 s, two body markers (pitch identifiable)
 CASES = {
     "squat": (0, None, "body motion", "a"),  # 250 fps: A 0.099 mm per m/s^2
     "flap": (SEED, 0.2, "segment vibration", "xi"),
-    # draw 1016 (46 Hz at 250 fps, 1.7 %): the slip answers the modulated acceleration by
-    # +- 0.1 and runs the belt 0.6 % faster on average; the phase read at the base fit's
-    # belt travel and the covariance of the base fit left the slip 80 sigma off
-    "cogging": (1016, None, "speed modulation", "psi"),  # drawn size
     "bump": (SEED, 0.6, "ground profile", "x"),
-    # two of our own: a slip growing with speed (s_lin (1 + c v)), an eccentric idler
+    # one of our own: a slip growing with speed (s_lin (1 + c v))
     "slip_speed": (SEED, 0.3, "slip law", ("F,v", "v")),
-    "idler_wobble": (SEED, 0.1, "body motion", "psi"),
     # MODEL.md §5's other three families: a support roller under the top run, lugs that
     # splay round the wheels, a camera not square to the track, a jittering clock
     "carrier_roller": (SEED, 0.3, "path shape", "xi"),
@@ -45,9 +40,6 @@ CASES = {
     "lug_splay": (1003, None, "path shape", "xi"),
     "keystone": (SEED, 0.5, "image map", "q"),
     "frame_jitter": (SEED, 0.15, "time map", "t"),
-    # a clock that wobbles at 10.8 Hz: a speed modulation in time would fit it too, but
-    # the slip would answer a modulated speed; the criterion must tell them apart
-    "clock_wobble": (SEED, 0.3, "time map", "t"),
     # the frame vibrating at a fixed frequency: body motion in time, not in belt travel
     "frame_vibration": (SEED, 0.04, "body motion", "t"),
     # MODEL.md §5's fourth coordinate of body motion: the body's ground position X (a
@@ -57,9 +49,28 @@ CASES = {
     # hide under its misfit from the base fit's finder; left in, they pulled the slip 5
     # sigma off
     "speed_hunt": (SEED, 0.015, "speed modulation", "t"),
+}
+
+
+#: cases kept for benchmarks/bench_discovery.py only (the CI's time, issue 43 item 6): the
+#: same families and coordinates are held by the cases above (speed modulation: speed_hunt;
+#: ground profile: bump and tests/test_families_independent.py's bump; time map:
+#: frame_jitter; body motion in psi: the catalog's body_bounce), and the regressions they
+#: guarded are in the benchmark's rows (cogging's slip 80 sigma off, ground_step's knots);
+#: marked `bench`, which the default run deselects: `pytest -m bench tests/test_families.py`
+BENCH_ONLY = {
+    # draw 1016 (46 Hz at 250 fps, 1.7 %): the slip answers the modulated acceleration by
+    # +- 0.1 and runs the belt 0.6 % faster on average; the phase read at the base fit's
+    # belt travel and the covariance of the base fit left the slip 80 sigma off
+    "cogging": (1016, None, "speed modulation", "psi"),  # drawn size
     # a board on the floor (0.70 mm high, 35 mm wide, edges rounded over 0.5 mm): equal
     # knots left chi2/dof 3.1 (unexplained); knots are added where the ground changes fast
     "ground_step": (21, None, "ground profile", "x"),
+    # a clock that wobbles at 10.8 Hz: a speed modulation in time would fit it too, but
+    # the slip would answer a modulated speed; the criterion must tell them apart
+    "clock_wobble": (SEED, 0.3, "time map", "t"),
+    # an eccentric idler
+    "idler_wobble": (SEED, 0.1, "body motion", "psi"),
 }
 
 
@@ -68,7 +79,8 @@ def _explained(mechanism, seed=SEED, size=None):
     return explain(fit(rec, rig)), truth
 
 
-@pytest.mark.parametrize("mechanism", list(CASES))
+@pytest.mark.parametrize("mechanism", [*CASES, *(pytest.param(k, marks=pytest.mark.bench)
+                                                 for k in BENCH_ONLY)])
 def test_a_mechanism_outside_the_catalog_is_modelled_by_its_family(mechanism, tmp_path):
     check_modelled(mechanism, tmp_path)
 
@@ -76,7 +88,7 @@ def test_a_mechanism_outside_the_catalog_is_modelled_by_its_family(mechanism, tm
 def check_modelled(mechanism, tmp_path):
     """The recording CASES[mechanism] is modelled by its family, in its coordinate, with
     the fit brought to the noise, the slip covered and the shape against the truth."""
-    seed, size, family, coordinate = CASES[mechanism]
+    seed, size, family, coordinate = {**CASES, **BENCH_ONLY}[mechanism]
     ex, truth = _explained(mechanism, seed, size)
     assert ex.effects == []  # no catalog entry takes it
     assert ex.verdict == "modelled", ex.to_json().get("families_tried")
