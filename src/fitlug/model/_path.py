@@ -27,18 +27,10 @@ def stadium(sigma, ctx: Ctx, top_dy=None, bottom_dy=None):
     R, D, e, P = ctx.R, ctx.D, ctx.e, ctx.P
     u = jnp.mod(sigma, P)
     seg = segment_of(u, R, D)
-    re = R + e
-    phi_r = (u - D) / R
-    phi_f = (u - 2.0 * D - jnp.pi * R) / R
     u_top = u - D - jnp.pi * R
-    x = jnp.select([seg == 0, seg == 1, seg == 2],
-                   [D / 2 - u, -D / 2 - re * jnp.sin(phi_r), -D / 2 + u_top],
-                   D / 2 + re * jnp.sin(phi_f))
     y_bottom = -e + (0.0 if bottom_dy is None else bottom_dy(jnp.clip(u, 0.0, D)))
     y_top = 2.0 * R + e + (0.0 if top_dy is None else top_dy(jnp.clip(u_top / D, 0.0, 1.0)))
-    y = jnp.select([seg == 0, seg == 1, seg == 2],
-                   [y_bottom, R - re * jnp.cos(phi_r), y_top],
-                   R + re * jnp.cos(phi_f))
+    x, y = _runs_and_arcs(u, seg, R, D, R + e, R, y_bottom, y_top)
     if ctx.link is not None:  # a chain of rigid links (chain_polygon); a belt below 1 um
         xp, yp, _ = _polygon(u, seg, ctx, top_dy, bottom_dy)
         chain = jnp.abs(ctx.link) > 1e-3
@@ -46,22 +38,27 @@ def stadium(sigma, ctx: Ctx, top_dy=None, bottom_dy=None):
     return x, y, seg
 
 
+def _runs_and_arcs(u, seg, R, D, r, yc, y_bottom, y_top):
+    """(x, y) at u (mod P) on segment seg: the runs at heights y_bottom and y_top, the arcs
+    of radius r round wheel centres at (-+D/2, yc), the angle on an arc its belt travel / R."""
+    phi_r = (u - D) / R
+    phi_f = (u - 2.0 * D - jnp.pi * R) / R
+    u_top = u - D - jnp.pi * R
+    x = jnp.select([seg == 0, seg == 1, seg == 2],
+                   [D / 2 - u, -D / 2 - r * jnp.sin(phi_r), -D / 2 + u_top],
+                   D / 2 + r * jnp.sin(phi_f))
+    y = jnp.select([seg == 0, seg == 1, seg == 2],
+                   [y_bottom, yc - r * jnp.cos(phi_r), y_top],
+                   yc + r * jnp.cos(phi_f))
+    return x, y
+
+
 def _hinge(u, R, Rh, D, P):
     """A hinge of a link chain at belt coordinate u (any real; taken mod P): the stadium of
     the pitch line with the hinges on circles of radius Rh round the wheels (R is the belt
     travel per wheel radian)."""
     u = jnp.mod(u, P)
-    seg = segment_of(u, R, D)
-    phi_r = (u - D) / R
-    phi_f = (u - 2.0 * D - jnp.pi * R) / R
-    u_top = u - D - jnp.pi * R
-    x = jnp.select([seg == 0, seg == 1, seg == 2],
-                   [D / 2 - u, -D / 2 - Rh * jnp.sin(phi_r), -D / 2 + u_top],
-                   D / 2 + Rh * jnp.sin(phi_f))
-    y = jnp.select([seg == 0, seg == 1, seg == 2],
-                   [jnp.zeros_like(u), Rh - Rh * jnp.cos(phi_r), 2.0 * Rh + 0.0 * u],
-                   Rh + Rh * jnp.cos(phi_f))
-    return x, y
+    return _runs_and_arcs(u, segment_of(u, R, D), R, D, Rh, Rh, 0.0 * u, 2.0 * Rh + 0.0 * u)
 
 
 def _polygon(u, seg, ctx: Ctx, top_dy, bottom_dy):
