@@ -128,3 +128,15 @@ def test_chain_polygon_geometry():
     # continuous in position)
     step = np.hypot(np.diff(x), np.diff(y))
     assert step.max() < 3 * (P / 4000) * (Rh + e) / Rh
+
+
+def test_memory_is_chunked_only_at_its_identity():
+    """Long recordings' time blocks need local kinematics: a memory of a contact length
+    is not local, the identity is."""
+    from fitlug.fit._chunks import chunkable
+    from fitlug.fit._residuals import Packing
+
+    lay = _layout(("lug_memory",))
+    for lam, ok in ((0.0, True), (0.8, False)):
+        p = _params(lay, memory_lambda=lam)
+        assert chunkable(p, lay, Packing.of(p, list(p))) is ok

@@ -242,8 +242,23 @@ def chunkable(p: dict, lay, packing: Packing) -> bool:
     from ..model._model import _hook
 
     return (all(k in packing.names for k in ("v", "s0", "beta", "sigma0"))
-            and not _hook(lay, "speed") and not _hook(lay, "memory")
+            and not _hook(lay, "speed") and not _remembering(p, lay)
             and not _lagging(p, lay))
+
+
+def _remembering(p: dict, lay) -> bool:
+    """Whether the slip's memory (lug_memory, lambda above its identity threshold) makes
+    the belt travel at a time depend on the motion a contact length before: not local."""
+    from ..model._model import _hook
+    from ..model.effects._lug_memory import LAMBDA_MIN
+
+    mem = _hook(lay, "memory")
+    if not mem:
+        return False
+    try:
+        return float(np.asarray(sum(f(p) for f in mem))) > LAMBDA_MIN
+    except (TypeError, ValueError):  # a traced value: cannot tell, so not chunkable
+        return True
 
 
 def _lagging(p: dict, lay) -> bool:
