@@ -18,9 +18,12 @@ X(t) then moves S, not psi.
 
 The memory length is lambda * L (L the rig's load-bearing length): lambda = 1 is a brush
 whose lugs hold over the whole contact, lambda -> 0 the instantaneous law (identity:
-lambda below 0.05 is today's model exactly; the explanation starts it at 1). The belt travel solves the relation on the
-integration's nodes (:func:`belt_travel`), a Newton step per node, the history read by
-belt travel; before the first node the belt is taken to have run at that node's slip.
+lambda below 0.05 is today's model exactly; the explanation does not search this effect,
+a user fits it by name). The belt travel solves the relation on the integration's nodes
+(:func:`belt_travel`), a Newton step per node, the history read by belt travel; before
+the first node the belt is taken to have run at that node's slip. With a belt-locked
+speed modulation (lug_ripple, wheel_runout) the model integrates X and psi together and
+the memory is not applied.
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ from ._base import Effect
 
 #: lambda below which the instantaneous law is used: a memory shorter than 5 % of L (6 mm
 #: on the reference rig) is the law within the integration's belt steps
-_LAMBDA_MIN = 0.05
+LAMBDA_MIN = 0.05
 _NEWTON = 3
 
 
@@ -111,14 +114,3 @@ def belt_travel(X, s_qs, lam_L, h):
     first = (-3.0 * psi[0] + 4.0 * psi[1] - psi[2]) / (2.0 * h)
     last = (3.0 * psi[-1] - 4.0 * psi[-2] + psi[-3]) / (2.0 * h)
     return psi, jnp.concatenate([first[None], mid, last[None]])
-
-
-def memory_lambda(effects_hooks, p):
-    """The memory fraction lambda of the active effects (0 when none)."""
-    lam = jnp.asarray(0.0)
-    for f in effects_hooks:
-        lam = lam + f(p)
-    return lam
-
-
-LAMBDA_MIN = _LAMBDA_MIN
