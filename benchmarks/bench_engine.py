@@ -4,6 +4,8 @@ Per recording in data/engine/<case>/ (or freshly simulated with --simulate): the
 as `fit-lug --no-mcmc` calls it (`fitlug.fit.fit`, then `fitlug.explain.explain`), and per
 case the engine's slip (truth.json), the fitted slip +- its std (explain's final model),
 z = (fit - engine) / std, std / s, chi2/dof before (base) and after (final), the verdict,
+where the headline slip comes from ('model'; 'straight runs' where the model does not
+describe the path and the slip is read off the top run and the body: explain._straight),
 the catalog entries named and the family terms kept, and the seconds. Asserts nothing.
 
     python benchmarks/bench_engine.py [CASE ...] [--data data/engine] [--simulate]
@@ -72,7 +74,8 @@ def one(folder: str, timeout: float) -> dict:
                                                for st in getattr(ex, "base_steps", [])],
                    kept=_kept_terms(ex),
                    chi2_after=float(fin.chi2_per_dof), slip=float(fin.slip.value),
-                   std=float(fin.slip.std))
+                   std=float(fin.slip.std),
+                   headline=(getattr(fin, "robust", None) or {}).get("headline") or "model")
         out["z"] = (out["slip"] - out["engine_slip"]) / out["std"] if out["std"] > 0 else None
     except _Timeout:
         out["error"] = f"timeout after {timeout:g} s"
@@ -93,7 +96,8 @@ def _row(r: dict) -> str:
     named = ",".join(r["named"] + r["kept"]) or "-"
     return (f"{r['case']:18s} {r['engine_slip']:.4f} {r['slip']:.4f}+-{r['std']:.4f} "
             f"{r['z']:7.1f} {r['std'] / r['slip']:6.3f} {r['chi2_before']:8.2f} "
-            f"{r['chi2_after']:8.2f} {r['verdict']:12s} {named}  {r['seconds']:.0f} s")
+            f"{r['chi2_after']:8.2f} {r['verdict']:12s} {r.get('headline', '-'):14s} "
+            f"{named}  {r['seconds']:.0f} s")
 
 
 def main(argv=None) -> int:
@@ -114,7 +118,8 @@ def main(argv=None) -> int:
     names = args.cases or sorted(d for d in os.listdir(args.data)
                                  if os.path.exists(os.path.join(args.data, d, "truth.json")))
     print(f"{'case':18s} {'engine':6s} {'fit +- std':15s} {'z':>7s} {'std/s':>6s} "
-          f"{'chi2 bef':>8s} {'chi2 aft':>8s} {'verdict':12s} named  seconds", flush=True)
+          f"{'chi2 bef':>8s} {'chi2 aft':>8s} {'verdict':12s} {'headline':14s} named  seconds",
+          flush=True)
     for name in names:
         r = one(os.path.join(args.data, name), args.timeout)
         print(_row(r), flush=True)

@@ -145,6 +145,13 @@ class Explanation:
                                   "shift_raw is each quantity's change between the fits, "
                                   "shift its excess over the change's own scatter "
                                   f"(sqrt(max(0, d^2 - (V_free - V_base)))); {how}")}
+        straight = (getattr(self.final, "robust", None) or {}).get("straight_runs")
+        if straight is not None:  # the slip read off the straight runs (explain._straight)
+            out["straight_runs"] = {
+                **straight, "note": ("the model does not describe the path (chi2/dof "
+                                     f"{self.final.chi2_per_dof:.0f}): the headline slip is "
+                                     "1 - v_body / v_belt at cruise, v_belt from the lug "
+                                     "markers' speed relative to the body on the top run")}
         nuis = (getattr(self.final, "robust", None) or {}).get("nuisance")
         if nuis is not None:  # a measurement nuisance taken out (explain._nuisance)
             out[nuis[0]] = nuis[1]

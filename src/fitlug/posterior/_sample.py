@@ -142,6 +142,7 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
         how += "; " + res.robust["uncertainty_method"]
         if temper["factor"] > 1.01:  # an error 0.5 % wider or more
             what = ("the family term's" if res.robust.get("method") == "family term"
+                    else "the unexplained misfit's" if headline == "straight runs"
                     else "the nuisance's own")
             how += (f"; likelihood stretched (steady-slip error x "
                     f"{math.sqrt(temper['factor']):.3g}) to carry {what} uncertainty")
@@ -213,6 +214,13 @@ def _slip_term(samples: dict, res, rng) -> None:
     the extended fit, res.robust["slip_term"]) and added to the slip."""
     term = (getattr(res, "robust", None) or {}).get("slip_term")
     if not term or "slip" not in samples:
+        return
+    if term.get("replace"):  # the slip read off the straight runs (fitlug.explain._straight)
+        draw = term["value"] + term["std"] * rng.standard_normal(np.shape(samples["slip"]))
+        if "delta_l_mm" in samples:  # delta_l' = s L / (n - 1) (MODEL.md §2)
+            lay = res.problem.lay
+            samples["delta_l_mm"] = draw * float(lay.L) / (float(lay.n_contact) - 1.0)
+        samples["slip"] = draw
         return
     s = np.asarray(samples["slip"], float)
     b = term["cov_with_slip"] / term["slip_var"] if term["slip_var"] > 0 else 0.0

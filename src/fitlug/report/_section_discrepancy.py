@@ -60,6 +60,14 @@ def handling_sentence(d: dict) -> str:
             f"from {t['from_time_s']:.3g} s" for t in ms.get("terms") or [])
         return (f"it is one marker shifted and staying there ({parts}: knocked on its lug?): "
                 "taken out and the model refitted, the headline is that fit")
+    st = d.get("straight_runs")
+    if st:
+        return ("the model does not describe the path, so the slip is read off the straight "
+                f"runs: the body's mean speed at cruise ({st['v_body_mm_s']:.2f} mm/s) "
+                f"against the belt's on the top run ({st['v_belt_mm_s']:.2f} mm/s, "
+                f"{st['visits']} visits of a lug marker), as the reference study read its "
+                "trajectories; its error carries the speeds' scatter and how much the "
+                "slip changes with the window")
     sens = d.get("speed_sensitivity") or {}
     if sens.get("headline"):
         return ("a free speed profile follows it (a motion of the drive the adaptive profile "
@@ -281,6 +289,8 @@ def discrepancy_section(fit_json: dict, state=None) -> str:
                    "would swallow lug- and wheel-locked effects), and the free fit holds the "
                    "whole mismatch, so it is the headline; the base model's slip is in the "
                    "table below.</p>")
+    elif v == "unexplained" and d.get("straight_runs"):
+        out.append(f"<p>Straight runs: {handling_sentence(d)}.</p>")
     elif v == "unexplained" and sens and (sens.get("shift") or {}).get("slip") is not None:
         out.append(f"<p>Speed-profile sensitivity: refitted with a free speed profile "
                    f"(breakpoints {_num(sens.get('spacing_s'), 2)} s apart), χ²/dof goes "

@@ -1,0 +1,188 @@
+"""The slip read off the straight runs, where the whole-path model does not hold.
+
+A track whose motion comes from contact dynamics (a link chain's polygon, lug tips that
+land pre-sheared and spring back at lift-off, a body surging on its lugs: MODEL.md §2
+"Real tracks") can leave the base model's fit at chi^2/dof in the thousands. The fit is
+then a compromise between parts of the path it does not describe, and its slip is biased
+by up to half its value (docs/engine.md: an independent contact-dynamics engine's
+recordings). Two parts of the path carry the slip without any of that: the **top run**,
+where the belt is unloaded and moves at the belt's speed relative to the body, and the
+**body**. Their speeds at cruise give the slip the way the reference study read its
+trajectories,
+
+    s = 1 - v_body / v_belt,
+
+with v_body the body's mean speed over the cruise (its markers' measured positions) and
+v_belt the mean speed, relative to the body, of the lug markers while they are on the
+top run (each visit's straight-line slope). The base fit serves only to find the cruise
+(where its belt speed holds a plateau), to tell which lug samples are on the top run
+(MARGIN_MM inside its ends, where a chain's links begin to turn onto the wheels) and to
+give the body markers' common position.
+
+Its error: the body's speed from a straight line through the cruise with a
+Newey-West (autocorrelation-robust) standard error over LAG_S, the belt's speed from
+the scatter of the visits' slopes (the small number of visits carried by Student's t),
+and, in quadrature, how much the slip changes when the body's speed is taken over the
+visits' own time span instead of the whole cruise (a speed that creeps over the cruise,
+or a slip still settling after the ramp, makes the two differ; measured on the engine's
+recordings 0.000-0.004).
+
+Measured on the engine's ten recordings (docs/engine.md, 2026-11-28): within 3 of its
+errors of the engine's slip on 9 (the drive-through misses by 3.2), errors 4-25 % of the
+slip, within 0.002 of it on 6, where the whole-path fit was off by up to 50 %.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: distance kept from each end of the top run (mm): a link turns onto a wheel before its
+#: pitch-line point reaches the model's tangent point (a link pitch ~18 mm on the engine)
+MARGIN_MM = 20.0
+#: a visit of a lug marker to the top run counts from this many samples and seconds
+MIN_SAMPLES, MIN_VISIT_S = 8, 0.25
+#: the cruise: where the base fit's belt speed stays within PLATEAU of its plateau value
+PLATEAU = 0.03
+#: the running median (s) the belt speed is smoothed with before its plateau is found
+SMOOTH_S = 0.2
+#: the least cruise (s) over which the body is seen for a reading
+MIN_CRUISE_S = 1.0
+#: Newey-West lag of the body's speed error (s): the body surges at ~1-3 Hz
+LAG_S = 1.0
+#: two-sided 95 % Student t over 1.96, by degrees of freedom (visits - 1)
+_T_OVER_Z = {1: 6.48, 2: 2.19, 3: 1.62, 4: 1.42, 5: 1.31, 6: 1.25, 7: 1.21, 8: 1.18}
+
+
+def _hac_slope(t, y, lag_s):
+    """Slope of a straight line through (t, y) and its Newey-West standard error."""
+    A = np.c_[np.ones_like(t), t - t.mean()]
+    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+    r = y - A @ coef
+    x = A[:, 1]
+    g = (x * r)[np.argsort(t, kind="stable")]
+    dt = float(np.median(np.diff(np.unique(t)))) if len(np.unique(t)) > 1 else 1.0
+    L = max(1, int(lag_s / dt))
+    S = float(np.sum(g * g))
+    for lag in range(1, min(L, len(g) - 1) + 1):
+        S += 2.0 * (1.0 - lag / (L + 1)) * float(np.sum(g[lag:] * g[:-lag]))
+    return float(coef[1]), float(np.sqrt(max(S, 0.0)) / np.sum(x * x))
+
+
+def _cruise(res, lay):
+    """(t1, t2, v_plateau): the longest span where the base fit's belt speed holds a
+    plateau (within PLATEAU of the value it holds longest)."""
+    import jax.numpy as jnp
+
+    from ..model._model import kinematics
+
+    p = {k: jnp.asarray(v) for k, v in res.params.items()}
+    tg = np.linspace(float(lay.grid[0]), float(lay.grid[-1]), 2000)
+    vt = np.asarray(kinematics(p, lay, tg)["v_t"])
+    # a running median over SMOOTH_S: a fit that misfits can put short wiggles in its
+    # belt speed, which must not cut the plateau
+    half = max(1, int(0.5 * SMOOTH_S / (tg[1] - tg[0])))
+    pad = np.pad(vt, half, mode="edge")
+    vt = np.median(np.lib.stride_tricks.sliding_window_view(pad, 2 * half + 1), axis=1)
+    cand = np.quantile(vt, np.linspace(0.3, 1.0, 141))
+    cand = cand[cand > 0]
+    if not len(cand):
+        return None
+    held = [np.sum(np.abs(vt - v) < 0.6 * PLATEAU * v) for v in cand]
+    v0 = float(cand[int(np.argmax(held))])
+    idx = np.flatnonzero(np.abs(vt - v0) < PLATEAU * v0)
+    if not len(idx):
+        return None
+    runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
+    run = max(runs, key=len)
+    return float(tg[run[0]]), float(tg[run[-1]]), v0
+
+
+def straight_runs_slip(res, margin_mm: float = MARGIN_MM) -> dict | None:
+    """The slip at cruise from the top run's and the body's speeds (module docstring).
+
+    `res` is a least-squares fit of the base model (its geometry and speed profile are
+    used, not its slip). Returns None where the recording does not allow the reading:
+    no cruise of MIN_CRUISE_S with the body in view, or fewer than two visits of a lug
+    marker to the top run during it. Else a dict: slip, std, v_body_mm_s (and its std),
+    v_belt_mm_s (and its std), window_s, visits, window_shift (the slip's change with
+    the body's speed over the visits' span), margin_mm.
+    """
+    import jax.numpy as jnp
+
+    from ..model._model import ctx_of, kinematics, predict, sampled_kinematics
+
+    prob = res.problem
+    lay = prob.lay
+    cr = _cruise(res, lay)
+    if cr is None:
+        return None
+    t1, t2, _ = cr
+    p = {k: jnp.asarray(v) for k, v in res.params.items()}
+    ctx = ctx_of(p, lay)
+    D, R, P = float(ctx.D), float(ctx.R), float(ctx.P)
+    obs = {k: np.asarray(v) for k, v in prob.obs.items()}
+    _, psil, _, _ = sampled_kinematics(p, lay)
+    u = np.mod(np.asarray(p["sigma0"])[np.asarray(lay.lug_i)] + np.asarray(psil), P)
+    top = (u > D + np.pi * R + margin_mm) & (u < 2.0 * D + np.pi * R - margin_mm)
+    _, _, bx, _ = (np.asarray(a) for a in predict(p, lay))
+    # the body's position where it is seen: the model's X plus the body markers' mean
+    # residual at that frame (the model carries each marker's offset on the body)
+    tb = np.asarray(lay.body_t)
+    wb = (obs["body_w"] > 0) & np.isfinite(obs["body_x"])
+    if not np.any(wb):
+        return None
+    ut, inv = np.unique(tb[wb], return_inverse=True)
+    # each marker's residual less its own median: the body's position does not step
+    # where the set of markers in view changes (a drive-through)
+    rb = (obs["body_x"] - bx)[wb]
+    jb = np.asarray(lay.body_j)[wb]
+    for j in np.unique(jb):
+        rb[jb == j] -= np.median(rb[jb == j])
+    X = np.asarray(kinematics(p, lay, ut)["X"]) + np.bincount(inv, rb) / np.bincount(inv)
+    in_cruise = (ut >= t1) & (ut <= t2)
+    if np.sum(in_cruise) < MIN_SAMPLES or np.ptp(ut[in_cruise]) < MIN_CRUISE_S:
+        return None
+    v_body, s_body = _hac_slope(ut[in_cruise], X[in_cruise], LAG_S)
+    # the top run's lug samples in the cruise at frames where the body is seen
+    tl = np.asarray(lay.lug_t)
+    li = np.asarray(lay.lug_i)
+    dt_frame = float(np.median(np.diff(ut))) if len(ut) > 1 else 1.0
+    near = np.abs(ut[np.clip(np.searchsorted(ut, tl), 0, len(ut) - 1)] - tl) < 0.5 * dt_frame
+    ok = (top & (obs["lug_w"] > 0) & np.isfinite(obs["lug_x"]) & (tl >= t1) & (tl <= t2)
+          & near)
+    rel = obs["lug_x"] - np.interp(tl, ut, X)
+    slopes, spans = [], []
+    for i in np.unique(li[ok]):
+        k = np.flatnonzero(ok & (li == i))
+        k = k[np.argsort(tl[k], kind="stable")]
+        for seg in np.split(k, np.flatnonzero(np.diff(tl[k]) > 3.0 * dt_frame) + 1):
+            if len(seg) < MIN_SAMPLES or np.ptp(tl[seg]) < MIN_VISIT_S:
+                continue
+            slopes.append(np.polyfit(tl[seg], rel[seg], 1)[0])
+            spans.append((float(tl[seg][0]), float(tl[seg][-1])))
+    n = len(slopes)
+    if n < 2:
+        return None
+    w = np.array([b - a for a, b in spans])
+    v = np.array(slopes)
+    v_belt = float(np.average(v, weights=w))
+    spread = float(np.sqrt(np.average((v - v_belt) ** 2, weights=w) * n / (n - 1)))
+    s_belt = spread / np.sqrt(n) * _T_OVER_Z.get(n - 1, 1.0)
+    if not (v_belt > 0 and np.isfinite(v_belt)):
+        return None
+    slip = 1.0 - v_body / v_belt
+    # the body's speed over the visits' own span (at least MIN_CRUISE_S, inside the cruise)
+    a0, a1 = min(a for a, _ in spans), max(b for _, b in spans)
+    if a1 - a0 < MIN_CRUISE_S:
+        mid = 0.5 * (a0 + a1)
+        a0, a1 = max(t1, mid - 0.5 * MIN_CRUISE_S), min(t2, mid + 0.5 * MIN_CRUISE_S)
+    span = (ut >= a0) & (ut <= a1)
+    shift = 0.0
+    if np.sum(span) >= MIN_SAMPLES and np.ptp(ut[span]) > 0.5 * MIN_CRUISE_S:
+        shift = abs((1.0 - _hac_slope(ut[span], X[span], LAG_S)[0] / v_belt) - slip)
+    std = float(np.sqrt((s_body / v_belt) ** 2 + (v_body * s_belt / v_belt ** 2) ** 2
+                        + shift ** 2))
+    return {"slip": float(slip), "std": std, "v_body_mm_s": float(v_body),
+            "v_body_std": float(s_body), "v_belt_mm_s": v_belt, "v_belt_std": float(s_belt),
+            "window_s": [t1, t2], "visits": n, "window_shift": float(shift),
+            "margin_mm": float(margin_mm)}

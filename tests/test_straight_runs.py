@@ -1,0 +1,94 @@
+"""The slip read off the straight runs (fitlug.explain._straight), issue 41.
+
+Truth the code did not produce: the contact-dynamics engine's own slip (truth.json of a
+committed engine recording, measured in MuJoCo from the chain's travel and the chassis'
+motion) and the independent kinematic simulator's (tests/independent_sim.py, written from
+MODEL.md's text without fitlug's model).
+"""
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+import fitlug
+from fitlug.explain._robust import GROSS_CHI2, straight_headline
+from fitlug.explain._straight import straight_runs_slip
+
+import independent_sim as isim
+
+HERE = os.path.dirname(__file__)
+ENGINE = os.path.join(HERE, "..", "data", "engine")
+
+
+@pytest.fixture(scope="module")
+def stiff():
+    """The engine's stiff-lug case, fitted with the base model: the whole-path fit misfits
+    at chi^2/dof in the hundreds and its slip is off by a third."""
+    d = os.path.join(ENGINE, "stiff_k06")
+    rec = fitlug.read_trajectories(os.path.join(d, "trajectories.csv"))
+    rig = fitlug.read_rig(os.path.join(d, "rig.toml"))
+    with open(os.path.join(d, "truth.json")) as f:
+        truth = json.load(f)
+    return fitlug.fit(rec, rig), truth
+
+
+def test_engine_slip_from_the_straight_runs(stiff):
+    res, truth = stiff
+    s_true = truth["slip"]
+    assert res.chi2_per_dof > GROSS_CHI2  # the model does not describe this path
+    st = straight_runs_slip(res)
+    assert st is not None and st["visits"] >= 2
+    z = (st["slip"] - s_true) / st["std"]
+    assert abs(z) < 3.0, (st, s_true)
+    assert st["std"] < 0.35 * s_true  # an error bar that says something
+    # the body's and the belt's speeds are the engine's within their errors (+ the window)
+    assert abs(st["v_body_mm_s"] - truth["v_chassis_mm_s"]) < 0.01 * truth["v_chassis_mm_s"]
+    assert abs(st["v_belt_mm_s"] - truth["v_belt_mm_s"]) < 0.01 * truth["v_belt_mm_s"]
+    # and the gate takes it where the model misfits
+    assert straight_headline(res)["slip"] == pytest.approx(st["slip"])
+
+
+def test_the_robust_result_takes_the_straight_runs_as_headline(stiff):
+    """robust_result (the unexplained verdict's errors) reports the straight runs' slip and
+    delta_l' = s L / (n - 1) from it; the posterior's slip samples are drawn from it."""
+    from fitlug.explain._table import geometry
+    from fitlug.explain._robust import robust_result
+
+    res, truth = stiff
+    out, method = robust_result(res, geometry(res))
+    assert out.robust["headline"] == "straight runs" and "straight runs" in method
+    s = out.quantities["slip"]
+    assert abs(s.value - truth["slip"]) < 3.0 * s.std
+    lay = res.problem.lay
+    assert out.quantities["delta_l_mm"].value == pytest.approx(
+        s.value * float(lay.L) / (float(lay.n_contact) - 1.0))
+    from fitlug.posterior._sample import _slip_term
+
+    samples = {"slip": np.full(4000, res.quantities["slip"].value),
+               "delta_l_mm": np.zeros(4000)}
+    _slip_term(samples, out, np.random.default_rng(3))
+    assert np.mean(samples["slip"]) == pytest.approx(s.value, abs=0.1 * s.std)
+    assert np.std(samples["slip"]) == pytest.approx(s.std, rel=0.1)
+
+
+@pytest.mark.parametrize("h", [1.0, 0.0])
+def test_independent_recording_straight_runs_hold_the_truth(h):
+    """On a recording of the contract's kinematics (independent simulator), markers on the
+    pitch line or on the lug tips, the straight runs' reading holds the truth within 3 of
+    its errors, and the errors are small (a steady cruise: no window term)."""
+    rec, rig, truth = isim.make(7, duration=5.0, marker_h=h, shear_tau=0.04 if h < 1 else 0.0)
+    res = fitlug.fit(rec, rig, effects=["lug_shear"] if h < 1 else ())
+    st = straight_runs_slip(res)
+    assert st is not None
+    assert abs(st["slip"] - truth["slip"]) < 3.0 * st["std"], (st, truth["slip"])
+    assert st["std"] < 0.05 * truth["slip"]
+    assert straight_headline(res) is None  # the model describes it: no straight headline
+
+
+def test_no_reading_without_a_cruise_in_view():
+    """A recording too short for a cruise with two top-run visits gives no reading."""
+    rec, rig, _ = isim.make(2, duration=1.0, t_acc=(0.1, 0.6), t_dec=(0.9, 1.0), n_lug=2)
+    res = fitlug.fit(rec, rig)
+    assert straight_runs_slip(res) is None
