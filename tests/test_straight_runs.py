@@ -92,3 +92,27 @@ def test_no_reading_without_a_cruise_in_view():
     rec, rig, _ = isim.make(2, duration=1.0, t_acc=(0.1, 0.6), t_dec=(0.9, 1.0), n_lug=2)
     res = fitlug.fit(rec, rig)
     assert straight_runs_slip(res) is None
+
+
+def test_a_misfits_frequency_is_named_in_a_tracks_terms():
+    """The located sentence names a frequency locked to the lugs (v/p), to the wheels
+    (v/2piR) or, in the body's x, to neither (a surge), from the cruise's belt speed."""
+    from fitlug.report._section_discrepancy import located_sentence
+
+    st = {"v_belt_mm_s": 148.0, "pitch_mm": 18.36, "R_mm": 24.3}
+    f_lug, f_wheel = 148.0 / 18.36, 148.0 / (2 * np.pi * 24.3)
+
+    def line(f, axis="y", seg="top_run"):
+        return {"located": [{"test": "spectral line", "frequency_hz": f, "axis": axis,
+                             "segment": seg}], "straight_runs": st}
+
+    assert "lug-passing frequency" in located_sentence(line(f_lug * 1.02))
+    assert "twice the lug-passing" in located_sentence(line(2 * f_lug))
+    assert "wheels' turning frequency" in located_sentence(line(f_wheel))
+    assert "surging" in located_sentence(line(1.09, "x", "body"))
+    s = located_sentence(line(1.09, "y", "top_run"))
+    assert "surging" not in s and "lug-passing" not in s
+    # without the straight runs' reading nothing is said about the frequency
+    d = line(f_lug)
+    del d["straight_runs"]
+    assert "lug-passing" not in located_sentence(d)

@@ -185,4 +185,4 @@ def straight_runs_slip(res, margin_mm: float = MARGIN_MM) -> dict | None:
     return {"slip": float(slip), "std": std, "v_body_mm_s": float(v_body),
             "v_body_std": float(s_body), "v_belt_mm_s": v_belt, "v_belt_std": float(s_belt),
             "window_s": [t1, t2], "visits": n, "window_shift": float(shift),
-            "margin_mm": float(margin_mm)}
+            "margin_mm": float(margin_mm), "pitch_mm": P / lay.n_belt, "R_mm": R}

@@ -97,13 +97,45 @@ def located_sentence(d: dict) -> str:
                      f"is in the {_e(p.get('axis'))} residuals of markers on the "
                      f"{_e(seg)} {when} ({F.sig(tr[0], 3)}–{F.sig(tr[1], 3)} s)")
         if p.get("frequency_hz"):
-            parts[-1] += f", varying at about {F.sig(p['frequency_hz'], 2)} Hz"
+            parts[-1] += (f", varying at about {F.sig(p['frequency_hz'], 2)} Hz"
+                          + _frequency_hint(p["frequency_hz"], d, p.get("axis"),
+                                            p.get("segment")))
     if lines:
         q = lines[0]
         parts.append(f"a spectral line stands out at {F.sig(q.get('frequency_hz'), 3)} Hz "
                      f"in {_e(q.get('axis', ''))} ({_e(q.get('segment', ''))})"
+                     + _frequency_hint(q["frequency_hz"], d, q.get("axis"), q.get("segment"))
                      if q.get("frequency_hz") else "a spectral line stands out")
     return "; ".join(parts) + "."
+
+
+#: how close (relative) a misfit's frequency must be to a multiple of the lug-passing or
+#: the wheels' turning frequency to be said to be locked to it
+LOCKED_TOL = 0.04
+
+
+def _frequency_hint(f: float, d: dict, axis, segment) -> str:
+    """What a misfit's frequency is, in a track's terms, where the cruise's belt speed is
+    known (the straight runs' reading, explain._straight): a multiple of the lug-passing
+    frequency v/p (a link chain's polygon, lug-locked motion), of the wheels' turning
+    frequency v/(2 pi R), or, in the body's x, neither (the body surging fore and aft on
+    its own). "" where nothing is known or nothing fits."""
+    st = d.get("straight_runs") or {}
+    v, p, R = st.get("v_belt_mm_s"), st.get("pitch_mm"), st.get("R_mm")
+    if not (v and p and R and f and f > 0):
+        return ""
+    for base, what in ((v / p, "the lug-passing frequency (motion locked to the lugs, as "
+                                "a chain of links makes in rolling its polygon round the "
+                                "wheels: chordal action)"),
+                       (v / (2.0 * math.pi * R), "the wheels' turning frequency")):
+        k = round(f / base)
+        if 1 <= k <= 3 and abs(f - k * base) <= LOCKED_TOL * k * base:
+            times = {1: "", 2: "twice ", 3: "three times "}[k]
+            return f" ({times}{what}, {F.sig(base, 3)} Hz at cruise)"
+    if axis == "x" and "body" in str(segment):
+        return (" (locked neither to the lugs nor to the wheels: the body surging fore and "
+                "aft on its own, as a body does on its lugs' springs)")
+    return ""
 
 
 def _slip(d) -> str:
