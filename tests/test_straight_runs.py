@@ -116,3 +116,30 @@ def test_a_misfits_frequency_is_named_in_a_tracks_terms():
     d = line(f_lug)
     del d["straight_runs"]
     assert "lug-passing" not in located_sentence(d)
+
+
+def test_partial_readings_of_a_gross_misfit_are_not_claimed(stiff):
+    """On the engine's recording (no camera: white noise only) nothing beside the marker on
+    the lug is named when the slip has to be read off the straight runs: catalog entries
+    and family terms that took up a little of the misfit are withheld, with the reason."""
+    import dataclasses
+
+    from fitlug.explain._explain import _withheld
+    from fitlug.explain._explanation import Step
+    from fitlug.explain._robust import robust_result
+    from fitlug.explain._table import geometry
+    from fitlug.report._section_discrepancy import handling_sentence
+
+    res, _ = stiff
+    out, _ = robust_result(res, geometry(res))
+    steps = [Step("lug_shear", {}, -5.0, 2000.0, 1100.0, 0.4),
+             Step("marker_depth", {}, -30.0, 1100.0, 1090.0, 0.01)]
+    fin, acc, st, _ = _withheld(out, ["lug_shear", "marker_depth"], steps, None)
+    assert acc == ["lug_shear"] and [s.effect for s in st] == ["lug_shear"]
+    w = fin.robust["withheld"]
+    assert w["readings"] == ["marker_depth"] and "not describe the path" in w["reason"]
+    d = {"straight_runs": fin.robust["straight_runs"], "not_claimed": w}
+    assert "marker_depth" in handling_sentence(d) and "not claimed" in handling_sentence(d)
+    # a model that describes its recording keeps what it named
+    plain = dataclasses.replace(out, robust={**out.robust, "headline": None})
+    assert _withheld(plain, ["marker_depth"], steps[1:], None)[1] == ["marker_depth"]

@@ -145,6 +145,9 @@ class Explanation:
                                   "shift_raw is each quantity's change between the fits, "
                                   "shift its excess over the change's own scatter "
                                   f"(sqrt(max(0, d^2 - (V_free - V_base)))); {how}")}
+        withheld = (getattr(self.final, "robust", None) or {}).get("withheld")
+        if withheld is not None:  # partial readings of a misfit the model does not describe
+            out["not_claimed"] = withheld
         straight = (getattr(self.final, "robust", None) or {}).get("straight_runs")
         if straight is not None:  # the slip read off the straight runs (explain._straight)
             out["straight_runs"] = {

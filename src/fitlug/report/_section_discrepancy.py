@@ -67,12 +67,21 @@ def handling_sentence(d: dict) -> str:
                 f"against the belt's on the top run ({st['v_belt_mm_s']:.2f} mm/s, "
                 f"{st['visits']} visits of a lug marker), as the reference study read its "
                 "trajectories; its error carries the speeds' scatter and how much the "
-                "slip changes with the window")
+                "slip changes with the window" + _not_claimed(d))
     sens = d.get("speed_sensitivity") or {}
     if sens.get("headline"):
         return ("a free speed profile follows it (a motion of the drive the adaptive profile "
                 "must not follow): that fit holds the whole mismatch and is the headline")
     return "the slip's error bar includes this mismatch"
+
+
+def _not_claimed(d: dict) -> str:
+    """The partial readings withheld from a misfit the model does not describe, or ""."""
+    w = d.get("not_claimed") or {}
+    if not w.get("readings"):
+        return ""
+    return ("; " + ", ".join(w["readings"]) + " took up a little of the mismatch and "
+            "are not claimed as physics")
 
 
 def located_sentence(d: dict) -> str:
