@@ -173,8 +173,10 @@ def _start(marg: _Marginal, walkers: int, rng) -> np.ndarray:
     names = list(marg.names)
     d = len(names)
 
+    prior = jax.jit(lambda th: _log_prior(th, names))  # one program, not one per op
+
     def inside(th):
-        return np.isfinite(np.asarray(_log_prior(jax.device_put(np.asarray(th)), names)))
+        return np.isfinite(np.asarray(prior(jax.device_put(np.asarray(th)))))
 
     got = []
     for _ in range(8):
