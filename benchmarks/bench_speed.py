@@ -68,6 +68,8 @@ def _worker(csv: str, out: str) -> None:
     print(json.dumps({"rc": rc, "split": split, "slip": (doc.get("slip") or {}).get("value"),
                       "steps": mc.get("steps"), "converged": mc.get("converged"),
                       "verdict": (doc.get("discrepancy") or {}).get("verdict")}))
+    # end as the `fit-lug` executable ends (fitlug.cli.entry), where the code has it
+    getattr(cli, "exit_now", lambda status: None)(0)
 
 
 def _child(src: str, csv: str, cache: str) -> dict:

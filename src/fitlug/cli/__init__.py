@@ -125,5 +125,34 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
+def entry() -> None:
+    """The `fit-lug` executable (and ``python -m fitlug.cli``): :func:`main`, then the
+    process ends without the interpreter's teardown (see :func:`exit_now`)."""
+    exit_now(main())
+
+
+def exit_now(status: int) -> None:
+    """End the process with `status` once its own work is done: other threads joined,
+    the atexit handlers run (logging's flush, coverage's save...), stdout and stderr
+    flushed; then os._exit, skipping the interpreter's teardown of every module, array
+    and compiled program, which after a default run of the bundled recording cost ~1 s
+    CPU of the ~13 (issue 43) and writes nothing. For a process that is about to end
+    only: never called by :func:`main`, which library callers and tests call in-process."""
+    import atexit
+    import os
+    import threading
+
+    for t in threading.enumerate():
+        if t is not threading.current_thread() and not t.daemon:
+            t.join()
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except Exception:  # noqa: BLE001 - a closed pipe: nothing more can be said
+            status = status or 120  # what the interpreter's own exit returns then
+    os._exit(status)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    entry()

@@ -17,7 +17,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from .. import _jaxconfig  # noqa: F401
@@ -107,10 +106,10 @@ def geometry(res) -> Geometry:
     axis = np.r_[np.zeros(S_l, int), np.ones(S_l, int), np.zeros(S_b, int), np.ones(S_b, int)]
     tu = np.unique(t)
     # on bucketed shapes (fitlug.fit._buckets: a new length compiles nothing new), cut back
-    pj = {k: jnp.asarray(v, float) for k, v in p.items()}
+    pj = {k: jax.device_put(np.asarray(v, float)) for k, v in p.items()}  # no program
     pm = pad_model(pj, lay)
     tb = np.concatenate([tu, np.full(bucket(len(tu)) - len(tu), tu[-1])]) if pm else tu
-    kin, seg_l = _kinematics_segments(*(pm or (pj, lay))[:2], jnp.asarray(tb))
+    kin, seg_l = _kinematics_segments(*(pm or (pj, lay))[:2], jax.device_put(tb))
     kin = {k: np.asarray(v)[:len(tu)] for k, v in kin.items()}
     seg_l = np.asarray(seg_l)[:S_l].astype(int)
     segment = np.r_[seg_l, seg_l, np.full(2 * S_b, 4)]

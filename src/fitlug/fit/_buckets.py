@@ -24,7 +24,7 @@ import contextlib
 import os
 from dataclasses import dataclass
 
-import jax.numpy as jnp
+import jax
 import numpy as np
 
 from ..model._buckets import bucket, pad_layout, reads_grid
@@ -98,7 +98,7 @@ def sizes(lay) -> dict:
 
 def _pad_param(v, n: int):
     v = np.asarray(v, float)
-    return jnp.asarray(np.concatenate([v, np.zeros(n - v.shape[0])]))
+    return jax.device_put(np.concatenate([v, np.zeros(n - v.shape[0])]))
 
 
 def pad(flat, fixed: dict, lay, obs: dict, packing: Packing) -> Padded | None:
@@ -132,7 +132,7 @@ def pad(flat, fixed: dict, lay, obs: dict, packing: Packing) -> Padded | None:
                for k, v in fixed.items()}
     Sl, Sb = int(lay.lug_t.shape[0]), int(lay.body_t.shape[0])
     Pl, Pb = sz["n_lug_samples"], sz["n_body_samples"]
-    obs_b = {k: jnp.asarray(np.concatenate([np.asarray(v, float),
+    obs_b = {k: jax.device_put(np.concatenate([np.asarray(v, float),
                                             np.zeros((Pl if k.startswith("lug") else Pb)
                                                      - np.shape(v)[0])]))
              for k, v in obs.items()}

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 
-import jax.numpy as jnp
+import jax
 import numpy as np
 
 from ._model import Layout
@@ -57,7 +57,7 @@ def reads_grid(lay: Layout) -> bool:
 def _rows(a, n: int, fill=0):
     a = np.asarray(a)
     pad = np.full((n - a.shape[0],) + a.shape[1:], fill, a.dtype)
-    return jnp.asarray(np.concatenate([a, pad]))
+    return jax.device_put(np.concatenate([a, pad]))
 
 
 def pad_layout(lay: Layout, *, n_grid: int, n_coef: int, n_lug_samples: int,
@@ -75,7 +75,7 @@ def pad_layout(lay: Layout, *, n_grid: int, n_coef: int, n_lug_samples: int,
     lug_t0 = float(np.asarray(lay.lug_t)[0]) if lay.lug_t.shape[0] else t0
     body_t0 = float(np.asarray(lay.body_t)[0]) if lay.body_t.shape[0] else t0
     return dataclasses.replace(
-        lay, grid=jnp.asarray(np.concatenate([grid, ext])),
+        lay, grid=jax.device_put(np.concatenate([grid, ext])),
         Bn=_rows(lay.Bn, n_grid), dBn=_rows(lay.dBn, n_grid), jn=_rows(lay.jn, n_grid),
         Bm=_rows(lay.Bm, n_grid - 1), dBm=_rows(lay.dBm, n_grid - 1),
         jm=_rows(lay.jm, n_grid - 1),
@@ -85,4 +85,4 @@ def pad_layout(lay: Layout, *, n_grid: int, n_coef: int, n_lug_samples: int,
         body_t=_rows(lay.body_t, n_body_samples, body_t0),
         body_j=_rows(lay.body_j, n_body_samples, np.asarray(lay.body_j)[0]
                      if lay.body_j.shape[0] else 0),
-        breaks=jnp.asarray(br), n_coef=int(n_coef), n_lug=int(n_lug), n_body=int(n_body))
+        breaks=jax.device_put(br), n_coef=int(n_coef), n_lug=int(n_lug), n_body=int(n_body))

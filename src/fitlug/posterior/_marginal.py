@@ -172,7 +172,7 @@ class _Marginal:
         self.cov = np.linalg.inv(Fs) * np.outer(d, d)
         self.cov = 0.5 * (self.cov + self.cov.T)
         self.chol = np.linalg.cholesky(self.cov)
-        self._Je = None if JtJ is not None else jnp.asarray(J[:, self._jrest])
+        self._Je = None if JtJ is not None else jax.device_put(np.asarray(J)[:, self._jrest])
         self._sd0 = np.sqrt(np.diag(self.cov))  # the Gaussian limit's, before any widening
         self._step = None  # the nuisance step's model in theta (_step_model), when needed
         self.chi2_hat = None
@@ -268,9 +268,9 @@ class _Marginal:
             Jn = [np.asarray(self._Je)]
             for f in pts[1:]:
                 (J,) = _exported.call("posterior_jacobian", _jacobian_tuple, (a[5],),
-                                      jnp.asarray(f), a[2], a[3], a[4])
+                                      jax.device_put(f), a[2], a[3], a[4])
                 Jn.append(np.asarray(J)[:, self._jrest])
-            self._Jes = jnp.stack(Jn)
+            self._Jes = jax.device_put(np.stack(Jn))  # numpy: no program to load
             Jn = [J[:, self._live] for J in Jn]
             for i, j in pairs:
                 C[i, j] = Jn[i].T @ Jn[j]
@@ -308,7 +308,7 @@ class _Marginal:
         multiple of the batch), J_k the nuisance Jacobian at the step model's points."""
         b = self.batch
         a = self._args
-        rest = jnp.asarray(self._jrest)  # == _rest but on the dense path
+        rest = jax.device_put(np.asarray(self._jrest))  # == _rest but on the dense path
         K = len(self._pts)
         if self._plan is not None and self._blocks is not None:
             # the vectors' node values once over the whole grid, then block by block: the
@@ -338,11 +338,11 @@ class _Marginal:
                 bs.append(bb)
             return np.concatenate(cs), np.concatenate(bs)
         if self._plan is not None:
-            pts = jnp.asarray(self._pts)
-            out = [_project_chunked(jnp.asarray(flats[i:i + b]), pts, rest, a[2], a[3], a[4],
+            pts = jax.device_put(self._pts)
+            out = [_project_chunked(jax.device_put(flats[i:i + b]), pts, rest, a[2], a[3], a[4],
                                     a[5], self._plan) for i in range(0, len(flats), b)]
         else:
-            out = [_project_dense(jnp.asarray(flats[i:i + b]), a[2], a[3], a[4], a[5],
+            out = [_project_dense(jax.device_put(flats[i:i + b]), a[2], a[3], a[4], a[5],
                                   self._Jes) for i in range(0, len(flats), b)]
         return (np.concatenate([np.asarray(o[0]) for o in out]),
                 np.concatenate([np.asarray(o[1])[:, :, self._live] for o in out]))
@@ -366,7 +366,7 @@ class _Marginal:
                                                               ob_k, a[5]))
                 out.append(c2)
             return np.concatenate(out)
-        return np.concatenate([np.asarray(_chi2_flats(jnp.asarray(flats[i:i + b]), a[2], a[3],
+        return np.concatenate([np.asarray(_chi2_flats(jax.device_put(flats[i:i + b]), a[2], a[3],
                                                       a[4], a[5]))
                                for i in range(0, len(flats), b)])
 

@@ -39,7 +39,8 @@ from ._tempering import tempered_marginal
 
 
 def _gaussian_log_prob(marg: _Marginal):
-    th0, F, names = jnp.asarray(marg.theta_hat), jnp.asarray(marg.F), marg.names
+    th0, F, names = (jax.device_put(np.asarray(marg.theta_hat)),
+                     jax.device_put(np.asarray(marg.F)), marg.names)
 
     def one(th, th0, F):
         z = th - th0
@@ -173,8 +174,10 @@ def _start(marg: _Marginal, walkers: int, rng) -> np.ndarray:
     names = list(marg.names)
     d = len(names)
 
+    prior = jax.jit(lambda th: _log_prior(th, names))  # one program, not one per op
+
     def inside(th):
-        return np.isfinite(np.asarray(_log_prior(jnp.asarray(th), names)))
+        return np.isfinite(np.asarray(prior(jax.device_put(np.asarray(th)))))
 
     got = []
     for _ in range(8):

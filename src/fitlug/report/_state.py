@@ -136,7 +136,6 @@ def _model_state_call(p, lay, fine, lay_c) -> dict:
 def state_arrays(res, posterior=None, explanation=None) -> tuple[dict, dict]:
     """(arrays, meta) of a fit, its posterior and explanation (see the module docstring)."""
     import jax
-    import jax.numpy as jnp
 
     prob, lay = res.problem, res.problem.lay
     p = {k: jax.device_put(np.asarray(v)) for k, v in res.params.items()}  # no compile
@@ -155,7 +154,7 @@ def state_arrays(res, posterior=None, explanation=None) -> tuple[dict, dict]:
     ci = np.repeat(np.arange(lay.n_lug), len(ct))
     ct = np.tile(ct, lay.n_lug)
     lay_c = lay.with_times(ct, ci, np.asarray(lay.body_t)[:1], np.asarray(lay.body_j)[:1])
-    m = _model_state_call(p, lay, jnp.asarray(fine), lay_c)
+    m = _model_state_call(p, lay, jax.device_put(fine), lay_c)
 
     a.update(_raw_residuals(prob, p, m["model"]))
     a["lug_seg"] = np.asarray(m["seg"]).astype(np.int8)
@@ -201,7 +200,7 @@ def state_arrays(res, posterior=None, explanation=None) -> tuple[dict, dict]:
     if explanation is not None and getattr(explanation, "base", None) is not None:
         base = explanation.base
         if len(np.asarray(base.problem.lay.lug_t)) == len(a["lug_t"]):
-            rb = _raw_residuals(base.problem, {k: jnp.asarray(v)
+            rb = _raw_residuals(base.problem, {k: jax.device_put(np.asarray(v))
                                                 for k, v in base.params.items()})
             a.update({f"base_{k}": rb[k] for k in ("lug_res_x", "lug_res_y", "body_res_x",
                                                    "body_res_y")})
