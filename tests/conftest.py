@@ -8,6 +8,7 @@ os.environ.setdefault("FITLUG_CACHE_DIR", os.path.join(os.path.expanduser("~"), 
 sys.path.insert(0, os.path.dirname(__file__))
 
 import jax  # noqa: E402
+import pytest  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
@@ -22,17 +23,35 @@ FAMILY_GROUPS = 3
 #: today's wall seconds of test_families' cases (load 15-20), for the split only
 FAMILY_COST = {"keystone": 337, "lug_splay": 240, "flap": 230, "squat": 223, "rail_bow": 207,
                "slip_speed": 206, "wheel_runout": 162}
-#: the files' CPU seconds today (docs/development.md), heaviest first; others after them
-FILE_COST = {"test_concealed.py": 140, "test_posterior.py": 190, "test_uncertainty.py": 448}
+#: the files' CPU seconds (docs/development.md; 2026-11-28 afternoon, -n 0), for the order
+#: only; files not named come after them, in collection order
+FILE_COST = {"test_posterior.py": 190, "test_uncertainty.py": 180,
+             "test_explain_independent.py": 175, "test_families_independent.py": 170,
+             "test_tracker_error.py": 90, "test_buckets.py": 65, "test_concealed.py": 65,
+             "test_notebook.py": 40}
 
 
+def pytest_configure(config):
+    # keep the order below: xdist (>= 3.8) otherwise queues the groups by their number of
+    # tests, which put the heaviest files (few tests, minutes each) last
+    if hasattr(config.option, "loadscopereorder"):
+        config.option.loadscopereorder = False
+
+
+# tryfirst: xdist's worker turns a test's xdist_group mark into its group in its own
+# pytest_collection_modifyitems, which ran before this one (a plugin registered after the
+# conftest): no test had a group, every test was a scope of its own, and a file's tests
+# went to both workers, each building the module fixtures (test_uncertainty's five, ~100 s
+# CPU) a second time
+@pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items):
-    import pytest
-
     groups = {}
     load = [0.0] * FAMILY_GROUPS
     fam = [it for it in items if os.path.basename(str(it.fspath)) == "test_families.py"]
-    for it in sorted(fam, key=lambda i: -FAMILY_COST.get(_case(i), 50)):
+    # the cases marked bench last: the default run deselects them after this hook (it runs
+    # first), so they must not move the others
+    for it in sorted(fam, key=lambda i: (i.get_closest_marker("bench") is not None,
+                                         -FAMILY_COST.get(_case(i), 50))):
         k = min(range(FAMILY_GROUPS), key=load.__getitem__)
         load[k] += FAMILY_COST.get(_case(it), 50)
         groups[it.nodeid] = (f"test_families.py#{k}", load)

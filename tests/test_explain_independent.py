@@ -1,7 +1,7 @@
 """Blind explanation of recordings made by the independent generator (tests/independent_sim.py).
 
 That generator implements MODEL.md §2 and §3 from the text alone (numpy, RK4 at 0.1 ms,
-smoothstep ramps, 120 fps, its own geometry), not with fitlug's model or simulator, so these
+smoothstep ramps, its own geometry), not with fitlug's model or simulator, so these
 tests check the explanation against the contract rather than against itself: each catalog
 effect is named with its size, a clean recording gives 'none', a combination gives both
 effects, and two disturbances outside the catalog give 'unexplained' with their place.
@@ -20,6 +20,12 @@ from fitlug.fit import fit
 
 SEED = 11
 FPS = 120.0
+#: the catalog cases' frame rate (issue 43 item 6, the CI's time): half of FPS, 3 000
+#: samples instead of 6 000, every assertion unchanged (the sizes are a few to a few
+#: hundred noise sigmas); 2026-11-28 this file 450 -> ~290 s CPU. lug_sliding stays at FPS:
+#: at 60 fps its sliding is not named (the verdict is wrong), so it needs the frames
+FPS_CATALOG = 60.0
+FPS_OF = {"lug_sliding": FPS}
 
 # case -> independent effects; sizes are a few to a few hundred noise sigmas
 CASES = {
@@ -35,7 +41,7 @@ CASES = {
     "marker_depth": {"marker_depth": {"depth_eps": 0.005, "depth_cx": 100.0,
                                       "depth_cy": 30.0}},
     "camera_tilt": {"camera_tilt": {"tilt_theta": 1e-3}},
-    "frame_drop": {"frame_drop": {"drop_dt": 1.0 / FPS, "drop_tstar": 2.5}},
+    "frame_drop": {"frame_drop": {"drop_dt": 1.0 / FPS_CATALOG, "drop_tstar": 2.5}},
     "ripple+sag": {"lug_ripple": {"ripple_eps": 0.0025, "ripple_phi": -2.0},
                    "belt_sag": {"sag_d": 0.4}},
 }
@@ -62,7 +68,7 @@ def _explained(rec, rig):
 @pytest.mark.parametrize("case", list(CASES))
 def test_independent_effects_are_named(case):
     effects = CASES[case]
-    rec, rig, truth = ind.make(seed=SEED, fps=FPS, effects=effects)
+    rec, rig, truth = ind.make(seed=SEED, fps=FPS_OF.get(case, FPS_CATALOG), effects=effects)
     ex = _explained(rec, rig)
     want = "explained" if effects else "none"
     assert (ex.verdict, sorted(ex.effects)) == (want, sorted(effects))
@@ -80,6 +86,20 @@ def test_independent_effects_are_named(case):
         assert e["delta_bic"] < -10
 
 
+# The two disturbances outside the catalog: explained in full, the heaviest cases of this
+# file (2026-11-28: 71 and 49 s of its 450 s CPU), marked `bench` (issue 43 item 6; the
+# default run deselects them, `pytest -m bench tests/test_explain_independent.py` runs
+# them). The same disturbances on fitlug's simulator are explained in full by
+# test_uncertainty.py, which checks what these check and more: the vibration (3.3 Hz in x)
+# located on x at its frequency and taken out as image motion
+# (test_a_camera_vibration_is_taken_out_and_the_errors_stay_sharp), the marker shifted by
+# (0.3, 0.2) mm located on its marker, not systematics, its shift and instant measured
+# (test_unexplained_headline_interval_holds_the_truth). What only the shift's case here
+# has, the glitch finder beside a jump that stays, is a fit and stays in the default run
+# (test_glitches_beside_a_marker_shift_are_listed_and_the_shift_is_not).
+
+
+@pytest.mark.bench
 def test_a_vibration_outside_the_catalog_is_unexplained_and_located():
     """A 3.3 Hz x vibration of the image, locked to nothing on the belt."""
     rec, rig, truth = ind.make(seed=SEED, fps=FPS)
@@ -92,9 +112,12 @@ def test_a_vibration_outside_the_catalog_is_unexplained_and_located():
     assert top["frequency_hz"] == pytest.approx(3.3, abs=0.15)
 
 
-def test_a_marker_shifting_on_its_lug_is_unexplained_and_located():
+def _shifted_and_glitched():
     """The point tracked on one lug marker jumps by a fixed (0.3, 0.2) mm at t = 2.8 s and
-    stays there (a sticker coming loose, a reflection): nothing in the catalog does that."""
+    stays there (a sticker coming loose, a reflection), with glitches of other samples
+    (0.5-2 mm, some two frames long)."""
+    from test_glitches import inject
+
     rec, rig, truth = ind.make(seed=SEED, fps=FPS)
     lug = [m for m in rec.markers if rec.role_of(m) == "lug"]
     name = lug[len(lug) // 2]
@@ -103,11 +126,25 @@ def test_a_marker_shifting_on_its_lug_is_unexplained_and_located():
     x, y = rec.x.copy(), rec.y.copy()
     x[sel] += 0.3
     y[sel] += 0.2
-    # with glitches of other samples (0.5-2 mm, some two frames long): they are found and
-    # listed, the jump that stays is not one of them and stays located on its marker
-    from test_glitches import inject, listed
-
     bad, glitched = inject(rec.with_(x=x, y=y), 8, 1, pairs=2)
+    return bad, rig, name, glitched
+
+
+def test_glitches_beside_a_marker_shift_are_listed_and_the_shift_is_not():
+    """The glitches are found and listed; the jump that stays is not one of them."""
+    from test_glitches import listed
+
+    bad, rig, name, glitched = _shifted_and_glitched()
+    assert listed(fit(bad, rig)) == glitched
+
+
+@pytest.mark.bench
+def test_a_marker_shifting_on_its_lug_is_unexplained_and_located():
+    """Nothing in the catalog shifts one marker on its lug: the explanation says
+    'unexplained' and the jump stays located on its marker."""
+    from test_glitches import listed
+
+    bad, rig, name, glitched = _shifted_and_glitched()
     res = fit(bad, rig)
     assert listed(res) == glitched
     ex = explain(res)

@@ -144,6 +144,11 @@ def test_unexplained_headline_interval_holds_the_truth(knocked):
     assert abs(shift[0]["from_time_s"] - 1.6) < 0.02, shift
     assert np.allclose(shift[0]["shift_um"], [300.0, 200.0], atol=30.0), shift
     assert "shift of marker" in doc["uncertainty_method"]
+    # located on its marker, and not taken for a tracker's floor (0.3 mm is far above it):
+    # test_explain_independent's marker shift (bench) checks the same on the independent
+    # generator
+    assert doc["discrepancy"]["located"][0]["markers"] == [KNOCKED]
+    assert "systematics" not in doc["discrepancy"]
     rec, sc, _ = _knocked(knock=False)
     clean = fit(rec, rig_of(sc))
     jax.clear_caches()
@@ -191,6 +196,10 @@ def test_a_camera_vibration_is_taken_out_and_the_errors_stay_sharp(vibration):
     assert abs(f[0] - VIB_HZ) < 0.02, f
     ax, ay = motion["terms"][0]["amplitude_um"]
     assert abs(ax - 1000 * VIB_MM) < 0.15 * 1000 * VIB_MM and ay < 5.0, (ax, ay)
+    assert ex.effects == []
+    top = doc["discrepancy"]["located"][0]  # as test_explain_independent's (bench) finds it
+    assert top["axis"] == "x"
+    assert top["frequency_hz"] == pytest.approx(VIB_HZ, abs=0.15)
     rec, sc, _ = _vibration(amp=0.0)  # the same recording, the camera still
     clean = fit(rec, rig_of(sc))
     jax.clear_caches()
