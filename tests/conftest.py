@@ -28,7 +28,7 @@ FAMILY_COST = {"keystone": 337, "lug_splay": 240, "flap": 230, "squat": 223, "ra
 FILE_COST = {"test_posterior.py": 190, "test_uncertainty.py": 180,
              "test_explain_independent.py": 175, "test_families_independent.py": 170,
              "test_tracker_error.py": 90, "test_buckets.py": 65, "test_concealed.py": 65,
-             "test_notebook.py": 40}
+             "test_straight_runs.py": 120, "test_notebook.py": 40}
 
 
 def pytest_configure(config):
