@@ -124,7 +124,7 @@ def test_partial_readings_of_a_gross_misfit_are_not_claimed(stiff):
     and family terms that took up a little of the misfit are withheld, with the reason."""
     import dataclasses
 
-    from fitlug.explain._explain import _withheld
+    from fitlug.explain._straight import withheld as _withheld
     from fitlug.explain._explanation import Step
     from fitlug.explain._robust import robust_result
     from fitlug.explain._table import geometry

@@ -53,6 +53,7 @@ from ._final import final_fit, polished_theta
 from ._locate import locate
 from ._robust import nuisance_result, partial_shift, robust_result
 from ._sliding_direct import direct_candidate
+from ._straight import withheld as _withheld
 from ._systematics import tracker_systematics
 from ._table import geometry, structured_misfit
 
@@ -281,42 +282,6 @@ def _explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA
     timing["total"] = time.perf_counter() - t_start
     return Explanation(verdict, res, final, list(accepted), located, steps, det0, det1, loc0,
                        loc1, rounds, method, timing, geo, sysb, disc)
-
-
-def _withheld(final, accepted, steps, disc):
-    """No claim from a partial reading of a misfit the model does not describe.
-
-    Where the verdict is `unexplained` and the slip had to be read off the straight runs
-    (explain._straight: the final model, catalog entries and partial family terms
-    included, still misfits at chi^2/dof above GROSS_CHI2), those entries and terms lowered
-    chi^2 by taking up a little of a misfit they are not: an image map or marker depth on
-    a contact-dynamics engine's recording that has no camera (issue 41). They stay in the
-    final model (the headline does not depend on them), but are not named as physics: the
-    Explanation lists them in final.robust["withheld"] with the reason, and the families'
-    partial terms move to what was tried. The base model's parts (lug_shear: the marker on
-    the lug) are not left-out physics and stay. Returns (final, accepted, steps, disc)."""
-    import dataclasses
-
-    from ._explanation import BASE_EFFECTS
-
-    if (getattr(final, "robust", None) or {}).get("headline") != "straight runs":
-        return final, accepted, steps, disc
-    entries = [e for e in accepted if e not in BASE_EFFECTS]
-    terms = [t.to_json() for t in (getattr(disc, "terms", None) or [])]
-    if not entries and not terms:
-        return final, accepted, steps, disc
-    reason = (f"not claimed: the model does not describe the path (chi2/dof "
-              f"{final.chi2_per_dof:.0f} with it), so taking up part of that misfit is no "
-              "evidence for it")
-    names = entries + [f"{t.get('family')} ({t.get('coordinate')})" for t in terms]
-    info = dict(final.robust)
-    info["withheld"] = {"readings": names, "reason": reason}
-    final = dataclasses.replace(final, robust=info)
-    if terms:
-        disc = dataclasses.replace(disc, terms=[], tried=list(disc.tried) + [
-            {**t, "rejected_because": reason} for t in terms])
-    keep = [e for e in accepted if e in BASE_EFFECTS]
-    return final, keep, [st for st in steps if st.effect in keep], disc
 
 
 #: the catalog's image effects: MODEL.md §5's image map holds each of them
