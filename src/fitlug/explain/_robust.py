@@ -192,13 +192,14 @@ def straight_headline(res) -> dict | None:
 def _with_straight(out: dict, st: dict, res) -> dict:
     """`out` with the slip (and delta_l_mm = s L / (n - 1)) from the straight runs."""
     from ..fit import Estimate
+    from ..model import delta_l
 
     out = dict(out)
     out["slip"] = Estimate(st["slip"], st["std"])
     lay = res.problem.lay
-    f = float(lay.L) / (float(lay.n_contact) - 1.0)
     if "delta_l_mm" in out:
-        out["delta_l_mm"] = Estimate(st["slip"] * f, st["std"] * f)
+        out["delta_l_mm"] = Estimate(delta_l(st["slip"], lay.n_contact, float(lay.L)),
+                                     delta_l(st["std"], lay.n_contact, float(lay.L)))
     return out
 
 

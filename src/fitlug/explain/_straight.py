@@ -68,16 +68,13 @@ def _hac_slope(t, y, lag_s):
     return float(coef[1]), float(np.sqrt(max(S, 0.0)) / np.sum(x * x))
 
 
-def _cruise(res, lay):
-    """(t1, t2, v_plateau): the longest span where the base fit's belt speed holds a
-    plateau (within PLATEAU of the value it holds longest)."""
-    import jax.numpy as jnp
-
+def _cruise(p, lay, nodes):
+    """(t1, t2, v_plateau): the longest span where the fit's belt speed (parameters `p`,
+    integrated `nodes`) holds a plateau (within PLATEAU of the value it holds longest)."""
     from ..model._model import kinematics
 
-    p = {k: jnp.asarray(v) for k, v in res.params.items()}
     tg = np.linspace(float(lay.grid[0]), float(lay.grid[-1]), 2000)
-    vt = np.asarray(kinematics(p, lay, tg)["v_t"])
+    vt = np.asarray(kinematics(p, lay, tg, nodes)["v_t"])
     # a running median over SMOOTH_S: a fit that misfits can put short wiggles in its
     # belt speed, which must not cut the plateau
     half = max(1, int(0.5 * SMOOTH_S / (tg[1] - tg[0])))
@@ -109,22 +106,23 @@ def straight_runs_slip(res, margin_mm: float = MARGIN_MM) -> dict | None:
     """
     import jax.numpy as jnp
 
-    from ..model._model import ctx_of, kinematics, predict, sampled_kinematics
+    from ..model._model import ctx_of, integrate, kinematics, positions, sampled_from_nodes
 
     prob = res.problem
     lay = prob.lay
-    cr = _cruise(res, lay)
+    p = {k: jnp.asarray(v) for k, v in res.params.items()}
+    nodes = integrate(p, lay)  # once: the cruise, the samples and the body's X read it
+    cr = _cruise(p, lay, nodes)
     if cr is None:
         return None
     t1, t2, _ = cr
-    p = {k: jnp.asarray(v) for k, v in res.params.items()}
     ctx = ctx_of(p, lay)
     D, R, P = float(ctx.D), float(ctx.R), float(ctx.P)
     obs = {k: np.asarray(v) for k, v in prob.obs.items()}
-    _, psil, _, _ = sampled_kinematics(p, lay)
-    u = np.mod(np.asarray(p["sigma0"])[np.asarray(lay.lug_i)] + np.asarray(psil), P)
+    sampled = sampled_from_nodes(p, lay, nodes)
+    u = np.mod(np.asarray(p["sigma0"])[np.asarray(lay.lug_i)] + np.asarray(sampled[1]), P)
     top = (u > D + np.pi * R + margin_mm) & (u < 2.0 * D + np.pi * R - margin_mm)
-    _, _, bx, _ = (np.asarray(a) for a in predict(p, lay))
+    bx = np.asarray(positions(p, lay, *sampled)[2])
     # the body's position where it is seen: the model's X plus the body markers' mean
     # residual at that frame (the model carries each marker's offset on the body)
     tb = np.asarray(lay.body_t)
@@ -138,7 +136,8 @@ def straight_runs_slip(res, margin_mm: float = MARGIN_MM) -> dict | None:
     jb = np.asarray(lay.body_j)[wb]
     for j in np.unique(jb):
         rb[jb == j] -= np.median(rb[jb == j])
-    X = np.asarray(kinematics(p, lay, ut)["X"]) + np.bincount(inv, rb) / np.bincount(inv)
+    X = (np.asarray(kinematics(p, lay, ut, nodes)["X"])
+         + np.bincount(inv, rb) / np.bincount(inv))
     in_cruise = (ut >= t1) & (ut <= t2)
     if np.sum(in_cruise) < MIN_SAMPLES or np.ptp(ut[in_cruise]) < MIN_CRUISE_S:
         return None

@@ -309,9 +309,10 @@ def positions(p: dict, lay: Layout, Xl, psil, Xb, psib):
     return lx, ly, bx, by
 
 
-def kinematics(p: dict, lay: Layout, t):
-    """Body position X, speed v, belt travel psi, belt speed v_t and slip s at times t."""
-    X, psi, vn, dpn = integrate(p, lay)
+def kinematics(p: dict, lay: Layout, t, nodes=None):
+    """Body position X, speed v, belt travel psi, belt speed v_t and slip s at times t
+    (`nodes`: :func:`integrate`'s values when the caller has them already)."""
+    X, psi, vn, dpn = integrate(p, lay) if nodes is None else nodes
     t = jnp.asarray(t, float)
     v = hermite(lay, t, vn, jnp.gradient(vn, lay.h))
     dp = hermite(lay, t, dpn, jnp.gradient(dpn, lay.h))

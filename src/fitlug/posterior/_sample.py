@@ -214,15 +214,19 @@ def _slip_term(samples: dict, res, rng) -> None:
     """A family term that moves the headline slip (a slip law in the speed: fitlug.explain
     .families) is not in the sampled model: its change g of the slip is drawn beside each
     sample from its Gaussian given the sample's steady slip (their joint covariance from
-    the extended fit, res.robust["slip_term"]) and added to the slip."""
+    the extended fit, res.robust["slip_term"]) and added to the slip. A term with
+    "replace" (the slip read off the straight runs, fitlug.explain._straight) replaces the
+    slip, and delta_l' with it, by draws from its value and std."""
     term = (getattr(res, "robust", None) or {}).get("slip_term")
     if not term or "slip" not in samples:
         return
     if term.get("replace"):  # the slip read off the straight runs (fitlug.explain._straight)
         draw = term["value"] + term["std"] * rng.standard_normal(np.shape(samples["slip"]))
         if "delta_l_mm" in samples:  # delta_l' = s L / (n - 1) (MODEL.md §2)
+            from ..model import delta_l
+
             lay = res.problem.lay
-            samples["delta_l_mm"] = draw * float(lay.L) / (float(lay.n_contact) - 1.0)
+            samples["delta_l_mm"] = delta_l(draw, lay.n_contact, float(lay.L))
         samples["slip"] = draw
         return
     s = np.asarray(samples["slip"], float)
