@@ -48,7 +48,7 @@ from ._criterion import BIC_THRESHOLD, MIN_SHARE_REMOVED, STRONG_MISFIT_Z
 from .families import after_catalog
 from ._detect import ALPHA, detect
 from ._engine import Engine
-from ._explanation import Explanation, Step, as_base
+from ._explanation import BASE_EFFECTS, Explanation, Step, as_base
 from ._final import final_fit, polished_theta
 from ._locate import locate
 from ._robust import nuisance_result, partial_shift, robust_result
@@ -304,6 +304,13 @@ def _family_instead(res, geo, loc0, det0, sig_est, alpha, final, accepted, verdi
     answer stands."""
     image_stack = len(accepted) >= 2 and any(e in IMAGE_EFFECTS for e in accepted)
     if not accepted or (verdict == "explained" and not image_stack):
+        return None
+    if verdict == "unexplained" and set(accepted) <= set(BASE_EFFECTS) and \
+            (getattr(final, "robust", None) or {}).get("headline") == "straight runs":
+        # only the base model's marker placement was taken, the families already failed
+        # beside it, and the whole-path model misfits grossly (chi2/dof > GROSS_CHI2): the
+        # base fit without the placement is further from the path still (the engine's
+        # recordings: 10-14 s CPU for nothing)
         return None
     fam = after_catalog(res, geo, loc0.parts, det0, sig_est, alpha)
     if fam[0] != "modelled":

@@ -8,7 +8,8 @@ minimum (quadratic convergence from that close), and the result is assembled exa
 fit_problem assembles it: same packing, covariance (fitlug.fit.covariance), derived
 quantities with delta-method errors (compute_quantities), dof and convergence flag.
 Convergence is declared when the last Gauss-Newton step lowers chi^2 by less than
-1e-6 and its predicted decrease is below 1e-6 too. The steps and the covariance come
+1e-6 and its predicted decrease is below 1e-6 too, both in units of max(1, chi^2/dof)
+(a gross misfit's chi^2 is in units of a noise it does not have). The steps and the covariance come
 from :func:`gauss_newton_step` and :func:`covariance_of` (dense, or from the chunked
 normal equations on long recordings).
 """
@@ -44,6 +45,11 @@ def _polish(prob, p: dict, free: list) -> FitResult:
 
     r = res_of(flat)
     chi2 = float(r @ r)
+    # the tolerances are on chi^2 in units of its noise: where the model misfits grossly
+    # (chi2/dof in the thousands: a contact-dynamics track) they scale with chi2/dof, as
+    # they would with the noise rescaled to the misfit; without this the polish never
+    # met 1e-6 at chi^2 ~ 1e7 and ran all MAX_STEPS twice (~1 s CPU a step)
+    tol = TOL * max(1.0, chi2 / max(prob.n_valid - len(flat), 1))
     converged, steps = False, 0
     for steps in range(1, MAX_STEPS + 1):
         # dense SVD step, or from chunked normal equations on a long recording
@@ -55,11 +61,11 @@ def _polish(prob, p: dict, free: list) -> FitResult:
             if np.isfinite(c2) and c2 <= chi2:
                 break
         else:
-            converged = predicted < 10 * TOL  # no step lowers chi^2: at the minimum
+            converged = predicted < 10 * tol  # no step lowers chi^2: at the minimum
             break
         gain = chi2 - c2
         flat, r, chi2 = f2, r2, c2
-        if gain < TOL and predicted < TOL + 2 * gain + 1e-9 * chi2:
+        if gain < tol and predicted < tol + 2 * gain + 1e-9 * chi2:
             converged = True
             break
     cov = covariance_of(flat, fixed, packing, lay, obs)
