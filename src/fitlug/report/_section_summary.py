@@ -50,8 +50,9 @@ def _sliding(fj) -> bool:
     return "lug_sliding" in ((fj.get("least_squares") or {}).get("effects") or [])
 
 
-def _widened(fj) -> str:
-    """Why the headline error is wider than the least-squares one, or ""."""
+def _widened(fj, how: bool = True) -> str:
+    """Why the headline error is wider than the least-squares one, or "" (`how`: with the
+    method in brackets, where the sentence does not stand beside a note that names it)."""
     d = fj.get("discrepancy") or {}
     if d.get("verdict") != "unexplained":
         return ""
@@ -59,7 +60,7 @@ def _widened(fj) -> str:
 
     if modelled(d):
         return ""  # the mismatch was modelled (outside the catalog): not a widened error
-    how = d.get("slip_after_uncertainty") or fj.get("uncertainty_method") or ""
+    how = (d.get("slip_after_uncertainty") or fj.get("uncertainty_method") or "") if how else ""
     return ("the residuals hold a mismatch no catalog effect explains, so the error bar "
             "includes it" + (f" ({_e(how)})" if how else ""))
 
@@ -130,8 +131,11 @@ def _verdict_main(fj) -> str:
                 "model's, its error carrying the term's uncertainty.</div>")
     sentence = _located_sentence(d)
     if _widened(fj):  # the error bar carries the mismatch
-        tail = (f' ({_e(d.get("slip_after_uncertainty") or fj.get("uncertainty_method") or "widened")}); '
-                'treat the slip as a measurement with an unmodelled systematic.')
+        # the method once on the page's top (the headline's note names it): here only
+        # where the verdict's own differs from it
+        how = d.get("slip_after_uncertainty")
+        how = f" ({_e(how)})" if how and how != fj.get("uncertainty_method") else ""
+        tail = f"{how}; treat the slip as a measurement with an unmodelled systematic."
     else:  # modelled outside the catalog: the headline is that model's fit
         tail = "."
     return ('<div class="verdict v-unexplained"><b>⚠ Unexplained mismatch.</b> The residuals '
@@ -209,7 +213,7 @@ def _headline(fj, st) -> str:
     notes = ["± is one standard error (1 σ) from "
              f"{_e(fj.get('uncertainty_method') or 'the fit')}; the same error is used "
              "everywhere on this page."]
-    w = _widened(fj)
+    w = _widened(fj, how=False)  # the note above names the method
     ls_std = ((st.get("meta", {}).get("least_squares") or {}).get("slip") or {}).get("std")
     # the posterior's std is itself an estimate (relative sd 1/sqrt(2 ESS)): a posterior
     # tempered to the robust error scatters around it, one that left the mismatch out is
