@@ -173,6 +173,7 @@ def one(task):
                 ex = explain(fit(r, rig2))
                 fin = ex.final
                 out.update({key + "verdict": ex.verdict, key + "named": sorted(ex.effects),
+                            key + "terms": [d.get("family", "") for d in ex.discovered],
                             key + "slip": float(fin.slip.value),
                             key + "std": float(fin.slip.std),
                             key + "chi2": float(fin.chi2_per_dof)})
