@@ -22,6 +22,16 @@ tau ~ 8-11 steps against ~ 30 for the stretch move (measured on correlated Gauss
 rho = 0.9), so the 50 tau rule is met 3-4 times sooner. emcee's DESnookerMove, often
 mixed in, is left out: in emcee <= 3.1.6 its Metropolis factor is wrong (dfm/emcee#531);
 measured here it shrinks the std of a 3-D Gaussian by 8 %.
+
+With a Laplace approximation of the target (`proposal`: a replacing slip law's exact
+marginal, sampled in the law's own coordinates from its mode, ._reparam) half the steps
+are an independence Metropolis move instead: every walker proposes a draw from a Student
+t (5 degrees of freedom) of that mean and covariance, accepted with the Metropolis-Hastings
+factor. Where the target is nearly that Gaussian (lug_sliding on bench_speed's effect
+recording: its chi^2 within 0.3 of the quadratic at 1-sigma draws) the chain forgets its
+past in a few steps: tau ~ 2.5 steps against ~ 9 for DEMove alone there, so it stops at
+MIN_STEPS. The DEMove half keeps it moving where the approximation is poor (an
+independence sampler alone sticks in tails the proposal misses, and tau then says so).
 """
 
 from __future__ import annotations
@@ -39,9 +49,10 @@ from .. import _progress
 CHECK_EVERY = 100  # steps between convergence checks (a check costs ~1 ms)
 MIN_STEPS = 200
 #: ~10 x the steps a converged slip-law chain takes (tau ~ 10: ~600). It bounds a default
-#: run's time the same on every machine: a slowly mixing exact chain (lug_sliding on a
-#: drive-through, tau ~ 240 steps) needed ~12 000 steps and 558 s CPU to converge, and is
-#: reported not converged at this limit, with its reason, rather than run for ten minutes
+#: run's time the same on every machine: a slowly mixing exact chain is reported not
+#: converged at this limit, with its reason, rather than run for ten minutes (lug_sliding
+#: on a drive-through, sampled in theta with DEMove: tau ~ 240 steps, ~12 000 steps and
+#: 558 s CPU; in the law's own coordinates, ._reparam: tau ~ 2.5, 200 steps)
 MAX_STEPS = 6_000
 #: with a `proposal`: the share of steps that are independence moves, and their t's
 #: degrees of freedom

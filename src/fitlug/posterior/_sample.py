@@ -8,6 +8,8 @@ optimum (principal axes and diagonals) and uses the Gaussian limit only when it 
 to `LINEARITY_TOL` in delta-chi^2 everywhere there; otherwise it samples the exact
 marginal. The check's largest discrepancy is reported. The chain stops on effective
 samples (`._mcmc`): the same seed gives the same digits on a quiet or a busy machine.
+The exact marginal of a replacing slip law (lug_sliding) is sampled in the law's own
+coordinates from the marginal's mode (`._reparam`): in theta it is a thin curved ridge.
 
 When fitlug.explain leaves a misfit unexplained (res.robust set), the white-noise
 likelihood is orders of magnitude too confident: it is stretched to the cluster-robust
