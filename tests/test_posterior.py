@@ -147,7 +147,7 @@ def test_bad_arguments(runs):
     assert isinstance(runs[0][2], Posterior)
 
 
-def test_a_replacing_slip_law_is_sampled_with_its_parameter():
+def test_a_replacing_slip_law_is_sampled_with_its_parameter(monkeypatch):
     # lug_sliding: s = -s_K ln(1 - F/F_max); the steady slip is a nonlinear function of
     # (s0, beta, slide_mu), all three sampled, slide_mu >= 0 by the prior
     sc = SHORT.replace(effects={"lug_sliding": {"slide_mu": 6.0}})
@@ -177,6 +177,26 @@ def test_a_replacing_slip_law_is_sampled_with_its_parameter():
         assert abs(e.value - g.value) < 0.2 * g.std, q
         assert 0.9 < e.std / g.std < 1.1, q
     assert np.all(exact.samples["slide_mu"] >= 0)
+    # where the check fails at the least-squares solution (made to here) but passes at the
+    # mode in the law's coordinates, 'auto' samples the Gaussian limit there
+    from fitlug.posterior._marginal import _Marginal
+
+    real = _Marginal.linearity_check
+
+    def failing(self):
+        return {**real(self), "max_delta_chi2": 100.0}
+
+    monkeypatch.setattr(_Marginal, "linearity_check", failing)
+    near = sample_posterior(res, seed=0)
+    m = near.mcmc_json()
+    assert m["method"].startswith("gaussian") and "own coordinates" in m["method"]
+    assert m["coordinates"]["linearity_check_at_mode"]["max_delta_chi2"] < 0.25
+    assert m["converged"]
+    for q in ("slip", "rolling_resistance", "stiffness_N_per_mm"):
+        g, e = exact.estimates[q], near.estimates[q]
+        assert abs(e.value - g.value) < 0.2 * g.std, q
+        assert 0.9 < e.std / g.std < 1.1, q
+    monkeypatch.undo()
     # the change of coordinates keeps the density of theta: a Gaussian in theta, sampled
     # in u (where it is not Gaussian: the Jacobian 1 / f'(s0)^2 carries it), comes back
     from fitlug.posterior._reparam import SlipCoordinates

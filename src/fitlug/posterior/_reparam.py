@@ -23,6 +23,12 @@ lower 6 sigma away along it (mu 6.09 where the fit stopped at 7.69; the simulati
 truth is 6). So the mode of the density in (whitened) u is found first by Newton's method
 on finite differences (2 d^2 + 1 points an iteration, in one batch; deterministic), and
 the walkers start from the Laplace approximation there.
+
+Where that approximation agrees with the exact density at 2-sigma points around the mode
+to LINEARITY_TOL in delta-chi^2 (the test the Gaussian limit passes at the least-squares
+solution, now in these coordinates; 0.22 on bench_speed's effect recording, 356 in theta
+at the least-squares solution), method='auto' samples it instead of the exact density:
+its Gaussian limit in the law's coordinates, with the prior's bounds.
 """
 
 from __future__ import annotations
@@ -141,6 +147,43 @@ class SlipCoordinates:
             return z, np.eye(d), it
         C = 2.0 * np.linalg.inv(H)  # H: of -2 log p
         return z, 0.5 * (C + C.T), it
+
+    def linearity_check(self, z0, C, lp, tol: float) -> dict:
+        """The exact density against its Laplace approximation at `CHECK_SIGMA` points
+        (principal axes and diagonals of C) around the mode z0, as _Marginal's check
+        at the least-squares solution: max |delta chi^2|."""
+        from ._marginal import CHECK_SIGMA
+
+        d = len(z0)
+        w, V = np.linalg.eigh(C)
+        root = V * np.sqrt(w)
+        dirs = [sgn * e for e in np.eye(d) for sgn in (1, -1)]
+        if d > 1:
+            dirs += [(2 * np.array(c) - 1) / np.sqrt(d) for c in np.ndindex(*(2,) * d)]
+        pts = z0 + CHECK_SIGMA * np.array([root @ u for u in dirs])
+        c = -2.0 * np.asarray(lp(np.vstack([z0, pts])))
+        exact = c[1:] - c[0]
+        diff = exact - CHECK_SIGMA ** 2
+        ok = bool(np.all(np.isfinite(diff)))
+        return {"sigma": CHECK_SIGMA, "points": int(len(pts)),
+                "max_delta_chi2": float(np.max(np.abs(diff))) if ok else None,
+                "delta_chi2_exact_range": [float(exact.min()), float(exact.max())] if ok
+                else None, "tolerance": tol}
+
+    def gaussian_log_prob(self, z0, C):
+        """The Laplace approximation's log density in z, -inf outside the prior (and
+        where the law does not invert)."""
+        P = np.linalg.inv(C)
+
+        def lp(z):
+            z = np.atleast_2d(z)
+            th = self.theta(z)
+            out = -0.5 * np.einsum("ij,jk,ik->i", z - z0, P, z - z0)
+            ok = np.all(np.isfinite(th), axis=1)
+            ok[ok] = np.isfinite(np.asarray(self._prior(jax.device_put(th[ok]))))
+            return np.where(ok, out, -np.inf)
+
+        return lp
 
     def start(self, z0, C, lp, walkers: int, rng) -> np.ndarray:
         """Walkers from N(z0, C) inside the prior (and where the law inverts), with a

@@ -136,6 +136,12 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
         p0 = coords.start(z0, Cz, sampled, walkers, rng)
         if p0 is not None:
             log_prob, proposal = sampled, (z0, Cz)
+            near = coords.linearity_check(z0, Cz, sampled, LINEARITY_TOL)
+            if (method == "auto" and near["max_delta_chi2"] is not None
+                    and near["max_delta_chi2"] <= LINEARITY_TOL):
+                # its Gaussian limit there is as good as the check asks: sample that
+                use = "gaussian"
+                log_prob = coords.gaussian_log_prob(z0, Cz)
             mode = coords.theta(z0[None])[0]
             where = {"sampled": "the slip law's own coordinates (steady slip, its slope in "
                                 "the acceleration, " + ", ".join(names[2:]) + "), whitened",
@@ -143,7 +149,8 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
                      "mode": {k: float(v) for k, v in zip(names, mode)},
                      "mode_iterations": int(iters),
                      "mode_delta_chi2": float(-2.0 * (sampled(z0[None])[0]
-                                                      - sampled(np.zeros((1, len(z0))))[0]))}
+                                                      - sampled(np.zeros((1, len(z0))))[0])),
+                     "linearity_check_at_mode": near}
         else:
             coords = None
     if coords is None:
@@ -169,7 +176,10 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     t3 = time.perf_counter()
     desc = {"gaussian": "emcee on the Gaussian limit of the linearly marginalised likelihood",
             "exact": "emcee on the exact-model, linearly marginalised likelihood"}[use]
-    if where:
+    if where and use == "gaussian":
+        desc = ("emcee on the Gaussian limit of the exact-model, linearly marginalised "
+                "likelihood in the slip law's own coordinates at its mode")
+    elif where:
         desc += "; sampled in the slip law's own coordinates from the marginal's mode"
     how = "posterior (emcee)"
     headline = (getattr(res, "robust", None) or {}).get("headline")
