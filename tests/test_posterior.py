@@ -147,7 +147,7 @@ def test_bad_arguments(runs):
     assert isinstance(runs[0][2], Posterior)
 
 
-def test_a_replacing_slip_law_is_sampled_with_its_parameter():
+def test_a_replacing_slip_law_is_sampled_with_its_parameter(monkeypatch):
     # lug_sliding: s = -s_K ln(1 - F/F_max); the steady slip is a nonlinear function of
     # (s0, beta, slide_mu), all three sampled, slide_mu >= 0 by the prior
     sc = SHORT.replace(effects={"lug_sliding": {"slide_mu": 6.0}})
@@ -164,6 +164,64 @@ def test_a_replacing_slip_law_is_sampled_with_its_parameter():
         assert abs(e.value - truth[q]) < 4 * e.std, q
         assert 0.88 < e.std / res.quantities[q].std < 1.12, q
     assert abs(np.median(post.samples["slide_mu"]) - 6.0) < 4 * np.std(post.samples["slide_mu"])
+    # the exact marginal: sampled in the law's own coordinates (steady slip, slope,
+    # slide_mu) from its mode, where the ridge of (s0, beta, slide_mu) is straight; the
+    # same posterior as the Gaussian limit here (the check passes: max 0.06 in chi^2)
+    exact = sample_posterior(res, seed=0, method="exact")
+    m = exact.mcmc_json()
+    assert m["converged"] and m["coordinates"]["mode_iterations"] <= 4
+    assert abs(m["coordinates"]["mode_delta_chi2"]) < 1e-3  # the fit is the mode here
+    assert m["autocorr_time"] < 5 and m["steps"] <= 300  # ~2.5 and 200; DEMove: ~9, 500
+    for q in ("slip", "rolling_resistance", "stiffness_N_per_mm"):
+        g, e = post.estimates[q], exact.estimates[q]
+        assert abs(e.value - g.value) < 0.2 * g.std, q
+        assert 0.9 < e.std / g.std < 1.1, q
+    assert np.all(exact.samples["slide_mu"] >= 0)
+    # where the check fails at the least-squares solution (made to here) but passes at the
+    # mode in the law's coordinates, 'auto' samples the Gaussian limit there
+    from fitlug.posterior._marginal import _Marginal
+
+    real = _Marginal.linearity_check
+
+    def failing(self):
+        return {**real(self), "max_delta_chi2": 100.0}
+
+    monkeypatch.setattr(_Marginal, "linearity_check", failing)
+    near = sample_posterior(res, seed=0)
+    m = near.mcmc_json()
+    assert m["method"].startswith("gaussian") and "own coordinates" in m["method"]
+    assert m["coordinates"]["linearity_check_at_mode"]["max_delta_chi2"] < 0.25
+    assert m["converged"]
+    for q in ("slip", "rolling_resistance", "stiffness_N_per_mm"):
+        g, e = exact.estimates[q], near.estimates[q]
+        assert abs(e.value - g.value) < 0.2 * g.std, q
+        assert 0.9 < e.std / g.std < 1.1, q
+    monkeypatch.undo()
+    # the change of coordinates keeps the density of theta: a Gaussian in theta, sampled
+    # in u (where it is not Gaussian: the Jacobian 1 / f'(s0)^2 carries it), comes back
+    from fitlug.posterior._reparam import SlipCoordinates
+
+    mu = np.array([res.params["s0"], res.params["beta"], res.params["slide_mu"]], float)
+    sd = np.array([0.01, 2e-6, 1.0])  # wide enough that f'(s0) varies by ~20 %
+    corr = np.array([[1.0, 0.5, -0.6], [0.5, 1.0, -0.3], [-0.6, -0.3, 1.0]])
+    cov = corr * np.outer(sd, sd)
+    prec = np.linalg.inv(cov)
+
+    def lp_theta(th):
+        z = th - mu
+        return -0.5 * np.einsum("ij,jk,ik->i", z, prec, z)
+
+    coords = SlipCoordinates(res, ["s0", "beta", "slide_mu"])
+    coords.whiten(mu, cov)
+    lp = coords.log_prob(lp_theta)
+    z0, Cz, _ = coords.mode(lp)
+    p0 = coords.start(z0, Cz, lp, 32, np.random.default_rng(1))
+    ch = run_ensemble(lp, p0, names=("s0", "beta", "slide_mu"), seed=2, proposal=(z0, Cz))
+    assert ch.converged
+    th = coords.theta(ch.flat())
+    assert np.all(np.abs(th.mean(0) - mu) < 5 * sd / np.sqrt(ch.ess.min()))
+    assert np.all(np.abs(th.std(0) / sd - 1) < 0.08)
+    np.testing.assert_allclose(np.corrcoef(th.T), corr, atol=0.06)
 
 
 def test_sampled_parameters_follow_the_slip_law():
@@ -210,6 +268,18 @@ def test_driver_recovers_a_correlated_gaussian():
     for k in range(3):
         assert stats.kstest((thin[:, k] - mu[k]) / sd[k], "norm").pvalue > 1e-3
     assert 0.15 < ch.acceptance.mean() < 0.7
+    # with independence moves from a Laplace approximation (here a wider, shifted one):
+    # the same distribution, from a chain that forgets its past in a few steps
+    ch = run_ensemble(_jax_log_prob(lp), p0, names=("a", "b", "c"), seed=5,
+                      proposal=(mu + 0.3 * sd, 1.5 * cov))
+    assert ch.converged and np.all(ch.tau < 5)
+    x = ch.flat()
+    assert np.all(np.abs(x.mean(0) - mu) < 5 * sd / np.sqrt(ch.ess))
+    assert np.all(np.abs(x.std(0) / sd - 1) < 0.08)
+    np.testing.assert_allclose(np.corrcoef(x.T), corr, atol=0.06)
+    thin = ch.samples[::int(math.ceil(2 * ch.tau.max()))].reshape(-1, 3)
+    for k in range(3):
+        assert stats.kstest((thin[:, k] - mu[k]) / sd[k], "norm").pvalue > 1e-3
 
 
 def test_driver_respects_a_truncating_prior(capsys):
@@ -225,6 +295,14 @@ def test_driver_respects_a_truncating_prior(capsys):
     x = ch.flat()[:, 0]
     assert x.min() > 0
     tn = stats.truncnorm(-0.5, np.inf, loc=0.5, scale=1.0)
+    assert abs(x.mean() - tn.mean()) < 5 * tn.std() / np.sqrt(ch.ess[0])
+    thin = ch.samples[::int(math.ceil(2 * ch.tau.max()))].ravel()
+    assert stats.kstest(thin, tn.cdf).pvalue > 1e-3
+    # independence moves from the untruncated Gaussian: proposals below 0 are refused
+    ch = run_ensemble(_jax_log_prob(lp), p0, names=("x",), seed=1,
+                      proposal=(np.array([0.5]), np.eye(1)))
+    x = ch.flat()[:, 0]
+    assert x.min() > 0 and ch.converged
     assert abs(x.mean() - tn.mean()) < 5 * tn.std() / np.sqrt(ch.ess[0])
     thin = ch.samples[::int(math.ceil(2 * ch.tau.max()))].ravel()
     assert stats.kstest(thin, tn.cdf).pvalue > 1e-3

@@ -22,6 +22,16 @@ tau ~ 8-11 steps against ~ 30 for the stretch move (measured on correlated Gauss
 rho = 0.9), so the 50 tau rule is met 3-4 times sooner. emcee's DESnookerMove, often
 mixed in, is left out: in emcee <= 3.1.6 its Metropolis factor is wrong (dfm/emcee#531);
 measured here it shrinks the std of a 3-D Gaussian by 8 %.
+
+With a Laplace approximation of the target (`proposal`: a replacing slip law's exact
+marginal, sampled in the law's own coordinates from its mode, ._reparam) half the steps
+are an independence Metropolis move instead: every walker proposes a draw from a Student
+t (5 degrees of freedom) of that mean and covariance, accepted with the Metropolis-Hastings
+factor. Where the target is nearly that Gaussian (lug_sliding on bench_speed's effect
+recording: its chi^2 within 0.3 of the quadratic at 1-sigma draws) the chain forgets its
+past in a few steps: tau ~ 2.5 steps against ~ 9 for DEMove alone there, so it stops at
+MIN_STEPS. The DEMove half keeps it moving where the approximation is poor (an
+independence sampler alone sticks in tails the proposal misses, and tau then says so).
 """
 
 from __future__ import annotations
@@ -39,10 +49,15 @@ from .. import _progress
 CHECK_EVERY = 100  # steps between convergence checks (a check costs ~1 ms)
 MIN_STEPS = 200
 #: ~10 x the steps a converged slip-law chain takes (tau ~ 10: ~600). It bounds a default
-#: run's time the same on every machine: a slowly mixing exact chain (lug_sliding on a
-#: drive-through, tau ~ 240 steps) needed ~12 000 steps and 558 s CPU to converge, and is
-#: reported not converged at this limit, with its reason, rather than run for ten minutes
+#: run's time the same on every machine: a slowly mixing exact chain is reported not
+#: converged at this limit, with its reason, rather than run for ten minutes (lug_sliding
+#: on a drive-through, sampled in theta with DEMove: tau ~ 240 steps, ~12 000 steps and
+#: 558 s CPU; in the law's own coordinates, ._reparam: tau ~ 2.5, 200 steps)
 MAX_STEPS = 6_000
+#: with a `proposal`: the share of steps that are independence moves, and their t's
+#: degrees of freedom
+INDEPENDENCE_WEIGHT = 0.5
+INDEPENDENCE_DOF = 5.0
 GUARD_S = 900.0  # the default wall-time guard: reached only when something is wrong
 _clock = time.perf_counter  # the guard's clock (tests put a slow one in its place)
 
@@ -95,7 +110,7 @@ def autocorr_time(chain: np.ndarray) -> np.ndarray:
 def run_ensemble(log_prob, p0: np.ndarray, *, names, seed: int = 0,
                  time_budget_s: float = GUARD_S, min_tau_multiple: float = 50.0,
                  target_ess: float = 1000.0, max_steps: int = MAX_STEPS,
-                 progress: bool = False) -> Chain:
+                 progress: bool = False, proposal=None) -> Chain:
     """Run emcee's affine-invariant ensemble from `p0` until converged or `max_steps`.
 
     log_prob: vectorised, (m, ndim) -> (m,) (emcee's vectorize=True); -inf outside the
@@ -105,6 +120,9 @@ def run_ensemble(log_prob, p0: np.ndarray, *, names, seed: int = 0,
     CHECK_EVERY steps; reaching it warns (RuntimeWarning): the chain then depends on the
     machine's speed. progress: a tqdm bar on stderr (only on a terminal). Each check is
     noted to fitlug.progress (steps, ESS and tau so far: the command line's lines).
+    proposal: (mean, cov) of a Laplace approximation of the target, or None: then half
+    the steps are an independence Metropolis move from a Student t (INDEPENDENCE_DOF) of
+    that mean and covariance, the other half DEMove (see the module docstring).
     Raises ValueError if p0 has a non-finite log-probability or too few walkers.
     """
     import emcee
@@ -120,8 +138,11 @@ def run_ensemble(log_prob, p0: np.ndarray, *, names, seed: int = 0,
         raise ValueError(f"{int(np.sum(~np.isfinite(lp0)))} of {walkers} starting positions "
                          "have a non-finite log-probability")
     rng = np.random.default_rng(seed)
-    sampler = emcee.EnsembleSampler(walkers, ndim, log_prob, vectorize=True,
-                                    moves=emcee.moves.DEMove())
+    moves = emcee.moves.DEMove()
+    if proposal is not None:
+        moves = [(moves, 1.0 - INDEPENDENCE_WEIGHT),
+                 (_independence_move(*proposal), INDEPENDENCE_WEIGHT)]
+    sampler = emcee.EnsembleSampler(walkers, ndim, log_prob, vectorize=True, moves=moves)
     state = emcee.State(p0, log_prob=lp0,
                         random_state=np.random.RandomState(rng.integers(2 ** 31)).get_state())
     bar = _progress_bar(progress)
@@ -180,6 +201,30 @@ def run_ensemble(log_prob, p0: np.ndarray, *, names, seed: int = 0,
                  acceptance=np.asarray(sampler.acceptance_fraction), steps=int(n),
                  discard=int(discard), converged=converged, reason=reason,
                  seconds=time.perf_counter() - wall0)
+
+
+def _independence_move(mean, cov, dof: float = None):
+    """emcee's MHMove proposing every walker independently of where it is, from a
+    multivariate Student t g (mean, cov, `dof` degrees of freedom: tails heavier than the
+    Gaussian it approximates), with the Metropolis-Hastings factor g(x) / g(x')."""
+    import emcee
+
+    dof = INDEPENDENCE_DOF if dof is None else dof
+    mean = np.asarray(mean, float)
+    L = np.linalg.cholesky(np.asarray(cov, float))
+    d = len(mean)
+
+    def log_g(x):
+        y = np.linalg.solve(L, (np.atleast_2d(x) - mean).T).T
+        return -0.5 * (dof + d) * np.log1p(np.sum(y * y, axis=1) / dof)
+
+    def propose(coords, random):
+        n = len(coords)
+        y = random.standard_normal((n, d)) * np.sqrt(dof / random.chisquare(dof, n))[:, None]
+        q = mean + y @ L.T
+        return q, log_g(coords) - log_g(q)  # ln g(x) - ln g(x'), x' proposed
+
+    return emcee.moves.MHMove(propose)
 
 
 def _burn_in(tau: np.ndarray, n: int) -> int:

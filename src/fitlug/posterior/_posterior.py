@@ -39,6 +39,9 @@ class Posterior:
     not_identifiable: dict = field(default_factory=dict)  # quantity -> reason
     uncertainty_method: str = "posterior (emcee)"
     temper: dict = field(default_factory=lambda: {"factor": 1.0})
+    #: how a replacing slip law was sampled (._reparam): its coordinates, the mode the
+    #: walkers started from; empty when theta itself was sampled
+    coordinates: dict = field(default_factory=dict)
 
     def __repr__(self) -> str:
         e = self.estimates.get("slip")
@@ -96,6 +99,7 @@ class Posterior:
                           if "s0" in c.names and "beta" in c.names else {}),
                        "other": "flat"},
             "linearity_check": self.check,
+            **({"coordinates": self.coordinates} if self.coordinates else {}),
             "tempering": {k: v for k, v in self.temper.items() if k != "cov"},
             "settings": self.settings,
             "seed": int(self.seed),

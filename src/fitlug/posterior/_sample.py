@@ -8,6 +8,8 @@ optimum (principal axes and diagonals) and uses the Gaussian limit only when it 
 to `LINEARITY_TOL` in delta-chi^2 everywhere there; otherwise it samples the exact
 marginal. The check's largest discrepancy is reported. The chain stops on effective
 samples (`._mcmc`): the same seed gives the same digits on a quiet or a busy machine.
+The exact marginal of a replacing slip law (lug_sliding) is sampled in the law's own
+coordinates from the marginal's mode (`._reparam`): in theta it is a thin curved ridge.
 
 When fitlug.explain leaves a misfit unexplained (res.robust set), the white-noise
 likelihood is orders of magnitude too confident: it is stretched to the cluster-robust
@@ -19,6 +21,7 @@ Priors: :mod:`._priors`; the walkers start inside them (`_start`).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import jax
@@ -35,6 +38,7 @@ from ._marginal import LINEARITY_TOL, _Marginal, slip_law_parameters
 from ._mcmc import GUARD_S, MAX_STEPS, run_ensemble
 from ._posterior import Posterior
 from ._priors import _log_prior
+from ._reparam import SlipCoordinates, has_own_coordinates
 from ._tempering import tempered_marginal
 
 
@@ -121,10 +125,45 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     t1 = time.perf_counter()
 
     rng = np.random.default_rng(seed)
-    p0 = _start(marg, walkers, rng)
+    coords, p0, where, proposal = None, None, {}, None
+    if use == "exact" and has_own_coordinates(res, names):
+        # a replacing slip law: its own coordinates, from the exact marginal's mode
+        # (._reparam: a curved ridge in theta that emcee's affine moves crawl along)
+        coords = SlipCoordinates(res, names)
+        coords.whiten(marg.theta_hat, marg.cov)
+        sampled = coords.log_prob(log_prob)
+        z0, Cz, iters = coords.mode(sampled)
+        p0 = coords.start(z0, Cz, sampled, walkers, rng)
+        if p0 is not None:
+            log_prob, proposal = sampled, (z0, Cz)
+            near = coords.linearity_check(z0, Cz, sampled, LINEARITY_TOL)
+            if (method == "auto" and near["max_delta_chi2"] is not None
+                    and near["max_delta_chi2"] <= LINEARITY_TOL):
+                # its Gaussian limit there is as good as the check asks: sample that
+                use = "gaussian"
+                log_prob = coords.gaussian_log_prob(z0, Cz)
+            mode = coords.theta(z0[None])[0]
+            where = {"sampled": "the slip law's own coordinates (steady slip, its slope in "
+                                "the acceleration, " + ", ".join(names[2:]) + "), whitened",
+                     "start": "the Laplace approximation at the exact marginal's mode",
+                     "mode": {k: float(v) for k, v in zip(names, mode)},
+                     "mode_iterations": int(iters),
+                     "mode_delta_chi2": float(-2.0 * (sampled(z0[None])[0]
+                                                      - sampled(np.zeros((1, len(z0))))[0])),
+                     "linearity_check_at_mode": near}
+        else:
+            coords = None
+    if coords is None:
+        p0 = _start(marg, walkers, rng)
     chain = run_ensemble(log_prob, p0, names=names, seed=int(rng.integers(2 ** 31)),
                          time_budget_s=time_budget_s, min_tau_multiple=min_tau_multiple,
-                         target_ess=target_ess, max_steps=max_steps, progress=progress)
+                         target_ess=target_ess, max_steps=max_steps, progress=progress,
+                         proposal=proposal)
+    if coords is not None:  # the samples back in theta, their log density with them
+        shape = chain.samples.shape
+        th = coords.theta(chain.samples.reshape(-1, shape[-1]))
+        lp = chain.log_prob + coords.log_jacobian(th).reshape(shape[:2])
+        chain = dataclasses.replace(chain, samples=th.reshape(shape), log_prob=lp)
     t2 = time.perf_counter()
     samples = _derived_samples(res, names, chain.flat())
     _slip_term(samples, res, rng)
@@ -137,6 +176,11 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     t3 = time.perf_counter()
     desc = {"gaussian": "emcee on the Gaussian limit of the linearly marginalised likelihood",
             "exact": "emcee on the exact-model, linearly marginalised likelihood"}[use]
+    if where and use == "gaussian":
+        desc = ("emcee on the Gaussian limit of the exact-model, linearly marginalised "
+                "likelihood in the slip law's own coordinates at its mode")
+    elif where:
+        desc += "; sampled in the slip law's own coordinates from the marginal's mode"
     how = "posterior (emcee)"
     headline = (getattr(res, "robust", None) or {}).get("headline")
     if headline:  # a nuisance taken out, a free speed profile: the fit is another model's
@@ -155,6 +199,7 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     return Posterior(estimates=estimates, samples=samples, chain=chain,
                      method=f"{use}: {desc}", check=check, seed=seed,
                      not_identifiable=unident, uncertainty_method=how, temper=temper,
+                     coordinates=where,
                      seconds=time.perf_counter() - t0, n_marginalised=marg.n_marginalised,
                      settings={"time_budget_s": time_budget_s, "max_steps": max_steps,
                                "min_tau_multiple":
