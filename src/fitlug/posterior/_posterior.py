@@ -70,8 +70,12 @@ class Posterior:
     def mcmc_json(self) -> dict:
         """The fit.json "mcmc" block (DATA.md), plus how it was obtained."""
         c = self.chain
-        tau = {k: _num(t) for k, t in zip(c.names, c.tau)}
-        ess = {k: _num(e) for k, e in zip(c.names, c.ess)}
+        # a replacing slip law is sampled in whitened coordinates of its own (._reparam):
+        # the chain's tau and ESS are of those, named z1..zn, not of the parameters
+        labels = (list(c.names) if not self.coordinates
+                  else [f"z{i + 1} (sampled, whitened)" for i in range(len(c.names))])
+        tau = {k: _num(t) for k, t in zip(labels, c.tau)}
+        ess = {k: _num(e) for k, e in zip(labels, c.ess)}
         slip_tau = autocorr_time(self.samples["slip"].reshape(c.samples.shape[:2])[..., None])
         kept = c.samples.shape[0]
         return {
