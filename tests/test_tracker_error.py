@@ -90,3 +90,37 @@ def test_lens_still_named_under_trackers_error():
     # this one: the correlated error is not at the noise)
     assert ex.effects == ["lens_distortion"] and not ex.discovered
     assert ex.verdict in ("explained", "unexplained")
+
+
+def test_a_term_the_tracker_can_make_is_not_claimed():
+    """explain._correlated.implausible: a family term whose largest displacement of a
+    marker is within the tracker's systematic level (issue 42's ranges: pixel locking up
+    to 0.012 px, drift up to 3 um) is not physics, whatever its family."""
+    from types import SimpleNamespace
+
+    from fitlug.explain._correlated import implausible
+
+    rec, _, _ = isim.make(3, v_max=240.0, **QUIET)
+    px = rec.x / 0.39  # a camera at 0.39 mm/px: the level is 0.012 * 390 + 3 = 7.68 um
+    res = SimpleNamespace(problem=SimpleNamespace(rec=SimpleNamespace(x=rec.x, x_px=px)))
+    body = SimpleNamespace(family="body motion")
+    why = implausible(body, res, 7.5)
+    assert why is not None and "7.68 um" in why and "7.5 um" in why
+    assert implausible(body, res, 7.9) is None
+    assert implausible(SimpleNamespace(family="image map"), res, 2.0) is not None
+    # no image scale in the file: the coarsest camera of the issue's, 0.45 mm/px
+    res0 = SimpleNamespace(problem=SimpleNamespace(rec=SimpleNamespace(x=rec.x, x_px=None)))
+    assert "8.4 um" in implausible(body, res0, 8.0)
+
+
+@pytest.mark.bench
+def test_sweep_null_5100_not_modelled_by_a_body_motion():
+    """benchmarks/results/2026-11-28-sweep42: this tracked null (bench_realism's tracker
+    row, seed 5100) was 'modelled' by a 5 um body motion, its slip 4 sigma off."""
+    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "benchmarks"))
+    import bench_realism
+
+    out = bench_realism.one(("tracker", None, 5100))
+    assert "error" not in out, out
+    assert out["verdict"] != "modelled" and not out["terms"] and not out["named"], out
+    assert abs(out["slip"] - out["truth"]) <= 3 * out["std"], out

@@ -87,6 +87,23 @@ def effective_delta_bic(dchi2_removed: float, k: float, lnN: float, c: float) ->
     return -dchi2_removed / max(c, 1.0) + k * lnN
 
 
+def catalog_minus_family_bic(geo, final, alt, lnN: float) -> tuple[float, float]:
+    """(BIC of the catalog's fit `final` - BIC of the families' fit `alt`, c): the chi^2
+    the family removes beyond the entries deflated by the residuals' correlation c with it
+    in, as every candidate's (issue 42: an 18-parameter image map took a tracked
+    recording's lens_distortion by a BIC 111 lower, fitting the tracker's correlated
+    error; deflated, the lens stands). Positive: the family's fit is the better one."""
+    dchi2 = float(final.chi2) - float(alt.chi2)
+    c = 1.0
+    if dchi2 > 0:
+        try:
+            c = max(1.0, inflation_geo(geo, alt.residuals, np.asarray(alt.residuals)
+                                       - np.asarray(final.residuals)))
+        except Exception:  # noqa: BLE001 - residuals laid out apart: the raw criterion
+            c = 1.0
+    return dchi2 / c + (alt.dof - final.dof) * lnN, c
+
+
 def describe(geo, r) -> dict:
     """The correlated part of residuals `r` (weighted, Geometry `geo`) per role: c, the
     white noise (um, the fit's) and the correlated amplitude that gives that c over
@@ -128,14 +145,21 @@ def tracker_level_um(rec) -> float:
     return 1000.0 * LOCK_PX * scale + DRIFT_UM
 
 
-def implausible(choice, res) -> str | None:
+def implausible(choice, res, peak_um: float | None = None) -> str | None:
     """Why a family term's reading is not physics the rig can have (issue 42), or None:
-    a ground profile whose peak is no larger than the tracker's systematic level, or
+    any term whose largest displacement of a marker (`peak_um`, what it moves the
+    residuals by, in um) is no larger than the tracker's systematic level (a body motion
+    of 4 um made of the body markers' own drifts: a tracked null was 'modelled' by it,
+    its slip 4 sigma off); a ground profile whose peak is no larger than that level, or
     narrower than the grid it is read on (a spike of the spline, 'over 0 mm')."""
+    level = tracker_level_um(res.problem.rec)
+    if peak_um is not None and np.isfinite(peak_um) and peak_um <= level:
+        return (f"the largest displacement it makes on a marker, {peak_um:.3g} um, is no "
+                f"larger than the tracker's systematic level {level:.3g} um (pixel locking "
+                f"and drift): the tracker can make it")
     if choice.family != "ground profile":
         return None
     params, _ = choice.describe(choice.fitted.c)
-    level = tracker_level_um(res.problem.rec)
     peak = 1000.0 * abs(float(params["peak_mm"]))
     if peak <= level:
         return (f"its peak {peak:.3g} um is no larger than the tracker's systematic level "

@@ -43,7 +43,7 @@ from .._errors import FitlugError
 from ..model import CATALOG
 from . import _display
 from ._candidates import in_picture, physical, screen, sliding_starts
-from ._correlated import effective_delta_bic, inflation_geo
+from ._correlated import catalog_minus_family_bic, effective_delta_bic, inflation_geo
 from ._criterion import BIC_THRESHOLD, MIN_SHARE_REMOVED, STRONG_MISFIT_Z
 from .families import after_catalog
 from ._detect import ALPHA, detect
@@ -317,19 +317,19 @@ def _family_instead(res, geo, loc0, det0, sig_est, alpha, final, accepted, verdi
         return None
     alt = fam[1]
     lnN = math.log(res.n_data)
-    bic_cat = float(final.chi2) + (res.n_data - final.dof) * lnN
-    bic_alt = float(alt.chi2) + (res.n_data - alt.dof) * lnN
+    gap, c_corr = catalog_minus_family_bic(geo, final, alt, lnN)  # deflated (issue 42)
     if verdict == "modelled":
         # the entries stand beside a family term: they must earn their place by the
         # criterion (a ground bump's frame pitch was taken in part for camera_tilt, the
         # bump's profile then modelling the rest: chi2/dof 1.04 either way)
-        if bic_cat < bic_alt + BIC_THRESHOLD:
+        if gap < BIC_THRESHOLD:
             return None
-    elif not bic_alt < bic_cat + BIC_THRESHOLD:
+    elif not gap > -BIC_THRESHOLD:
         return None
-    fam[-1].tried.append({"catalog": list(accepted), "delta_bic": bic_cat - bic_alt,
+    fam[-1].tried.append({"catalog": list(accepted), "delta_bic": gap,
+                          "correlation_inflation": c_corr,
                           "rejected_because": (f"the family term(s) model the recording "
-                                               f"with a BIC {bic_cat - bic_alt:.0f} lower "
+                                               f"with a BIC {gap:.0f} lower "
                                                f"than these catalog entries together")})
     return fam
 

@@ -142,10 +142,15 @@ def discover(res, parts: list, det, J=None) -> Discovery:
             moved = proj.moved(ch.fitted.B, ch.fitted.c)
             c_corr = inflation(ctx.marker * 4 + ctx.role * 2 + ctx.axis, ctx.t,
                                r_cur + moved, ctx.valid, change=moved)
-            why = chooses(ch.fitted, excess, strong, c_corr) or implausible(ch, res)
+            # the largest displacement the term makes on any marker (um): r = w (model - obs)
+            ok = ctx.valid
+            peak_um = (1000.0 * float(np.max(np.abs(moved[ok] / ctx.w[ok]))) if np.any(ok)
+                       else 0.0)
+            why = chooses(ch.fitted, excess, strong, c_corr) or implausible(ch, res, peak_um)
             tried.append({"family": F.name, "coordinate": ch.coordinate, "form": ch.label,
                           "delta_bic": ch.fitted.delta_bic, "delta_chi2": ch.fitted.dchi2,
-                          "correlation_inflation": c_corr, "rejected_because": why})
+                          "correlation_inflation": c_corr, "peak_displacement_um": peak_um,
+                          "rejected_because": why})
             if why is None:
                 passed.append(ch)
             if why is None and (best is None or ch.fitted.delta_bic < best.fitted.delta_bic):
