@@ -48,6 +48,9 @@ def _worker(csv: str, out: str) -> None:
     t0, c0 = time.perf_counter(), time.process_time()
     marks = [("startup", t0, c0)]
     import fitlug.cli as cli
+
+    # start as the `fit-lug` executable starts (fitlug.cli.entry), where the code has it
+    getattr(cli, "_without_dask", lambda: None)()
     import fitlug.cli._fit as fitmod
 
     orig = fitmod.stage

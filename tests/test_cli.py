@@ -278,3 +278,20 @@ def test_third_party_warnings_stay_off_the_terminal(capsys, monkeypatch):
     _show_warning(RuntimeWarning("the sampler reached\n its guard"), RuntimeWarning, ours, 9)
     assert capsys.readouterr().err == ("fit-lug: warning: RuntimeWarning: the sampler "
                                        "reached its guard\n")
+
+
+def test_executable_runs_without_dask_except_campaign():
+    """The `fit-lug` executable marks dask unimportable (xarray then does not import it to
+    write posterior.nc: ~0.4 s of a warm run, issue 43), except for campaign, which uses
+    it; main() called in-process (tests, library callers) leaves it alone."""
+    code = ("import sys, atexit; sys.argv = ['fit-lug'] + sys.argv[1:]; import fitlug.cli as c; "
+            "atexit.register(lambda: print('DASK', sys.modules.get('dask', 'absent') is None)); "
+            "c.entry()")
+    for args, blocked in ((["--version"], True), (["campaign", "--help"], False)):
+        r = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True,
+                           timeout=120)
+        assert f"DASK {blocked}" in r.stdout, (args, r.stdout[-300:], r.stderr[-300:])
+    from fitlug import cli
+
+    assert cli.main(["--version"]) == 0
+    assert sys.modules.get("dask", "absent") is not None

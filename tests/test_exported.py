@@ -78,3 +78,32 @@ def test_exported_falls_back_on_a_damaged_file_and_when_disabled(solver_args, tm
     assert _same(_exported.call("x", lambda *a: calls.append(1) or _lsq._solve(*a), static,
                                 *args), direct)
     assert calls == [1]
+
+
+def test_pytree_outputs_exported_and_read_back(solver_args, tmp_path, monkeypatch):
+    """Programs whose outputs are dicts go through the disk the same way (the derived
+    quantities with their Jacobian, as compute_quantities calls them; the glitch search's
+    model evaluation): the same structure and numbers, bit for bit, exported and read
+    back."""
+    from fitlug.fit._glitches import _predict
+    from fitlug.fit._result import _derived_exported
+
+    (flat, fixed, lay, _), static, _ = solver_args
+    packing = static[0]
+    zero = jnp.asarray(0.0, float)
+    cases = [("derived", _derived_exported, (packing, False, False), (flat, fixed, lay, zero,
+                                                                      zero)),
+             ("glitch_predict", _predict, (), (packing.unpack(flat, fixed), lay))]
+    monkeypatch.setattr(_exported, "cache_dir", lambda: str(tmp_path))
+    for name, fn, st, args in cases:
+        direct = fn(*args, *st)
+        monkeypatch.setattr(_exported, "_MEMO", {})
+        fresh = _exported.call(name, fn, st, *args)
+        monkeypatch.setattr(_exported, "_MEMO", {})  # as a new process: read from disk
+        back = _exported.call(name, fn, st, *args)
+        for out in (fresh, back):
+            assert jax.tree_util.tree_structure(out) == jax.tree_util.tree_structure(direct)
+            assert all(np.array_equal(np.asarray(x), np.asarray(y), equal_nan=True) for x, y in
+                       zip(jax.tree_util.tree_leaves(out), jax.tree_util.tree_leaves(direct)))
+    assert sorted(f.split("-")[0] for f in os.listdir(tmp_path)) == ["derived",
+                                                                       "glitch_predict"]

@@ -125,6 +125,53 @@ def test_structured_jacobian_equals_forward_mode(effects):
     assert np.all(np.abs(J - J_fwd) <= tol), (effects, np.max(np.abs(J - J_fwd) - tol))
 
 
+@pytest.mark.parametrize("effects", [(), ("lug_shear",)])
+def test_lm_linearisation_matches_finite_differences(effects):
+    """The least squares' residual function (fit/_lsq.py) is differentiated by the
+    structured Jacobian (a custom JVP): what the LM materialises (jacfwd of it) is that
+    Jacobian, and each of its columns matches central finite differences of the plain
+    residuals (a wrong column is off by O(1) of its size; the differences' truncation and
+    rounding here are ~1e-8 of it). The base model, and lug_shear, where sigma0 goes
+    forward with the rest; every effect's structured Jacobian against jacfwd, and jacfwd
+    against finite differences, are the two tests above."""
+    from fitlug.fit._lsq import _with_structured_jacobian
+    from fitlug.fit._residuals import Packing, jacobian, residuals
+
+    lay, p = _small_layout(effects)
+    n_l, n_b = lay.lug_t.shape[0], lay.body_t.shape[0]
+    rng = np.random.default_rng(2)
+    obs = {"lug_x": jnp.asarray(rng.normal(size=n_l)), "lug_y": jnp.asarray(rng.normal(size=n_l)),
+           "lug_w": jnp.asarray(rng.uniform(50, 200, n_l)),
+           "body_x": jnp.asarray(rng.normal(size=n_b)),
+           "body_y": jnp.asarray(rng.normal(size=n_b)),
+           "body_w": jnp.asarray(rng.uniform(50, 200, n_b))}
+    fixed_names = {k for e in effects for k in CATALOG[e].fixed_in_fit}
+    packing = Packing.of(p, [k for k in p if k not in fixed_names])
+    fixed = {k: v for k, v in p.items() if k in fixed_names}
+    flat = packing.pack(p)
+    r_lm = jax.jit(_with_structured_jacobian(fixed, lay, obs, packing))
+    r = jax.jit(lambda f: residuals(packing.unpack(f, fixed), lay, obs))
+    np.testing.assert_array_equal(np.asarray(r_lm(flat)), np.asarray(r(flat)))
+    J_lm = np.asarray(jax.jit(jax.jacfwd(r_lm))(flat))
+    J = np.asarray(jax.jit(lambda f: jacobian(f, fixed, lay, obs, packing))(flat))
+    size = np.max(np.abs(J_lm), axis=0) + 1e-9 * np.max(np.abs(J_lm))  # a column may be 0
+    assert np.max(np.abs(J_lm - J) / size) < 1e-13  # the same matrix (to XLA's fusions)
+    # each column's step moves the residuals by 1e-6 of their largest (rounding ~1e-10 of
+    # the column, truncation ~h^2: 1e-8 here), but is at most 1e-4 of the parameter (or 1e-4
+    # in its units): a near-zero column (lug_shear's first knot, 1e-14 of the largest)
+    # would otherwise take a step of ~6e-3, where the residuals are far from linear in it
+    x = np.asarray(flat)
+    size = np.max(np.abs(J_lm), axis=0)
+    size = np.maximum(size, 1e-6 * np.max(size))  # a column may be 0 (a knot left unread)
+    h = np.minimum(1e-6 * np.max(np.abs(np.asarray(r(flat)))) / size,
+                   1e-4 * np.maximum(np.abs(x), 1.0))
+    E = np.diag(h)
+    fd = np.stack([(np.asarray(r(flat + E[j])) - np.asarray(r(flat - E[j]))) / (2 * h[j])
+                   for j in range(len(x))], axis=1)
+    err = np.max(np.abs(fd - J_lm), axis=0) / size
+    assert np.max(err) < 1e-6, (effects, packing.names, float(np.max(err)), int(np.argmax(err)))
+
+
 def test_effects_are_identity_at_defaults():
     lay0, p0 = _small_layout(())
     base = np.concatenate([np.asarray(a) for a in predict(p0, lay0)])

@@ -73,8 +73,9 @@ def _enabled() -> bool:
 def call(name: str, fn, static: tuple, *args):
     """fn(*args, *static), through an exported module kept on disk.
 
-    fn must return a flat tuple of arrays; `args` are pytrees of arrays (traced), `static`
-    the trailing arguments fixed at trace time (their repr is part of the key).
+    fn must return a tuple (of arrays, or of pytrees of arrays such as dicts); `args` are
+    pytrees of arrays (traced), `static` the trailing arguments fixed at trace time (their
+    repr is part of the key).
     """
     leaves, treedef = jax.tree_util.tree_flatten(args)
     if not _enabled() or not all(isinstance(x, (jax.Array, np.ndarray)) for x in leaves) \

@@ -127,8 +127,24 @@ def main(argv: list[str] | None = None) -> int:
 
 def entry() -> None:
     """The `fit-lug` executable (and ``python -m fitlug.cli``): :func:`main`, then the
-    process ends without the interpreter's teardown (see :func:`exit_now`)."""
+    process ends without the interpreter's teardown (see :func:`exit_now`). Every
+    sub-command but campaign runs without dask (:func:`_without_dask`)."""
+    if sys.argv[1:2] != ["campaign"]:
+        _without_dask()
     exit_now(main())
+
+
+def _without_dask() -> None:
+    """Mark dask unimportable in a `fit-lug` process that never uses it (every sub-command
+    but campaign). xarray (ArviZ's: posterior.nc, the report's R-hat and ESS table) imports
+    dask.array and dask.distributed on its first netCDF write only to ask whether an array
+    is a dask one: ~0.4-0.5 s CPU of a warm run of the bundled recording (issue 43). With
+    dask None in sys.modules before xarray is imported, xarray behaves as where dask is not
+    installed, and writes and reads the same files. For the executable only (a process
+    about to do one thing): never done by :func:`main`, which tests and library callers
+    call in-process."""
+    for name in ("dask", "distributed"):
+        sys.modules.setdefault(name, None)
 
 
 def exit_now(status: int) -> None:

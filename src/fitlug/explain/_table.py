@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import jax
 import numpy as np
 
-from .. import _jaxconfig  # noqa: F401
+from .. import _exported, _jaxconfig  # noqa: F401
 from ..fit._buckets import pad_model
 from ..model._buckets import bucket
 
@@ -109,7 +109,8 @@ def geometry(res) -> Geometry:
     pj = {k: jax.device_put(np.asarray(v, float)) for k, v in p.items()}  # no program
     pm = pad_model(pj, lay)
     tb = np.concatenate([tu, np.full(bucket(len(tu)) - len(tu), tu[-1])]) if pm else tu
-    kin, seg_l = _kinematics_segments(*(pm or (pj, lay))[:2], jax.device_put(tb))
+    kin, seg_l = _exported.call("kinematics_segments", _kinematics_segments, (),
+                                *(pm or (pj, lay))[:2], jax.device_put(tb))
     kin = {k: np.asarray(v)[:len(tu)] for k, v in kin.items()}
     seg_l = np.asarray(seg_l)[:S_l].astype(int)
     segment = np.r_[seg_l, seg_l, np.full(2 * S_b, 4)]

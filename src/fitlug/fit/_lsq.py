@@ -75,11 +75,31 @@ def _column_scale(J):
     return jnp.where(norms > 0, 1.0 / jnp.where(norms > 0, norms, 1.0), 1.0)
 
 
+def _with_structured_jacobian(fixed, lay, obs, packing: Packing):
+    """f -> residuals of the free vector f, differentiated by the structured Jacobian.
+
+    optimistix linearises the residual function at every step and materialises the
+    Jacobian column by column (forward mode through the whole model, ~120 ms on the
+    bundled recording's bucketed shapes); :func:`jacobian` gives the same matrix to
+    rounding (3.6e-16 relative) at half that. The custom JVP makes the linearisation
+    J(f) @ df, so materialising it is one product with the identity (exact: one nonzero
+    term per entry)."""
+    @jax.custom_jvp
+    def r_of_flat(f):
+        return residuals(packing.unpack(f, fixed), lay, obs)
+
+    @r_of_flat.defjvp
+    def _jvp(primals, tangents):
+        (f,), (df,) = primals, tangents
+        return r_of_flat(f), jacobian(f, fixed, lay, obs, packing) @ df
+
+    return r_of_flat
+
+
 @eqx.filter_jit
 def _solve(flat0, fixed, lay, obs, packing: Packing, max_steps: int, rtol: float, atol: float,
            gn_steps: int = 0):
-    def r_of_flat(f):
-        return residuals(packing.unpack(f, fixed), lay, obs)
+    r_of_flat = _with_structured_jacobian(fixed, lay, obs, packing)
 
     # unit Jacobian columns, times _START_GAIN: optimistix's trust region starts at lambda = 1,
     # which is 1 / _START_GAIN^2 in unit columns (LM alone: mean 20 steps instead of 30 over

@@ -81,7 +81,27 @@ def jacobian(flat, fixed: dict, lay, obs: dict, packing: "Packing"):
             lambda sub: residuals(packing.unpack(flat.at[idx].set(sub), fixed), lay, obs))(
                 flat[idx]))
         order.append(idx)
-    return jnp.concatenate(blocks, axis=1)[:, np.argsort(np.concatenate(order))]
+    return _in_packed_order(blocks, order)
+
+
+def _in_packed_order(blocks, order):
+    """The column blocks (block b holds the packed columns order[b]) as one matrix in
+    packed order, from contiguous slices: a gather of every column by a permutation cost
+    XLA ~30 ms (half the Jacobian) on the bundled recording; the values are the same."""
+    runs = []  # (packed start, block, first column in block, count)
+    for b, idx in enumerate(order):
+        idx = np.asarray(idx)
+        j = 0
+        while j < len(idx):
+            k = j
+            while k + 1 < len(idx) and idx[k + 1] == idx[k] + 1:
+                k += 1
+            runs.append((int(idx[j]), b, j, k - j + 1))
+            j = k + 1
+    runs.sort()
+    if len(runs) == 1:
+        return blocks[runs[0][1]]
+    return jnp.concatenate([blocks[b][:, j:j + n] for _, b, j, n in runs], axis=1)
 
 
 class Packing(NamedTuple):

@@ -356,6 +356,11 @@ def _derived_with_jacobian(flat, packing, fixed, lay, mass, pull, has_mass: bool
     return f(flat), jax.jacfwd(f)(flat)
 
 
+def _derived_exported(flat, fixed, lay, mass, pull, packing, has_mass: bool, has_pull: bool):
+    """:func:`_derived_with_jacobian` with its static arguments last (fitlug._exported)."""
+    return _derived_with_jacobian(flat, packing, fixed, lay, mass, pull, has_mass, has_pull)
+
+
 def compute_quantities(res_params, packing, flat, cov, lay, mass_kg, fixed,
                        drawbar_N: float = 0.0) -> dict:
     """Each derived quantity with its delta-method standard error."""
@@ -368,9 +373,12 @@ def compute_quantities(res_params, packing, flat, cov, lay, mass_kg, fixed,
     pb = pad(flat, fixed, lay, {}, packing)
     args = (pb.flat, pb.packing, pb.fixed, pb.lay) if pb else (jnp.asarray(flat, float),
                                                                packing, fixed, lay)
-    vals, jac = _derived_with_jacobian(*args, jnp.asarray(mass_kg or 0.0, float),
-                                       jnp.asarray(drawbar_N or 0.0, float),
-                                       mass_kg is not None, bool(drawbar_N))
+    from .. import _exported  # a module kept on disk: a new process skips its tracing
+
+    vals, jac = _exported.call("derived", _derived_exported,
+                               (args[1], mass_kg is not None, bool(drawbar_N)), args[0], args[2],
+                               args[3], jnp.asarray(mass_kg or 0.0, float),
+                               jnp.asarray(drawbar_N or 0.0, float))
     out = {}
     for k, v in vals.items():
         g = np.asarray(jac[k]) if pb is None else np.asarray(jac[k])[pb.cols]

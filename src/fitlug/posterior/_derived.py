@@ -10,7 +10,6 @@ import numpy as np
 
 from .. import _jaxconfig  # noqa: F401
 from ..fit._buckets import pad_model
-from ..model._buckets import bucket
 from ..fit._result import Estimate, FitResult, derived
 
 REPORTED = ("slip", "delta_l_mm", "stiffness_N_per_mm", "rolling_resistance", "k_over_m")
@@ -33,6 +32,10 @@ def _derived_gradients(res: FitResult, names, theta_hat) -> dict:
 
 
 
+#: draws per call of the derived quantities' program (the last block padded)
+DRAW_BLOCK = 4096
+
+
 def _derived_samples(res: FitResult, names, flat_samples: np.ndarray) -> dict:
     prob = res.problem
     base = {k: jax.device_put(np.asarray(v)) for k, v in res.params.items()}
@@ -53,9 +56,14 @@ def _derived_samples(res: FitResult, names, flat_samples: np.ndarray) -> dict:
 
         return jax.vmap(one)(ths)
 
-    m = len(flat_samples)  # the chain's length varies: its draws padded to a bucket too
-    ths = np.concatenate([flat_samples, np.repeat(flat_samples[-1:], bucket(m) - m, 0)])
-    out = {k: np.asarray(v)[:m] for k, v in batch(jax.device_put(ths), *args).items()}
+    # the chain's length varies with the recording (and with the fit's last digits): its
+    # draws go in blocks of DRAW_BLOCK, the last padded, so one compiled shape serves
+    # every chain (a bucket of the length compiled anew when a chain crossed into another)
+    m = len(flat_samples)
+    n = -(-m // DRAW_BLOCK) * DRAW_BLOCK
+    ths = np.concatenate([flat_samples, np.repeat(flat_samples[-1:], n - m, 0)])
+    parts = [batch(jax.device_put(ths[i:i + DRAW_BLOCK]), *args) for i in range(0, n, DRAW_BLOCK)]
+    out = {k: np.concatenate([np.asarray(q[k]) for q in parts])[:m] for k in parts[0]}
     out.update({k: np.asarray(flat_samples[:, i]) for i, k in enumerate(names)})
     return out
 

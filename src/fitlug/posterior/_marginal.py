@@ -53,8 +53,8 @@ from ..fit._normal import contract_cross_jit, normal_blocks
 from ..fit._result import FitResult
 from ._priors import _NONNEG, _POSITIVE
 from ._psd import _psd_solve
-from ._projections import (_chi2_block, _chi2_flats, _jacobian_tuple, _project_block,
-                           _project_chunked, _project_dense)
+from ._projections import (_chi2_block, _chi2_flats_tuple, _jacobian_tuple, _project_block,
+                           _project_chunked, _project_dense_tuple)
 
 LINEARITY_TOL = 0.25  # max |delta chi^2| between exact and Gaussian marginal at 2 sigma
 CHECK_SIGMA = 2.0
@@ -342,8 +342,9 @@ class _Marginal:
             out = [_project_chunked(jax.device_put(flats[i:i + b]), pts, rest, a[2], a[3], a[4],
                                     a[5], self._plan) for i in range(0, len(flats), b)]
         else:
-            out = [_project_dense(jax.device_put(flats[i:i + b]), a[2], a[3], a[4], a[5],
-                                  self._Jes) for i in range(0, len(flats), b)]
+            out = [_exported.call("posterior_project", _project_dense_tuple, (a[5],),
+                                  jax.device_put(flats[i:i + b]), a[2], a[3], a[4], self._Jes)
+                   for i in range(0, len(flats), b)]
         return (np.concatenate([np.asarray(o[0]) for o in out]),
                 np.concatenate([np.asarray(o[1])[:, :, self._live] for o in out]))
 
@@ -366,9 +367,9 @@ class _Marginal:
                                                               ob_k, a[5]))
                 out.append(c2)
             return np.concatenate(out)
-        return np.concatenate([np.asarray(_chi2_flats(jax.device_put(flats[i:i + b]), a[2], a[3],
-                                                      a[4], a[5]))
-                               for i in range(0, len(flats), b)])
+        return np.concatenate([np.asarray(_exported.call(
+            "posterior_chi2", _chi2_flats_tuple, (a[5],), jax.device_put(flats[i:i + b]), a[2],
+            a[3], a[4])[0]) for i in range(0, len(flats), b)])
 
     def check_points(self) -> np.ndarray:
         """theta_hat + CHECK_SIGMA sigma along the principal axes and the diagonals."""

@@ -95,7 +95,7 @@ def plot_corner(samples, labels, fig=None, truths=None):
     import matplotlib
 
     matplotlib.use("Agg", force=False)
-    import corner
+    from corner.core import corner_impl
 
     samples = np.asarray(samples, float)
     k = samples.shape[1]
@@ -106,10 +106,12 @@ def plot_corner(samples, labels, fig=None, truths=None):
         fig._fitlug_tidy = False  # corner sets its own margins
     from ._format import pm
 
-    corner.corner(samples, labels=labels, fig=fig, quantiles=[0.025, 0.5, 0.975],
-                  show_titles=False, truths=truths, bins=30, max_n_ticks=3,
-                  plot_datapoints=False, smooth=0.8, label_kwargs={"fontsize": 10},
-                  labelpad=0.12)
+    # corner.corner hands a numpy array to ArviZ (an xarray Dataset and back) before its
+    # corner_impl draws it: the same figure, drawn from the array directly
+    corner_impl(samples, labels=labels, fig=fig, quantiles=[0.025, 0.5, 0.975],
+                show_titles=False, truths=truths, bins=30, max_n_ticks=3,
+                plot_datapoints=False, smooth=0.8, label_kwargs={"fontsize": 10},
+                labelpad=0.12)
     diag = [fig.axes[i * (k + 1)] for i in range(k)]
     for i, a in enumerate(diag):  # titles: median ± 1 sigma, digits set by the error
         col = samples[:, i]
