@@ -145,6 +145,13 @@ def tracker_level_um(rec) -> float:
     return 1000.0 * LOCK_PX * scale + DRIFT_UM
 
 
+def peak_displacement_um(moved, w, valid) -> float:
+    """The largest displacement (um) a term makes on any marker: its change of the
+    weighted residuals `moved` (r = w (model - obs)) over the weights `w`."""
+    ok = np.asarray(valid, bool)
+    return 1000.0 * float(np.max(np.abs(moved[ok] / w[ok]))) if np.any(ok) else 0.0
+
+
 def implausible(choice, res, peak_um: float | None = None) -> str | None:
     """Why a family term's reading is not physics the rig can have (issue 42), or None:
     any term whose largest displacement of a marker (`peak_um`, what it moves the

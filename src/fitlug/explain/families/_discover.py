@@ -3,9 +3,9 @@ keep those that earn their place by the catalog's criterion (MODEL.md §5).
 
 Only the families whose place matches a located part are tried (:meth:`Family.applies`);
 each is fitted at its best size (:mod:`._solve`), the best one kept when its Delta BIC is
-below the catalog's threshold (and it removes 30 % of a strong misfit's excess), then a
-second one on what is left when the first does not bring chi^2/dof to MODELLED_CHI2.
-"""
+below the catalog's threshold (and it removes 30 % of a strong misfit's excess, and moves
+a marker by more than a tracker can), then a second one on what is left when the first
+does not bring chi^2/dof to MODELLED_CHI2."""
 
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ from ._ground import GroundProfile
 from ._image import ImageMap
 from ._path import PathShape
 from ._relin import relinearised
-from .._correlated import implausible, inflation
+from .._correlated import implausible, inflation, peak_displacement_um
 from ._solve import Projector, chooses
 from ._slip import SlipLaw
 from ._speed import SpeedModulation
@@ -138,14 +138,10 @@ def discover(res, parts: list, det, J=None) -> Discovery:
                 tried.append({"family": F.name, "rejected_because": (
                     "nothing to fit at its place (no samples there, or none that show it)")})
                 continue
-            # the tracker's correlated error left with the term in (issue 42)
-            moved = proj.moved(ch.fitted.B, ch.fitted.c)
+            moved = proj.moved(ch.fitted.B, ch.fitted.c)  # the tracker's error left (i. 42)
             c_corr = inflation(ctx.marker * 4 + ctx.role * 2 + ctx.axis, ctx.t,
                                r_cur + moved, ctx.valid, change=moved)
-            # the largest displacement the term makes on any marker (um): r = w (model - obs)
-            ok = ctx.valid
-            peak_um = (1000.0 * float(np.max(np.abs(moved[ok] / ctx.w[ok]))) if np.any(ok)
-                       else 0.0)
+            peak_um = peak_displacement_um(moved, ctx.w, ctx.valid)  # a tracker can make it?
             why = chooses(ch.fitted, excess, strong, c_corr) or implausible(ch, res, peak_um)
             tried.append({"family": F.name, "coordinate": ch.coordinate, "form": ch.label,
                           "delta_bic": ch.fitted.delta_bic, "delta_chi2": ch.fitted.dchi2,
@@ -284,8 +280,7 @@ def _solve_terms(res, ctx, proj, kept, B_all, k_all, slip_h, rank, bar, drop=Non
             break
         i += m
     else:
-        final = extended(res, ctx, proj, B_all, joint.c, joint.cov, k_all, flat, r_ex,
-                         slip_h)
+        final = extended(res, ctx, proj, B_all, joint.c, joint.cov, k_all, flat, r_ex, slip_h)
     if flat is None and any(t.choice.columns is not None for t in kept):
         # a term whose place moves with the fit (segment, u, ground x): Gauss-Newton with
         # its columns rebuilt where the fit has moved
