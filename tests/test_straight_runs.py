@@ -34,6 +34,18 @@ def stiff():
     return fitlug.fit(rec, rig), truth
 
 
+@pytest.fixture(scope="module")
+def robust(stiff):
+    """robust_result on the stiff case (the unexplained verdict's errors), made once for
+    the two tests that read it (~30 s CPU each time, issue 43 item 6); neither changes it
+    (dataclasses.replace)."""
+    from fitlug.explain._robust import robust_result
+    from fitlug.explain._table import geometry
+
+    res, _ = stiff
+    return robust_result(res, geometry(res))
+
+
 def test_engine_slip_from_the_straight_runs(stiff):
     res, truth = stiff
     s_true = truth["slip"]
@@ -50,14 +62,11 @@ def test_engine_slip_from_the_straight_runs(stiff):
     assert straight_headline(res)["slip"] == pytest.approx(st["slip"])
 
 
-def test_the_robust_result_takes_the_straight_runs_as_headline(stiff):
+def test_the_robust_result_takes_the_straight_runs_as_headline(stiff, robust):
     """robust_result (the unexplained verdict's errors) reports the straight runs' slip and
     delta_l' = s L / (n - 1) from it; the posterior's slip samples are drawn from it."""
-    from fitlug.explain._table import geometry
-    from fitlug.explain._robust import robust_result
-
     res, truth = stiff
-    out, method = robust_result(res, geometry(res))
+    out, method = robust
     assert out.robust["headline"] == "straight runs" and "straight runs" in method
     s = out.quantities["slip"]
     assert abs(s.value - truth["slip"]) < 3.0 * s.std
@@ -118,7 +127,7 @@ def test_a_misfits_frequency_is_named_in_a_tracks_terms():
     assert "lug-passing" not in located_sentence(d)
 
 
-def test_partial_readings_of_a_gross_misfit_are_not_claimed(stiff):
+def test_partial_readings_of_a_gross_misfit_are_not_claimed(robust):
     """On the engine's recording (no camera: white noise only) nothing beside the marker on
     the lug is named when the slip has to be read off the straight runs: catalog entries
     and family terms that took up a little of the misfit are withheld, with the reason."""
@@ -126,12 +135,9 @@ def test_partial_readings_of_a_gross_misfit_are_not_claimed(stiff):
 
     from fitlug.explain._straight import withheld as _withheld
     from fitlug.explain._explanation import Step
-    from fitlug.explain._robust import robust_result
-    from fitlug.explain._table import geometry
     from fitlug.report._section_discrepancy import handling_sentence
 
-    res, _ = stiff
-    out, _ = robust_result(res, geometry(res))
+    out, _ = robust
     steps = [Step("lug_shear", {}, -5.0, 2000.0, 1100.0, 0.4),
              Step("marker_depth", {}, -30.0, 1100.0, 1090.0, 0.01)]
     fin, acc, st, _ = _withheld(out, ["lug_shear", "marker_depth"], steps, None)
