@@ -101,14 +101,14 @@ def test_gradients_match_finite_differences(effects):
         assert err <= 1e-5 * (np.max(np.abs(np.asarray(ad))) + 1e-9) + 1e-10, (effects, err)
 
 
-@pytest.mark.parametrize("effects", [(), tuple(CATALOG)])
-def test_structured_jacobian_equals_forward_mode(effects):
-    """fitlug.fit's Jacobian (kinematic columns through the sampled X and psi) is exact."""
-    from fitlug.fit._residuals import Packing, jacobian, residuals
+def _random_problem(effects, seed):
+    """The small layout with random observations and weights: (lay, p, obs, packing,
+    fixed, flat), the effects' fixed-in-fit parameters held."""
+    from fitlug.fit._residuals import Packing
 
     lay, p = _small_layout(effects)
     n_l, n_b = lay.lug_t.shape[0], lay.body_t.shape[0]
-    rng = np.random.default_rng(1)
+    rng = np.random.default_rng(seed)
     obs = {"lug_x": jnp.asarray(rng.normal(size=n_l)), "lug_y": jnp.asarray(rng.normal(size=n_l)),
            "lug_w": jnp.asarray(rng.uniform(50, 200, n_l)),
            "body_x": jnp.asarray(rng.normal(size=n_b)),
@@ -117,7 +117,15 @@ def test_structured_jacobian_equals_forward_mode(effects):
     fixed_names = {k for e in effects for k in CATALOG[e].fixed_in_fit}
     packing = Packing.of(p, [k for k in p if k not in fixed_names])
     fixed = {k: v for k, v in p.items() if k in fixed_names}
-    flat = packing.pack(p)
+    return lay, p, obs, packing, fixed, packing.pack(p)
+
+
+@pytest.mark.parametrize("effects", [(), tuple(CATALOG)])
+def test_structured_jacobian_equals_forward_mode(effects):
+    """fitlug.fit's Jacobian (kinematic columns through the sampled X and psi) is exact."""
+    from fitlug.fit._residuals import jacobian, residuals
+
+    lay, p, obs, packing, fixed, flat = _random_problem(effects, 1)
     J_fwd = np.asarray(jax.jacfwd(lambda f: residuals(packing.unpack(f, fixed), lay, obs))(flat))
     J = np.asarray(jacobian(flat, fixed, lay, obs, packing))
     assert J.shape == J_fwd.shape
@@ -135,20 +143,9 @@ def test_lm_linearisation_matches_finite_differences(effects):
     forward with the rest; every effect's structured Jacobian against jacfwd, and jacfwd
     against finite differences, are the two tests above."""
     from fitlug.fit._lsq import _with_structured_jacobian
-    from fitlug.fit._residuals import Packing, jacobian, residuals
+    from fitlug.fit._residuals import jacobian, residuals
 
-    lay, p = _small_layout(effects)
-    n_l, n_b = lay.lug_t.shape[0], lay.body_t.shape[0]
-    rng = np.random.default_rng(2)
-    obs = {"lug_x": jnp.asarray(rng.normal(size=n_l)), "lug_y": jnp.asarray(rng.normal(size=n_l)),
-           "lug_w": jnp.asarray(rng.uniform(50, 200, n_l)),
-           "body_x": jnp.asarray(rng.normal(size=n_b)),
-           "body_y": jnp.asarray(rng.normal(size=n_b)),
-           "body_w": jnp.asarray(rng.uniform(50, 200, n_b))}
-    fixed_names = {k for e in effects for k in CATALOG[e].fixed_in_fit}
-    packing = Packing.of(p, [k for k in p if k not in fixed_names])
-    fixed = {k: v for k, v in p.items() if k in fixed_names}
-    flat = packing.pack(p)
+    lay, p, obs, packing, fixed, flat = _random_problem(effects, 2)
     r_lm = jax.jit(_with_structured_jacobian(fixed, lay, obs, packing))
     r = jax.jit(lambda f: residuals(packing.unpack(f, fixed), lay, obs))
     np.testing.assert_array_equal(np.asarray(r_lm(flat)), np.asarray(r(flat)))
