@@ -50,9 +50,9 @@ def _sliding(fj) -> bool:
     return "lug_sliding" in ((fj.get("least_squares") or {}).get("effects") or [])
 
 
-def _widened(fj, how: bool = True) -> str:
-    """Why the headline error is wider than the least-squares one, or "" (`how`: with the
-    method in brackets, where the sentence does not stand beside a note that names it)."""
+def _widened(fj) -> str:
+    """Why the headline error is wider than the least-squares one, or "" (the method is
+    named by the headline's note beside it)."""
     d = fj.get("discrepancy") or {}
     if d.get("verdict") != "unexplained":
         return ""
@@ -60,9 +60,8 @@ def _widened(fj, how: bool = True) -> str:
 
     if modelled(d):
         return ""  # the mismatch was modelled (outside the catalog): not a widened error
-    how = (d.get("slip_after_uncertainty") or fj.get("uncertainty_method") or "") if how else ""
     return ("the residuals hold a mismatch no catalog effect explains, so the error bar "
-            "includes it" + (f" ({_e(how)})" if how else ""))
+            "includes it")
 
 
 def _located_sentence(d: dict) -> str:
@@ -213,7 +212,7 @@ def _headline(fj, st) -> str:
     notes = ["± is one standard error (1 σ) from "
              f"{_e(fj.get('uncertainty_method') or 'the fit')}; the same error is used "
              "everywhere on this page."]
-    w = _widened(fj, how=False)  # the note above names the method
+    w = _widened(fj)
     ls_std = ((st.get("meta", {}).get("least_squares") or {}).get("slip") or {}).get("std")
     # the posterior's std is itself an estimate (relative sd 1/sqrt(2 ESS)): a posterior
     # tempered to the robust error scatters around it, one that left the mismatch out is
