@@ -101,7 +101,8 @@ def catalog_minus_family_bic(geo, final, alt, lnN: float) -> tuple[float, float]
                                        - np.asarray(final.residuals)))
         except Exception:  # noqa: BLE001 - residuals laid out apart: the raw criterion
             c = 1.0
-    return dchi2 / c + (alt.dof - final.dof) * lnN, c
+    # effective_delta_bic of the family over the entries, with its extra parameters
+    return -effective_delta_bic(dchi2, final.dof - alt.dof, lnN, c), c
 
 
 def describe(geo, r) -> dict:
