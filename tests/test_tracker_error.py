@@ -124,3 +124,45 @@ def test_sweep_null_5100_not_modelled_by_a_body_motion():
     assert "error" not in out, out
     assert out["verdict"] != "modelled" and not out["terms"] and not out["named"], out
     assert abs(out["slip"] - out["truth"]) <= 3 * out["std"], out
+
+
+def _seen(times_by_marker):
+    """A stand-in for a fitted recording: marker k seen at the times given (ground mm)."""
+    from types import SimpleNamespace
+
+    t = np.concatenate([np.asarray(v, float) for v in times_by_marker])
+    m = np.concatenate([np.full(len(v), k) for k, v in enumerate(times_by_marker)])
+    return SimpleNamespace(t=t, marker_index=m, valid=np.ones(t.size, bool),
+                           x=100.0 + 10 * m + t, y=20.0 * (m % 2))
+
+
+def test_a_jump_of_one_marker_is_not_a_lost_frame():
+    """explain._candidates.in_picture on frame_drop (benchmarks/results/2026-11-28-sweep42b:
+    a null's one body marker, alone in view at the end of the drive, carried a 'frame drop'
+    of 0.15 frame across its own occlusion): a lost frame moves every marker in view."""
+    from fitlug.explain._candidates import in_picture
+
+    fr = np.arange(0, 5, 1 / 120)
+    p = {"drop_tstar": 4.3417, "drop_dt": 1.2e-3}
+    alone = _seen([fr, fr[fr < 3.7]])  # the second marker left the picture at 3.7 s
+    why = in_picture("frame_drop", p, alone)
+    assert why is not None and "1 marker seen" in why and "4.3417" in why
+    both = _seen([fr, fr[fr < 4.5]])
+    assert in_picture("frame_drop", p, both) is None
+    # the second marker hidden across t* (an occlusion of 10 frames): one marker again
+    hidden = _seen([fr, fr[(fr < 4.30) | (fr > 4.39)]])
+    assert in_picture("frame_drop", p, hidden) is not None
+    assert in_picture("frame_drop", {**p, "drop_tstar": 2.0}, hidden) is None
+
+
+def test_a_warp_beyond_a_lens_is_not_a_lens():
+    """in_picture on lens_distortion: a centre more than the picture's width from its
+    middle, or k1 r^2 above 10 % at the farthest point seen, is not a camera's lens."""
+    from fitlug.explain._candidates import in_picture
+
+    rec = _seen([np.linspace(0, 500, 200)])  # x from 100 to 600 mm, y = 0
+    lens = {"lens_cx": 350.0, "lens_cy": 0.0, "lens_k1": 5e-11}
+    assert in_picture("lens_distortion", lens, rec) is None
+    assert "centre" in in_picture("lens_distortion", {**lens, "lens_cx": 1200.0}, rec)
+    # r = 250 mm at the picture's ends: k1 = 2e-6 /mm^2 makes 12.5 %
+    assert "12 %" in in_picture("lens_distortion", {**lens, "lens_k1": 2e-6}, rec)

@@ -272,13 +272,28 @@ def physical(eid: str, p: dict) -> str | None:
 LENS_MAX_DISTORTION = 0.1
 
 
-def in_picture(eid: str, p: dict, x: np.ndarray, y: np.ndarray) -> str | None:
-    """Why an image effect's fitted parameters are not a camera's (issue 42), given the
-    points seen (ground mm): a lens centre far outside the picture (more than its width
-    from its middle) or a distortion beyond LENS_MAX_DISTORTION at the farthest point
-    seen is a smooth warp fitted to something else (a tracker's drift), not a lens."""
+#: a lost frame is seen as a jump of every marker in view: at least this many markers seen
+#: within FRAME_DROP_WINDOW frames on both sides of t*
+FRAME_DROP_MIN_MARKERS = 2
+FRAME_DROP_WINDOW = 5
+
+
+def in_picture(eid: str, p: dict, rec) -> str | None:
+    """Why an effect's fitted parameters are not what the picture shows (issue 42), given
+    the recording fitted (`rec`: its points seen, ground mm, and their times).
+
+    - lens_distortion: a lens centre far outside the picture (more than its width from its
+      middle) or a distortion beyond LENS_MAX_DISTORTION at the farthest point seen is a
+      smooth warp fitted to something else (a tracker's drift), not a lens;
+    - frame_drop: a lost frame moves every marker in view at one instant; a jump where fewer
+      than FRAME_DROP_MIN_MARKERS markers are seen on both sides of t* (within
+      FRAME_DROP_WINDOW frames) is one marker's (its tracker's, or the model's where one
+      marker alone holds the motion), not a lost frame."""
+    if eid == "frame_drop":
+        return _one_marker_jump(float(np.asarray(p["drop_tstar"])), rec)
     if eid != "lens_distortion":
         return None
+    x, y = rec.x, rec.y
     ok = np.isfinite(x) & np.isfinite(y)
     if ok.sum() < 2:
         return None
@@ -294,6 +309,21 @@ def in_picture(eid: str, p: dict, x: np.ndarray, y: np.ndarray) -> str | None:
         return (f"a radial distortion of {100 * abs(k1) * r2:.0f} % at the farthest point "
                 f"seen (k1 r^2; a lens: at most {100 * LENS_MAX_DISTORTION:.0f} %): not a lens")
     return None
+
+
+def _one_marker_jump(t_star: float, rec) -> str | None:
+    ok = np.asarray(rec.valid, bool) & np.isfinite(rec.x) & np.isfinite(rec.y)
+    t, m = np.asarray(rec.t)[ok], np.asarray(rec.marker_index)[ok]
+    steps = np.diff(np.unique(t))
+    w = FRAME_DROP_WINDOW * (float(np.median(steps)) if steps.size else 1.0)
+    before = set(m[(t < t_star) & (t >= t_star - w)].tolist())
+    after = set(m[(t >= t_star) & (t < t_star + w)].tolist())
+    n = len(before & after)
+    if n >= FRAME_DROP_MIN_MARKERS:
+        return None
+    return (f"{n} marker{'s' if n != 1 else ''} seen on both sides of t* = {t_star:.4f} s: a "
+            f"jump of one marker is its tracker's, not a lost frame (every marker in view "
+            f"jumps)")
 
 
 def n_free(eid: str, n_body: int) -> int:

@@ -161,7 +161,7 @@ def _explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA
             c_corr = inflation_geo(geo, out.r, np.asarray(out.r) - np.asarray(r))
             dbic_corr = effective_delta_bic(gain, eng.n_free(e), lnN, c_corr)
             why = physical(e, eng.params(out.theta)) or in_picture(
-                e, eng.params(out.theta), res.problem.rec.x, res.problem.rec.y)
+                e, eng.params(out.theta), res.problem.rec)
             if why is None and dbic >= BIC_THRESHOLD:
                 why = f"delta BIC {dbic:.1f} is not below {BIC_THRESHOLD:g}"
             if why is None and dbic_corr >= BIC_THRESHOLD:
