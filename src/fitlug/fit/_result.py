@@ -293,7 +293,8 @@ class FitResult:
         a parameter held by convention because the geometry makes it degenerate (B of
         body_bounce with one body marker) and a free one at a degenerate geometry.
         """
-        from ._residuals import Packing, jacobian
+        from ._covariance import _residuals_jacobian
+        from ._residuals import Packing
 
         eff = CATALOG[effect_id]
         p = {k: jnp.asarray(v, float) for k, v in self.params.items()}
@@ -305,7 +306,9 @@ class FitResult:
         pk = Packing.of(p, set(self.packing.names) | set(held))
         fixed = {k: v for k, v in p.items() if k not in pk.names}
         prob = self.problem
-        J = np.asarray(jacobian(pk.pack(p), fixed, prob.lay, prob.obs, pk))
+        # compiled (eagerly, op by op, this Jacobian cost ~5 s of fit.json's writing on a
+        # drive-through's lug_sliding fit: hundreds of one-primitive programs lowered)
+        J = np.asarray(_residuals_jacobian(pk.pack(p), fixed, prob.lay, prob.obs, pk)[1])
         sl = pk.slices()
         fitted = np.concatenate([np.arange(sl[k].start, sl[k].stop) for k in pk.names
                                  if k not in held])
