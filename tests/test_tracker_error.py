@@ -166,3 +166,19 @@ def test_a_warp_beyond_a_lens_is_not_a_lens():
     assert "centre" in in_picture("lens_distortion", {**lens, "lens_cx": 1200.0}, rec)
     # r = 250 mm at the picture's ends: k1 = 2e-6 /mm^2 makes 12.5 %
     assert "12 %" in in_picture("lens_distortion", {**lens, "lens_k1": 2e-6}, rec)
+
+
+@pytest.mark.bench
+def test_rendered_lens_11002_named_alone():
+    """benchmarks/results/2026-11-28-sweep42b: this rendered and tracked lens recording
+    (bench_realism's rendered row, seed 11002) was 'modelled' by an image map: after the
+    lens, a 16 us 'frame drop' took 3 % of the misfit the lens left, and the lens stacked
+    with it was then replaced by the family. Issue 42 item 5: lens_distortion alone."""
+    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "benchmarks"))
+    import bench_realism
+
+    out = bench_realism.one(("rendered", "lens_distortion", 11002))
+    assert "error" not in out, out
+    assert out["named"] == ["lens_distortion"] and not out["terms"], out
+    assert out["verdict"] in ("explained", "unexplained"), out
+    assert abs(out["slip"] - out["truth"]) <= 3 * out["std"], out

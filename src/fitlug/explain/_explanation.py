@@ -12,7 +12,8 @@ import numpy as np
 
 from ..model import CATALOG
 from . import _display
-from ._criterion import BIC_THRESHOLD, MIN_SHARE_REMOVED, MODELLED_CHI2, STRONG_MISFIT_Z
+from ._criterion import (BIC_THRESHOLD, LEFT_MISFIT_Z, MIN_SHARE_REMOVED, MODELLED_CHI2,
+                         STRONG_MISFIT_Z)
 from ._detect import ALPHA, Detection
 from ._locate import Location, residual_map, spectrum_summary
 
@@ -131,6 +132,7 @@ class Explanation:
             "criterion": {"delta_bic_threshold": BIC_THRESHOLD, "alpha": ALPHA,
                           "min_share_of_strong_excess_chi2_removed": MIN_SHARE_REMOVED,
                           "strong_excess_chi2_in_spreads": STRONG_MISFIT_Z,
+                          "after_an_effect_excess_chi2_in_spreads": LEFT_MISFIT_Z,
                           "bic": "chi2 + k ln N, noise per role fixed at the base fit's"},
             "timing_s": self.timing_s,
         }
