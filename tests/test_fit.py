@@ -118,6 +118,29 @@ def test_not_converged_is_an_error(reference_fit):
     assert not r.converged
 
 
+def test_not_converged_far_from_the_data_says_so(reference_fit):
+    """A fit stopped at a gross misfit (chi2/dof above GROSS_MISFIT: issue 42's sweep, a
+    drive-through near the friction limit stopped at 8 952) says the model is far from the
+    data, not only 'check the marker roles'."""
+    import jax.numpy as jnp
+
+    from fitlug.fit._fit import GROSS_MISFIT
+    from fitlug.fit._problem import Problem
+
+    res, _ = reference_fit
+    prob = res.problem
+    obs = dict(prob.obs)
+    obs["lug_x"] = obs["lug_x"] + 3.0 * jnp.sin(jnp.arange(obs["lug_x"].shape[0]) / 7.0)
+    far = Problem(**{**prob.__dict__, "obs": obs})
+    with pytest.raises(FitError, match="far from the data") as err:
+        fit_problem(far, max_steps=2)
+    chi2 = float(str(err.value).split("chi2/dof = ")[1].split(")")[0])
+    assert chi2 > GROSS_MISFIT
+    with pytest.raises(FitError) as err:  # near the data: the plain advice
+        fit_problem(prob, max_steps=2)
+    assert "far from the data" not in str(err.value)
+
+
 def _drop_role(rec, role):
     """The recording without the markers of `role` (gone from the marker list too)."""
     kept = [m for m, r in enumerate(rec.roles) if r != role]

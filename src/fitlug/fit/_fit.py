@@ -63,6 +63,11 @@ def _misfit_scale(out, prob: Problem) -> float:
     return max(1.0, float(np.sum(np.asarray(out.r) ** 2)) / dof)
 
 
+#: chi^2/dof above which a fit that did not converge is said to be far from the data (a
+#: drive-through near the friction limit, slip 0.40, stopped at 8 952: issue 42's sweep)
+GROSS_MISFIT = 100.0
+
+
 def fit_problem(prob: Problem, p_start: dict | None = None, *, free=None, max_steps: int = 300,
                 require_convergence: bool = True, params=None) -> FitResult:
     """Fit `prob` from `p_start` (default: the data-derived start) by Levenberg-Marquardt.
@@ -119,9 +124,13 @@ def fit_problem(prob: Problem, p_start: dict | None = None, *, free=None, max_st
                     dof=n_data - len(out.flat), converged=converged, steps=out.steps,
                     quantities=q)
     if require_convergence and not (converged and np.isfinite(chi2)):
+        gross = np.isfinite(chi2) and res.chi2_per_dof > GROSS_MISFIT
         raise FitError(f"{prob.rec.path or 'recording'}: the least-squares fit did not converge "
                        f"after {out.steps} steps (chi2/dof = {res.chi2_per_dof:.3g}); "
-                       "check the marker roles and the rig file")
+                       + ("the model is far from the data: check the marker roles and the "
+                          "rig file, or for physics the base model cannot bend to (lugs "
+                          "sliding at a high load)" if gross
+                          else "check the marker roles and the rig file"))
     return res
 
 
