@@ -268,10 +268,9 @@ def main():
         for t in tasks:
             done(_worker(t))
     else:
-        # one XLA thread per worker process (inherited by the spawned workers): with XLA's
-        # own thread pools, 16 workers on 16 cores took ~120 s a recording, ~15 s so
-        os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false "
-                                           "intra_op_parallelism_threads=1")
+        from _workers import one_thread_each
+
+        one_thread_each()
         ctx = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(max_workers=args.workers, mp_context=ctx) as pool:
             for fut in as_completed([pool.submit(_worker, t) for t in tasks]):

@@ -117,16 +117,15 @@ def summarise(rows, trees, effects, seeds):
     print("| --- " * (len(trees) + 2) + "|")
     worst = 0.0
     for e in effects:
-        cells, first, last = [], None, None
+        cells, best = [], {}
         for t in trees:
-            s = smallest([r for r in rows if r["tree"] == t and r["effect"] == e], seeds)
-            tried = [r for r in rows if r["tree"] == t and r["effect"] == e]
+            mine = [r for r in rows if r["tree"] == t and r["effect"] == e]
+            s = best[t] = smallest(mine, seeds)
             if s is None:
-                cells.append("not reached" if tried else "not run")
+                cells.append("not reached" if mine else "not run")
             else:
                 cells.append(f"{s['noise_units']:.3f} (x{s['rung']:g}, {s['size']:.3g})")
-            first = s if t == trees[0] else first
-            last = s if t == trees[-1] else last
+        first, last = best[trees[0]], best[trees[-1]]
         ratio = (last["noise_units"] / first["noise_units"]) if first and last else None
         if ratio is not None:
             worst = max(worst, ratio)
@@ -159,10 +158,9 @@ def main(argv=None):
     if a.from_log:
         summarise(list(done.values()), list(trees), effects, a.seeds)
         return
-    os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false "
-                                       "intra_op_parallelism_threads=1")
-    for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(v, "1")
+    from _workers import one_thread_each
+
+    one_thread_each()
     ctx = multiprocessing.get_context("spawn")
     per = max(1, a.workers // len(trees))
     pools = {t: ProcessPoolExecutor(per, mp_context=ctx, initializer=_init, initargs=(src,))

@@ -300,15 +300,9 @@ def main(argv=None):
         return r
 
     if a.workers > 1:
-        # one XLA thread per worker process (inherited by the spawned workers): with XLA's
-        # own thread pools, 16 workers on 16 cores took ~120 s a recording, ~15 s so
-        os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false "
-                                           "intra_op_parallelism_threads=1")
-        # and one BLAS thread: numpy's OpenBLAS starts a thread per core in every worker
-        # (issue 42's device sweeps, 16 workers on 16 cores: a median 171 s a recording, then
-        # 60 s with one thread each)
-        for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-            os.environ.setdefault(var, "1")
+        from _workers import one_thread_each
+
+        one_thread_each()
         ctx = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(a.workers, mp_context=ctx) as ex:
             futures = [ex.submit(one, t) for t in tasks]

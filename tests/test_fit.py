@@ -124,7 +124,7 @@ def test_not_converged_far_from_the_data_says_so(reference_fit):
     data, not only 'check the marker roles'."""
     import jax.numpy as jnp
 
-    from fitlug.fit._fit import GROSS_MISFIT
+    from fitlug.fit._result import GROSS_MISFIT
     from fitlug.fit._problem import Problem
 
     res, _ = reference_fit

@@ -314,8 +314,7 @@ def in_picture(eid: str, p: dict, rec) -> str | None:
 def _one_marker_jump(t_star: float, rec) -> str | None:
     ok = np.asarray(rec.valid, bool) & np.isfinite(rec.x) & np.isfinite(rec.y)
     t, m = np.asarray(rec.t)[ok], np.asarray(rec.marker_index)[ok]
-    steps = np.diff(np.unique(t))
-    w = FRAME_DROP_WINDOW * (float(np.median(steps)) if steps.size else 1.0)
+    w = FRAME_DROP_WINDOW / (rec.fps or 1.0)  # (no frame rate: fewer than two times seen)
     before = set(m[(t < t_star) & (t >= t_star - w)].tolist())
     after = set(m[(t >= t_star) & (t < t_star + w)].tolist())
     n = len(before & after)

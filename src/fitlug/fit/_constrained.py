@@ -37,7 +37,7 @@ from ._covariance import covariance
 from ._lsq import (LARGE_ENTRIES, _START_GAIN, _column_scale, _levenberg_marquardt,
                    bound_residuals)
 from ._parameters import ALIASES, DERIVED, Parameters, free_names
-from ._result import Estimate, FitResult, compute_quantities
+from ._result import Estimate, FitResult, compute_quantities, not_converged
 from ._residuals import Packing, jacobian, residuals
 
 _BIG = 1e300
@@ -254,9 +254,8 @@ def fit_constrained(prob, p_start, spec: Parameters, *, free=None, max_steps: in
                     steps=steps + held_steps, quantities=q, constraints=spec.copy(),
                     held=held_mask, prior_chi2=float(np.sum(re ** 2)))
     if require_convergence and not (ok and np.isfinite(chi2)):
-        raise FitError(f"{prob.rec.path or 'recording'}: the least-squares fit did not converge "
-                       f"after {steps} steps (chi2/dof = {res.chi2_per_dof:.3g}); "
-                       "check the marker roles, the rig file and the parameters' constraints")
+        raise not_converged(res, steps, "check the marker roles, the rig file and the "
+                            "parameters' constraints")
     return res
 
 

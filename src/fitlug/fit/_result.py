@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._errors import FitError
 from ..model import belt_length, steady_slip
 from ..model._physics import G
 from ..model.effects import CATALOG
@@ -390,3 +391,19 @@ def compute_quantities(res_params, packing, flat, cov, lay, mass_kg, fixed,
     from ._identifiable import mark_not_identifiable
 
     return mark_not_identifiable(out, Estimate)
+
+
+#: chi^2/dof above which a fit that did not converge is said to be far from the data (a
+#: drive-through near the friction limit, slip 0.40, stopped at 8 952: issue 42's sweep)
+GROSS_MISFIT = 100.0
+
+
+def not_converged(res: FitResult, steps: int, advice: str) -> FitError:
+    """The error of a fit `res` that did not converge after `steps` steps: `advice` (what to
+    check), and at a gross misfit that the model is far from the data."""
+    gross = np.isfinite(res.chi2) and res.chi2_per_dof > GROSS_MISFIT
+    return FitError(f"{res.problem.rec.path or 'recording'}: the least-squares fit did not "
+                    f"converge after {steps} steps (chi2/dof = {res.chi2_per_dof:.3g}); "
+                    + (f"the model is far from the data: {advice}, or for physics the base "
+                       "model cannot bend to (lugs sliding at a high load)" if gross
+                       else advice))

@@ -1,0 +1,16 @@
+"""What the benchmarks that spawn worker processes set before spawning them."""
+
+from __future__ import annotations
+
+import os
+
+
+def one_thread_each() -> None:
+    """One XLA and one BLAS thread per worker process (inherited by the spawned workers;
+    a value already set is kept). With XLA's own thread pools, 16 workers on 16 cores took
+    ~120 s a recording, ~15 s so; numpy's OpenBLAS also starts a thread per core in every
+    worker (issue 42's device sweeps: a median 171 s a recording, then 60 s with one)."""
+    os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false "
+                                       "intra_op_parallelism_threads=1")
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
