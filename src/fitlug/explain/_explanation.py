@@ -152,11 +152,14 @@ class Explanation:
             out["not_claimed"] = withheld
         straight = (getattr(self.final, "robust", None) or {}).get("straight_runs")
         if straight is not None:  # the slip read off the straight runs (explain._straight)
+            how = ("the belt's travel from the lug markers' passages of the same places in "
+                   "the body's frame, whole pitches and belt lengths apart"
+                   if straight.get("method") == "belt clock" else
+                   "v_belt from the lug markers' speed relative to the body on the top run")
             out["straight_runs"] = {
                 **straight, "note": ("the model does not describe the path (chi2/dof "
                                      f"{self.final.chi2_per_dof:.0f}): the headline slip is "
-                                     "1 - v_body / v_belt at cruise, v_belt from the lug "
-                                     "markers' speed relative to the body on the top run")}
+                                     f"1 - v_body / v_belt at cruise, {how}")}
         nuis = (getattr(self.final, "robust", None) or {}).get("nuisance")
         if nuis is not None:  # a measurement nuisance taken out (explain._nuisance)
             out[nuis[0]] = nuis[1]

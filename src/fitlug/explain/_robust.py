@@ -156,9 +156,11 @@ def robust_result(res, geo: Geometry, alpha: float = ALPHA):
     straight = straight_headline(res)
     if straight is not None:
         out = _with_straight(out, straight, res)
-        label = (f"the slip read off the straight runs (top run against body, "
-                 f"{straight['visits']} top-run visits; the model does not describe the "
-                 f"path: chi2/dof {res.chi2_per_dof:.0f}); other quantities: {method}")
+        how = (f"the belt's clock against the body, {straight['passages']} passages of "
+               f"{straight['visits']} lug markers" if straight.get("method") == "belt clock"
+               else f"top run against body, {straight['visits']} top-run visits")
+        label = (f"the slip read off the straight runs ({how}; the model does not describe "
+                 f"the path: chi2/dof {res.chi2_per_dof:.0f}); other quantities: {method}")
         return _widened(res, out, **sandwich, speed_sensitivity=_public(speed), label=label,
                         headline="straight runs", straight_runs=straight,
                         slip_term={"replace": True, "value": straight["slip"],

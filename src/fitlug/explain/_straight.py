@@ -75,6 +75,12 @@ def _cruise(p, lay, nodes):
 
     tg = np.linspace(float(lay.grid[0]), float(lay.grid[-1]), 2000)
     vt = np.asarray(kinematics(p, lay, tg, nodes)["v_t"])
+    return plateau(tg, vt)
+
+
+def plateau(tg, vt, tol: float = PLATEAU):
+    """(t1, t2, v_plateau) of a speed `vt` on the even grid `tg`: the longest span where
+    it holds a plateau (within `tol` of the value it holds longest), or None."""
     # a running median over SMOOTH_S: a fit that misfits can put short wiggles in its
     # belt speed, which must not cut the plateau
     half = max(1, int(0.5 * SMOOTH_S / (tg[1] - tg[0])))
@@ -84,9 +90,9 @@ def _cruise(p, lay, nodes):
     cand = cand[cand > 0]
     if not len(cand):
         return None
-    held = [np.sum(np.abs(vt - v) < 0.6 * PLATEAU * v) for v in cand]
+    held = [np.sum(np.abs(vt - v) < 0.6 * tol * v) for v in cand]
     v0 = float(cand[int(np.argmax(held))])
-    idx = np.flatnonzero(np.abs(vt - v0) < PLATEAU * v0)
+    idx = np.flatnonzero(np.abs(vt - v0) < tol * v0)
     if not len(idx):
         return None
     runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
@@ -94,24 +100,39 @@ def _cruise(p, lay, nodes):
     return float(tg[run[0]]), float(tg[run[-1]]), v0
 
 
-def straight_runs_slip(res, margin_mm: float = MARGIN_MM) -> dict | None:
-    """The slip at cruise from the top run's and the body's speeds (module docstring).
+def straight_runs_slip(res, margin_mm: float = MARGIN_MM, clock: bool = True) -> dict | None:
+    """The slip at cruise from the belt's and the body's travel (module docstring).
+
+    First the belt's own clock (explain._belt_clock: the lug markers' passages, whole
+    pitches and belt lengths, over the body's cruise); where it gives no reading (or
+    `clock` is False), the top run's visits as below.
 
     `res` is a least-squares fit of the base model (its geometry and speed profile are
     used, not its slip). Returns None where the recording does not allow the reading:
     no cruise of MIN_CRUISE_S with the body in view, or fewer than two visits of a lug
     marker to the top run during it. Else a dict: slip, std, v_body_mm_s (and its std),
     v_belt_mm_s (and its std), window_s, visits, window_shift (the slip's change with
-    the body's speed over the visits' span), margin_mm.
+    the body's speed over the visits' span), margin_mm, method 'top run' (the clock's
+    reading: explain._belt_clock.belt_clock_slip).
     """
     import jax.numpy as jnp
 
     from ..model._model import ctx_of, integrate, kinematics, positions, sampled_from_nodes
 
+    from ._belt_clock import belt_clock_slip
+
     prob = res.problem
     lay = prob.lay
     p = {k: jnp.asarray(v) for k, v in res.params.items()}
     nodes = integrate(p, lay)  # once: the cruise, the samples and the body's X read it
+    if clock:
+        try:
+            found = belt_clock_slip(
+                res, lambda t: kinematics(p, lay, np.asarray(t), nodes)["X"])
+        except (ValueError, np.linalg.LinAlgError):  # no reading: the top run's stands
+            found = None
+        if found is not None:
+            return found
     cr = _cruise(p, lay, nodes)
     if cr is None:
         return None
@@ -184,7 +205,8 @@ def straight_runs_slip(res, margin_mm: float = MARGIN_MM) -> dict | None:
     return {"slip": float(slip), "std": std, "v_body_mm_s": float(v_body),
             "v_body_std": float(s_body), "v_belt_mm_s": v_belt, "v_belt_std": float(s_belt),
             "window_s": [t1, t2], "visits": n, "window_shift": float(shift),
-            "margin_mm": float(margin_mm), "pitch_mm": P / lay.n_belt, "R_mm": R}
+            "margin_mm": float(margin_mm), "pitch_mm": P / lay.n_belt, "R_mm": R,
+            "method": "top run"}
 
 
 def withheld(final, accepted, steps, disc):

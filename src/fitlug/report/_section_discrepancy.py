@@ -61,6 +61,17 @@ def handling_sentence(d: dict) -> str:
         return (f"it is one marker shifted and staying there ({parts}: knocked on its lug?): "
                 "taken out and the model refitted, the headline is that fit")
     st = d.get("straight_runs")
+    if st and st.get("method") == "belt clock":
+        w = st.get("window_s") or [float("nan")] * 2
+        n = st.get("lugs_on_belt")
+        return ("the model does not describe the path, so the slip is read off the belt's own "
+                "clock: the lug markers' passages of the same places in the body's frame "
+                f"({st['passages']} passages of {st['visits']} markers), whole lug pitches "
+                + (f"and belt lengths of {n} lugs " if n else "")
+                + f"apart, give the belt's travel ({st['v_belt_mm_s']:.2f} mm/s) against "
+                f"the body's ({st['v_body_mm_s']:.2f} mm/s) over the cruise from "
+                f"{w[0]:.2f} to {w[1]:.2f} s; its error carries the passages' scatter and "
+                "the body's surge" + _not_claimed(d))
     if st:
         return ("the model does not describe the path, so the slip is read off the straight "
                 f"runs: the body's mean speed at cruise ({st['v_body_mm_s']:.2f} mm/s) "

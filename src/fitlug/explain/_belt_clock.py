@@ -1,0 +1,397 @@
+"""The belt's own clock: its travel read off the lug markers' passages, not the model's path.
+
+The slip at cruise is 1 - (the body's travel) / (the belt's travel relative to the body)
+over the same time (explain._straight, the engine's own definition). Where the model does
+not describe the path (a chain of links wrapping its wheels as a polygon, lug tips that hold
+on the ground and spring back, a body surging on its lugs: MODEL.md §2 "Real tracks"), the
+belt's travel can still be read exactly, because a track carries its lugs on a pitch grid:
+
+- two markers k lugs apart pass the same point of the body's frame when the belt has
+  travelled exactly k p, and one marker passes it again after exactly one belt length
+  P = N p (N the lugs on the belt, p the rig's lug pitch);
+- nothing about the path's shape is needed (the point is the same point), and the chordal
+  ripple of a chain cancels (its configuration repeats every pitch);
+- the body's pitch is taken out: the lug markers are carried into the body's frame, its
+  position and angle from the body markers (two or more in view) at every frame.
+
+Only the part of the path where a lug is free is used: from late on the rear arc (LO of its
+half-turn, after the lug's shear has sprung back) over the top run to the front arc's upper
+quarter (before a lug reaches for the ground). Passages of each level of that part (LEVEL_MM
+apart) by consecutive markers give rows psi(t_b) - psi(t_a) = k p + n P: first those less
+than half a belt length apart (whole pitches counted on the base fit's belt travel), then
+those a belt length apart (the marked lugs went round), whose count of pitches N comes from
+the first rows' belt speed as a ratio to the body's, carried across the gap by the body's
+own travel, and must agree between rows. psi(t) = kappa X(t) + a cubic spline (KNOT_S) is
+fitted to the rows by least squares: the body's travel (seen throughout) carries the speed
+profile's shape where no lug is seen free (the marked lugs all on the ground), the spline
+what differs, with a prior on its acceleration (ACC_PRIOR, the body's surge) that only
+matters there.
+
+The window is the body's cruise (its speed over BODY_MEAN_S within BODY_PLATEAU of a
+plateau, its ends where it comes within EDGE of it), from one contact time D / v after the
+ramp (the lugs that landed during the ramp have lifted off: the brush has settled) to its
+end; the slip is 1 - (X(b) - X(a)) / (psi(b) - psi(a)) there. Its error holds the spline's
+(the passages' scatter and, inside a gap, the prior), the body's noise and the surge: the
+'slip displacement' X - (1 - s) psi wanders about its line while the body surges on its
+lugs, so a slip over one window differs from another's by about sqrt(2) times that
+scatter over the belt's travel.
+
+Measured on the contact-dynamics engine's ten recordings (docs/engine.md, 2026-11-28):
+all within 1.7 of its errors of the engine's own slip, errors 3.6-11 % of the slip.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: level spacing along the clean part of the path, mm
+LEVEL_MM = 1.0
+#: the clean part: from LO of the rear arc's half-turn to HI of the front arc's
+LO, HI = 0.8, 0.5
+#: knot spacing of psi(t), s
+KNOT_S = 0.1
+#: prior on the belt's acceleration, mm/s^2 (a ramp of 150 mm/s in 1 s peaks at ~240)
+ACC_PRIOR = 100.0
+#: a pair of passages is dropped when its row misses by more than this many robust sigmas
+CLIP = 5.0
+#: markers whose fitted places on the belt sit further than this share of a pitch from
+#: the pitch grid are not paired with others (only with themselves, a belt length later)
+GRID_TOL = 0.25
+#: the slip displacement X - (1 - s) psi may wander about its line by this share of a
+#: pitch at most (the body's surge: 0.1-0.8 mm on the engine's recordings); a belt length
+#: miscounted across a gap makes it step by a pitch
+WANDER_MAX = 0.125
+#: a window's end is read at a passage this close inside it, else at one this close
+#: outside it (s)
+NEAR_S, FAR_S = 0.15, 0.3
+#: the body's speed for its cruise: its mean over this time (s)
+BODY_MEAN_S = 0.5
+#: ... and within this share of its plateau (a body surging on its lugs swings by 5 %
+#: about it; a motor's ramp leaves it within a few tenths of a second)
+BODY_PLATEAU = 0.08
+#: the cruise's ends: where that mean speed comes within this share of its plateau
+EDGE = 0.02
+
+
+def _body_pose(prob, p, X_at):
+    """Per frame with a body marker in view: (t, Tx, Ty, theta), the body's frame from its
+    markers (rotation from two or more, else interpolated; translation from all)."""
+    obs = prob.obs
+    lay = prob.lay
+    w = (np.asarray(obs["body_w"]) > 0) & np.isfinite(np.asarray(obs["body_x"]))
+    if not np.any(w):
+        return None
+    tb = np.asarray(lay.body_t)[w]
+    jb = np.asarray(lay.body_j)[w]
+    bx, by = np.asarray(obs["body_x"])[w], np.asarray(obs["body_y"])[w]
+    cx, cy = np.asarray(p["cx"])[jb], np.asarray(p["cy"])[jb]
+    ut, inv = np.unique(tb, return_inverse=True)
+    cnt = np.bincount(inv)
+    X = np.asarray(X_at(ut))
+    # offsets about the frame's origin (X, 0): observed minus X against the model's (cx, cy)
+    ox, oy = bx - X[inv], by
+    th = np.full(len(ut), np.nan)
+    two = cnt >= 2
+    if np.any(two):
+        mx, my = (np.bincount(inv, ox) / cnt), (np.bincount(inv, oy) / cnt)
+        ax, ay = np.bincount(inv, cx) / cnt, np.bincount(inv, cy) / cnt
+        dox, doy = ox - mx[inv], oy - my[inv]
+        dcx, dcy = cx - ax[inv], cy - ay[inv]
+        s_ = np.bincount(inv, dcx * doy - dcy * dox)
+        c_ = np.bincount(inv, dcx * dox + dcy * doy)
+        th[two] = np.arctan2(s_, c_)[two]
+    if np.all(np.isnan(th)):
+        th[:] = 0.0
+    else:
+        ok = np.isfinite(th)
+        th = np.interp(ut, ut[ok], th[ok])
+    c, s = np.cos(th)[inv], np.sin(th)[inv]
+    # translation: observed = T + R(theta) (cx, cy)
+    tx = np.bincount(inv, bx - (c * cx - s * cy)) / cnt
+    ty = np.bincount(inv, by - (s * cx + c * cy)) / cnt
+    return ut, tx, ty, th
+
+
+def _loop_coordinate(x, y, D, R):
+    """The place u along the stadium (MODEL.md §2's belt coordinate from the bottom run's
+    front end) of body-frame points (x, y) relative to the bottom pitch line's middle, for
+    the rear arc, the top run and the front arc (NaN on the bottom run)."""
+    u = np.full(np.shape(x), np.nan)
+    ra = x < -D / 2
+    u[ra] = D + R * np.arctan2(-D / 2 - x[ra], R - y[ra])
+    top = (x >= -D / 2) & (x <= D / 2) & (y > R)
+    u[top] = D + np.pi * R + (x[top] + D / 2)
+    fa = x > D / 2
+    u[fa] = 2 * D + np.pi * R + R * np.arctan2(x[fa] - D / 2, y[fa] - R)
+    return u
+
+
+def _passages(t, i, u, lo, hi, levels):
+    """(level index, time, marker) of every crossing of `levels` by each marker's visits to
+    [lo, hi] (u increasing along a visit; a visit's non-increasing steps split it)."""
+    out = []
+    for m in np.unique(i):
+        k = np.flatnonzero((i == m) & np.isfinite(u) & (u >= lo) & (u <= hi))
+        if len(k) < 4:
+            continue
+        k = k[np.argsort(t[k], kind="stable")]
+        cut = np.flatnonzero((np.diff(u[k]) <= 0) | (np.diff(t[k]) > 0.1)) + 1
+        for seg in np.split(k, cut):
+            if len(seg) < 4:
+                continue
+            us, ts = u[seg], t[seg]
+            inr = np.flatnonzero((levels > us[0]) & (levels < us[-1]))
+            if len(inr):
+                out.append(np.c_[inr, np.interp(levels[inr], us, ts), np.full(len(inr), m)])
+    return np.concatenate(out) if out else np.zeros((0, 3))
+
+
+def _travel(rows, dpsi, spans, ut, tx, cruise):
+    """The belt's travel over each (t_a, t_b) of `spans`, enough to count whole pitches over
+    a belt length: the speed the short rows measure (whole pitches over their times) as a
+    ratio to the body's (0.1 s bins, medians), that ratio linear across a gap and the
+    body's own travel (seen throughout) carrying the speed profile there."""
+    tm = 0.5 * (rows[:, 0] + rows[:, 1])
+    dxb = np.interp(rows[:, 1], ut, tx) - np.interp(rows[:, 0], ut, tx)
+    # the ratio from the cruise only: in a ramp the slip follows the acceleration
+    ok = (dxb > 0) & (rows[:, 0] >= cruise[0]) & (rows[:, 1] <= cruise[1])
+    if np.sum(ok) < 4:
+        ok = dxb > 0
+    ratio = dpsi[ok] / dxb[ok]
+    tm = tm[ok]
+    b = np.floor(tm / 0.1).astype(int)
+    ub = np.unique(b)
+    tb = np.array([np.median(tm[b == k]) for k in ub])
+    rb = np.array([np.median(ratio[b == k]) for k in ub])
+    grid = np.linspace(float(np.min(spans)), float(np.max(spans)), 4000)
+    xg = np.interp(grid, ut, tx)
+    rg = np.interp(0.5 * (grid[1:] + grid[:-1]), tb, rb)
+    cum = np.r_[0.0, np.cumsum(rg * np.diff(xg))]
+    return np.interp(spans[:, 1], grid, cum) - np.interp(spans[:, 0], grid, cum)
+
+
+def _solve(A, target, use, prior, anchor):
+    """Least squares of psi's coefficients on the rows `use` (robustly clipped) and the
+    `prior` rows (scaled, zero targets); (coef, rows kept, their robust scatter, design)
+    or None."""
+    keep = use.copy()
+    sig_c = 0.05
+    for _ in range(4):
+        if np.sum(keep) < 8:
+            return None
+        W = np.r_[A[keep] / sig_c, prior, anchor]
+        Y = np.r_[target[keep] / sig_c, np.zeros(len(prior)), [0.0]]
+        coef, *_ = np.linalg.lstsq(W, Y, rcond=None)
+        r = A @ coef - target
+        mad = 1.4826 * float(np.median(np.abs(r[keep] - np.median(r[keep]))))
+        sig_c = max(mad, 1e-3)
+        new = use & (np.abs(r) < CLIP * sig_c)
+        if np.array_equal(new, keep):
+            break
+        keep = new
+    W = np.r_[A[keep] / sig_c, prior, anchor]
+    return coef, keep, sig_c, W
+
+
+def _end(et, t, inward):
+    """A window's end near `t` where psi is read at a passage (`et`, sorted): the nearest
+    passage inside the window (`inward` +1: after t, -1: before) within NEAR_S, else the
+    nearest outside within FAR_S (a ramp's edge), else t itself (psi there from the
+    spline inside a gap, with its prior's error)."""
+    d = (et - t) * inward
+    inside = d[(d >= 0) & (d <= NEAR_S)]
+    if len(inside):
+        return float(t + inward * inside.min())
+    outside = -d[(d < 0) & (d >= -FAR_S)]
+    if len(outside):
+        return float(t - inward * outside.min())
+    return float(t)
+
+
+def _body_cruise(ut, tx):
+    """(t1, t2, v) of the body's cruise: where its speed (from its markers, seen at the
+    frames `ut`) holds a plateau (explain._straight.plateau)."""
+    from ._straight import plateau
+
+    if len(ut) < 16:
+        return None
+    tg = np.linspace(float(ut[0]), float(ut[-1]), 2000)
+    # the body's mean speed over BODY_MEAN_S (its lug-passing ripple and most of its surge
+    # averaged out), centred
+    h = 0.5 * BODY_MEAN_S
+    v = (np.interp(tg + h, ut, tx) - np.interp(tg - h, ut, tx)) / (2 * h)
+    cr = plateau(tg, v, BODY_PLATEAU)
+    if cr is None:
+        return None
+    t1, t2, v0 = cr
+    # its ends where the mean speed is within EDGE of the plateau: a ramp's end
+    run = np.flatnonzero((tg >= t1) & (tg <= t2) & (v >= (1.0 - EDGE) * v0))
+    if len(run) < 2:
+        return None
+    # the mean over BODY_MEAN_S reaches a ramp a quarter of that before the speed falls
+    # by EDGE (a cos ramp): the end is taken that much earlier
+    return float(tg[run[0]]), float(tg[run[-1]]) - 0.25 * BODY_MEAN_S, v0
+
+
+def belt_clock_slip(res, X_at) -> dict | None:
+    """The slip over the cruise from the belt's clock (module docstring).
+
+    `res`: a least-squares fit (its geometry to place the levels, the markers' places on
+    the belt and its belt travel to count whole pitches); `X_at(t)`: the model's body
+    position at times t (the body markers' frame is fitted about it). None where the
+    recording does not allow the reading: no body in view, no cruise, fewer than eight
+    passage pairs, or the cruise not inside the passages' span. Else a dict: slip, std,
+    v_body_mm_s, v_belt_mm_s (and stds) over window_s, visits (lug markers that passed),
+    passages, pairs (rows kept), pair_rms_mm (their scatter), surge_wander_mm,
+    lugs_on_belt (N as the passages one belt length apart count it, or None), pitch_mm,
+    R_mm, method 'belt clock'."""
+    import jax.numpy as jnp
+
+    from ..model._model import ctx_of, integrate, kinematics
+    from .families._base import bspline
+
+    prob = res.problem
+    lay = prob.lay
+    p = {k: jnp.asarray(v) for k, v in res.params.items()}
+    ctx = ctx_of(p, lay)
+    D, R = float(ctx.D), float(ctx.R)
+    pitch = float(prob.rig.lug_pitch_mm or float(ctx.P) / int(lay.n_belt))
+    pose = _body_pose(prob, p, X_at)
+    if pose is None:
+        return None
+    ut, tx, ty, th = pose
+    cr = _body_cruise(ut, tx)
+    if cr is None:
+        return None
+    t1, t2, v_body0 = cr
+    settle_s = D / max(v_body0, 1e-9)
+    obs = prob.obs
+    tl, li = np.asarray(lay.lug_t), np.asarray(lay.lug_i)
+    ok = (np.asarray(obs["lug_w"]) > 0) & np.isfinite(np.asarray(obs["lug_x"]))
+    f = np.searchsorted(ut, tl)
+    f = np.clip(f, 0, len(ut) - 1)
+    fl = np.clip(f - 1, 0, len(ut) - 1)
+    f = np.where(np.abs(ut[fl] - tl) < np.abs(ut[f] - tl), fl, f)
+    dt_frame = float(np.median(np.diff(ut))) if len(ut) > 1 else 1.0
+    ok &= np.abs(ut[f] - tl) < 0.5 * dt_frame
+    if np.sum(ok) < 8:
+        return None
+    dx = np.asarray(obs["lug_x"]) - tx[f]
+    dy = np.asarray(obs["lug_y"]) - ty[f]
+    c, s = np.cos(th[f]), np.sin(th[f])
+    bxl, byl = c * dx + s * dy, -s * dx + c * dy
+    x = bxl - float(p["x_off"])
+    y = byl - float(p["y_off"])
+    u = np.where(ok, _loop_coordinate(x, y, D, R), np.nan)
+    lo, hi = D + LO * np.pi * R, 2 * D + np.pi * R + HI * np.pi * R
+    levels = np.arange(lo + 0.5 * LEVEL_MM, hi, LEVEL_MM)
+    ev = _passages(tl, li, u, lo, hi, levels)
+    if len(ev) < 8:
+        return None
+    # the markers' places on the belt (base fit) on the pitch grid
+    sig = np.asarray(p["sigma0"], float)
+    ph = np.angle(np.mean(np.exp(2j * np.pi * sig / pitch))) / (2 * np.pi)
+    k_of = np.round(sig / pitch - ph)
+    on_grid = np.abs(sig / pitch - ph - k_of) < GRID_TOL
+    nodes = integrate(p, lay)
+    rows = []
+    for lev in np.unique(ev[:, 0]):
+        e = ev[ev[:, 0] == lev]
+        e = e[np.argsort(e[:, 1], kind="stable")]
+        rows += [(a[1], b[1], a[2], b[2]) for a, b in zip(e[:-1], e[1:])]
+    if len(rows) < 8:
+        return None
+    rows = np.array(rows)
+    ia, ib = rows[:, 2].astype(int), rows[:, 3].astype(int)
+    psi_m = np.asarray(kinematics(p, lay, rows[:, :2].ravel(), nodes)["psi"]).reshape(-1, 2)
+    dmod = np.diff(psi_m, axis=1)[:, 0]
+    # psi(t) on a cubic spline; rows in the passages' units, the acceleration prior
+    T0, T1 = float(ev[:, 1].min()) - 1e-3, float(ev[:, 1].max()) + 1e-3
+    n_int = max(4, int(np.ceil((T1 - T0) / KNOT_S)))
+    hk = (T1 - T0) / n_int
+
+    def basis(tt):
+        # psi = kappa X(t) + a spline: the body's travel (seen throughout), scaled, carries
+        # the speed profile's shape across a gap, the spline the slip's changes
+        tt = np.asarray(tt, float)
+        pm = np.interp(tt, ut, tx)
+        return np.c_[pm, bspline(tt, T0, T1, n_int)]
+
+    A = basis(rows[:, 1]) - basis(rows[:, 0])
+    nb = A.shape[1] - 1
+    D2 = np.c_[np.zeros(nb - 2), np.diff(np.eye(nb), 2, axis=0) / hk ** 2]
+    # first the passages less than half a belt length apart (whole pitches, counted on
+    # the base fit's travel), then those a belt length apart, counted on that spline
+    short = (np.abs(dmod) < 0.5 * float(ctx.P)) & (ia != ib)
+    target = np.round(dmod / pitch) * pitch
+    anchor = np.r_[0.0, bspline([T0], T0, T1, n_int)[0]][None, :]
+    fitted = _solve(A, target, short, D2 / ACC_PRIOR, anchor)
+    if fitted is None:
+        return None
+    coef, keep, sig_c, W = fitted
+    long_ = ~short
+    n_belt = None
+    if np.any(long_):
+        est = _travel(rows[short & keep], target[short & keep], rows[long_, :2], ut, tx,
+                      (t1, t2))
+        same = ia[long_] == ib[long_]
+        grid = same | (on_grid[ia[long_]] & on_grid[ib[long_]])
+        kdiff = np.where(same, 0, k_of[ia[long_]] - k_of[ib[long_]])
+        # one belt length apart at most here: the lugs on the belt, counted by each row
+        one = grid & (est < 1.5 * float(ctx.P))
+        if np.any(one):
+            n_row = np.round(est[one] / pitch - kdiff[one]).astype(int)
+            n_row = n_row[n_row > 0]
+            if len(n_row):
+                cnt = np.bincount(n_row)
+                if cnt.max() >= 0.7 * len(n_row):
+                    n_belt = int(np.argmax(cnt))
+        if n_belt:
+            tl_ = np.round(est / pitch)
+            okl = grid & (np.mod(tl_ - kdiff, n_belt) == 0)
+            target[long_] = tl_ * pitch
+            use = short.copy()
+            use[np.flatnonzero(long_)[okl]] = True
+            fitted = _solve(A, target, use, D2 / ACC_PRIOR, anchor)
+            if fitted is None:
+                return None
+            coef, keep, sig_c, W = fitted
+    cov = np.linalg.pinv(W.T @ W)
+    et = np.unique(np.r_[rows[keep, 0], rows[keep, 1]])
+    # the brush settles one contact time after the speed does (its lugs landed before)
+    if t2 - (t1 + settle_s) >= 0.5 * (t2 - t1):
+        t1 = t1 + settle_s
+    ta, tb = _end(et, t1, +1), _end(et, t2, -1)
+    if not (T0 <= ta < tb <= T1) or tb - ta < 0.5 * (t2 - t1):
+        return None
+    Bab = basis([ta, tb])
+    dpsi = float(np.diff(Bab @ coef)[0])
+    g = Bab[1] - Bab[0]
+    var_psi = float(g @ cov @ g)
+    Xa, Xb = (float(np.interp(tq, ut, tx)) for tq in (ta, tb))
+    dX = Xb - Xa
+    if not (dpsi > 0 and np.isfinite(dpsi)):
+        return None
+    slip = 1.0 - dX / dpsi
+    # body noise at the ends: the frame's translation from its markers
+    sb = float(prob.noise.get("body", 0.005)) if isinstance(prob.noise, dict) else 0.005
+    var_X = 2.0 * sb ** 2
+    # the surge: the slip displacement's scatter about its line over the cruise
+    te = et[(et >= ta) & (et <= tb)]
+    wander = 0.0
+    if len(te) >= 8:
+        Yd = np.interp(te, ut, tx) - (1.0 - slip) * (basis(te) @ coef)
+        wander = float(np.std(Yd - np.polyval(np.polyfit(te, Yd, 1), te)))
+    if wander > WANDER_MAX * pitch:
+        # the slip displacement steps across a gap: the belt lengths were miscounted
+        return None
+    std = float(np.sqrt(var_psi * (dX / dpsi ** 2) ** 2 + var_X / dpsi ** 2
+                        + 2.0 * (wander / dpsi) ** 2))
+    dt = tb - ta
+    return {"slip": float(slip), "std": std, "v_body_mm_s": dX / dt,
+            "v_body_std": float(np.sqrt(var_X) / dt), "v_belt_mm_s": dpsi / dt,
+            "v_belt_std": float(np.sqrt(var_psi) / dt), "window_s": [ta, tb],
+            "visits": int(len(np.unique(ev[:, 2]))), "passages": int(len(ev)), "pairs": int(np.sum(keep)),
+            "pair_rms_mm": sig_c, "surge_wander_mm": wander, "window_shift": 0.0,
+            "margin_mm": 0.0, "pitch_mm": pitch, "R_mm": R, "method": "belt clock",
+            "lugs_on_belt": n_belt}
