@@ -9,7 +9,12 @@ describe the path and the slip is read off the top run and the body: explain._st
 the catalog entries named and the family terms kept, and the seconds. Asserts nothing.
 
     python benchmarks/bench_engine.py [CASE ...] [--data data/engine] [--simulate]
-        [--timeout 1800] [--log results.jsonl]
+        [--timeout 1800] [--log results.jsonl] [--workers N]
+
+Per case also the CPU seconds of the fit and explanation (the process's own, each case in
+its own spawned worker when --workers > 1, one XLA and one BLAS thread each) and, where the
+headline is read off the straight runs, how ('belt clock': the lug markers' passages;
+'top run': the top run's visits) and the lugs on the belt the passages counted.
 """
 
 from __future__ import annotations
@@ -55,6 +60,7 @@ def one(folder: str, timeout: float) -> dict:
     from fitlug.io import read_rig, read_trajectories
 
     t0 = time.perf_counter()
+    c0 = time.process_time()
     truth = json.load(open(os.path.join(folder, "truth.json")))
     out = {"case": os.path.basename(folder.rstrip("/")), "engine_slip": truth["slip"]}
     if timeout and hasattr(signal, "SIGALRM"):
@@ -76,6 +82,9 @@ def one(folder: str, timeout: float) -> dict:
                    chi2_after=float(fin.chi2_per_dof), slip=float(fin.slip.value),
                    std=float(fin.slip.std),
                    headline=(getattr(fin, "robust", None) or {}).get("headline") or "model")
+        st = (getattr(fin, "robust", None) or {}).get("straight_runs") or {}
+        out.update(straight_method=st.get("method"), lugs_on_belt=st.get("lugs_on_belt"),
+                   window_s=st.get("window_s"))
         out["z"] = (out["slip"] - out["engine_slip"]) / out["std"] if out["std"] > 0 else None
     except _Timeout:
         out["error"] = f"timeout after {timeout:g} s"
@@ -85,6 +94,7 @@ def one(folder: str, timeout: float) -> dict:
         if timeout and hasattr(signal, "SIGALRM"):
             signal.alarm(0)
     out["seconds"] = round(time.perf_counter() - t0, 1)
+    out["cpu_seconds"] = round(time.process_time() - c0, 1)
     return out
 
 
@@ -97,7 +107,8 @@ def _row(r: dict) -> str:
     return (f"{r['case']:18s} {r['engine_slip']:.4f} {r['slip']:.4f}+-{r['std']:.4f} "
             f"{r['z']:7.1f} {r['std'] / r['slip']:6.3f} {r['chi2_before']:8.2f} "
             f"{r['chi2_after']:8.2f} {r['verdict']:12s} {r.get('headline', '-'):14s} "
-            f"{named}  {r['seconds']:.0f} s")
+            f"{r.get('straight_method') or '':10s} {named}  {r['seconds']:.0f} s "
+            f"({r.get('cpu_seconds', 0):.0f} s CPU)")
 
 
 def main(argv=None) -> int:
@@ -108,6 +119,8 @@ def main(argv=None) -> int:
                     help="simulate the cases first (into --data)")
     ap.add_argument("--timeout", type=float, default=1800.0, help="seconds per case")
     ap.add_argument("--log", help="append one JSON line per case")
+    ap.add_argument("--workers", type=int, default=1,
+                    help="cases side by side in spawned workers")
     args = ap.parse_args(argv)
     if args.simulate:
         from fitlug.sim.engine import CASES, simulate_engine
@@ -118,15 +131,33 @@ def main(argv=None) -> int:
     names = args.cases or sorted(d for d in os.listdir(args.data)
                                  if os.path.exists(os.path.join(args.data, d, "truth.json")))
     print(f"{'case':18s} {'engine':6s} {'fit +- std':15s} {'z':>7s} {'std/s':>6s} "
-          f"{'chi2 bef':>8s} {'chi2 aft':>8s} {'verdict':12s} {'headline':14s} named  seconds",
+          f"{'chi2 bef':>8s} {'chi2 aft':>8s} {'verdict':12s} {'headline':14s} "
+          f"{'how':10s} named  seconds",
           flush=True)
-    for name in names:
-        r = one(os.path.join(args.data, name), args.timeout)
-        print(_row(r), flush=True)
-        if args.log:
-            with open(args.log, "a") as f:
-                f.write(json.dumps(r, default=str) + "\n")
+    folders = [os.path.join(args.data, name) for name in names]
+    if args.workers > 1:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        from _workers import one_thread_each
+
+        one_thread_each()
+        with ProcessPoolExecutor(args.workers,
+                                 mp_context=multiprocessing.get_context("spawn")) as pool:
+            futs = [pool.submit(one, f, args.timeout) for f in folders]
+            results = (fu.result() for fu in as_completed(futs))
+            _report(results, args.log)
+    else:
+        _report((one(f, args.timeout) for f in folders), args.log)
     return 0
+
+
+def _report(results, log) -> None:
+    for r in results:
+        print(_row(r), flush=True)
+        if log:
+            with open(log, "a") as f:
+                f.write(json.dumps(r, default=str) + "\n")
 
 
 if __name__ == "__main__":
