@@ -44,6 +44,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._plateau import plateau
+
 #: level spacing along the clean part of the path, mm
 LEVEL_MM = 1.0
 #: the clean part: from LO of the rear arc's half-turn to HI of the front arc's
@@ -211,8 +213,6 @@ def _end(et, t, inward):
 def _body_cruise(ut, tx):
     """(t1, t2, v) of the body's cruise: where its speed (from its markers, seen at the
     frames `ut`) holds a plateau (explain._straight.plateau)."""
-    from ._straight import plateau
-
     if len(ut) < 16:
         return None
     tg = np.linspace(float(ut[0]), float(ut[-1]), 2000)
@@ -220,7 +220,7 @@ def _body_cruise(ut, tx):
     # averaged out), centred
     h = 0.5 * BODY_MEAN_S
     v = (np.interp(tg + h, ut, tx) - np.interp(tg - h, ut, tx)) / (2 * h)
-    cr = plateau(tg, v, BODY_PLATEAU)
+    cr = plateau(tg, v, BODY_PLATEAU, 0.2)
     if cr is None:
         return None
     t1, t2, v0 = cr

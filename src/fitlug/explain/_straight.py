@@ -36,6 +36,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._plateau import plateau
+
 #: distance kept from each end of the top run (mm): a link turns onto a wheel before its
 #: pitch-line point reaches the model's tangent point (a link pitch ~18 mm on the engine)
 MARGIN_MM = 20.0
@@ -75,29 +77,7 @@ def _cruise(p, lay, nodes):
 
     tg = np.linspace(float(lay.grid[0]), float(lay.grid[-1]), 2000)
     vt = np.asarray(kinematics(p, lay, tg, nodes)["v_t"])
-    return plateau(tg, vt)
-
-
-def plateau(tg, vt, tol: float = PLATEAU):
-    """(t1, t2, v_plateau) of a speed `vt` on the even grid `tg`: the longest span where
-    it holds a plateau (within `tol` of the value it holds longest), or None."""
-    # a running median over SMOOTH_S: a fit that misfits can put short wiggles in its
-    # belt speed, which must not cut the plateau
-    half = max(1, int(0.5 * SMOOTH_S / (tg[1] - tg[0])))
-    pad = np.pad(vt, half, mode="edge")
-    vt = np.median(np.lib.stride_tricks.sliding_window_view(pad, 2 * half + 1), axis=1)
-    cand = np.quantile(vt, np.linspace(0.3, 1.0, 141))
-    cand = cand[cand > 0]
-    if not len(cand):
-        return None
-    held = [np.sum(np.abs(vt - v) < 0.6 * tol * v) for v in cand]
-    v0 = float(cand[int(np.argmax(held))])
-    idx = np.flatnonzero(np.abs(vt - v0) < tol * v0)
-    if not len(idx):
-        return None
-    runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
-    run = max(runs, key=len)
-    return float(tg[run[0]]), float(tg[run[-1]]), v0
+    return plateau(tg, vt, PLATEAU, SMOOTH_S)
 
 
 def straight_runs_slip(res, margin_mm: float = MARGIN_MM, clock: bool = True) -> dict | None:

@@ -173,6 +173,12 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     for k, why in unident.items():  # never a number for what the data cannot fix
         if k in estimates:
             estimates[k] = Estimate(None, None, reason=why)
+    if (getattr(res, "robust", None) or {}).get("headline") == "straight runs":
+        # the slip law's quantities of a model that does not describe the path: left not
+        # identifiable as the explanation said (explain._robust.SLIP_LAW)
+        for k, e in res.quantities.items():
+            if k in estimates and e.value is None and e.reason:
+                estimates[k] = e
     t3 = time.perf_counter()
     desc = {"gaussian": "emcee on the Gaussian limit of the linearly marginalised likelihood",
             "exact": "emcee on the exact-model, linearly marginalised likelihood"}[use]

@@ -17,6 +17,7 @@ import math
 
 from . import _format as F
 from ._discrepancy_plots import plot_before_after, plot_breakdown, plot_maps, plot_spectra
+from ._straight_text import not_claimed_clause, straight_sentence
 
 MAX_FITS_PER_ROUND = 4  # fitlug.explain._explain.MAX_FITS_PER_ROUND (read at run time)
 
@@ -61,38 +62,13 @@ def handling_sentence(d: dict) -> str:
         return (f"it is one marker shifted and staying there ({parts}: knocked on its lug?): "
                 "taken out and the model refitted, the headline is that fit")
     st = d.get("straight_runs")
-    if st and st.get("method") == "belt clock":
-        w = st.get("window_s") or [float("nan")] * 2
-        n = st.get("lugs_on_belt")
-        return ("the model does not describe the path, so the slip is read off the belt's own "
-                "clock: the lug markers' passages of the same places in the body's frame "
-                f"({st['passages']} passages of {st['visits']} markers), whole lug pitches "
-                + (f"and belt lengths of {n} lugs " if n else "")
-                + f"apart, give the belt's travel ({st['v_belt_mm_s']:.2f} mm/s) against "
-                f"the body's ({st['v_body_mm_s']:.2f} mm/s) over the cruise from "
-                f"{w[0]:.2f} to {w[1]:.2f} s; its error carries the passages' scatter and "
-                "the body's surge" + _not_claimed(d))
     if st:
-        return ("the model does not describe the path, so the slip is read off the straight "
-                f"runs: the body's mean speed at cruise ({st['v_body_mm_s']:.2f} mm/s) "
-                f"against the belt's on the top run ({st['v_belt_mm_s']:.2f} mm/s, "
-                f"{st['visits']} visits of a lug marker), as the reference study read its "
-                "trajectories; its error carries the speeds' scatter and how much the "
-                "slip changes with the window" + _not_claimed(d))
+        return straight_sentence(st) + not_claimed_clause(d)
     sens = d.get("speed_sensitivity") or {}
     if sens.get("headline"):
         return ("a free speed profile follows it (a motion of the drive the adaptive profile "
                 "must not follow): that fit holds the whole mismatch and is the headline")
     return "the slip's error bar includes this mismatch"
-
-
-def _not_claimed(d: dict) -> str:
-    """The partial readings withheld from a misfit the model does not describe, or ""."""
-    w = d.get("not_claimed") or {}
-    if not w.get("readings"):
-        return ""
-    return ("; " + ", ".join(w["readings"]) + " took up a little of the mismatch and "
-            "are not claimed as physics")
 
 
 def located_sentence(d: dict) -> str:

@@ -1,0 +1,36 @@
+"""The report's words for a slip read off the straight runs (fitlug.explain._straight,
+fitlug.explain._belt_clock) and for readings withheld from a misfit the model does not
+describe."""
+
+from __future__ import annotations
+
+
+def straight_sentence(st: dict) -> str:
+    """How the headline slip was read where the model does not describe the path: the
+    belt's own clock (method 'belt clock') or the top run's visits."""
+    if st.get("method") == "belt clock":
+        w = st.get("window_s") or [float("nan")] * 2
+        n = st.get("lugs_on_belt")
+        return ("the model does not describe the path, so the slip is read off the belt's own "
+                "clock: the lug markers' passages of the same places in the body's frame "
+                f"({st['passages']} passages of {st['visits']} markers), whole lug pitches "
+                + (f"and belt lengths of {n} lugs " if n else "")
+                + f"apart, give the belt's travel ({st['v_belt_mm_s']:.2f} mm/s) against "
+                f"the body's ({st['v_body_mm_s']:.2f} mm/s) over the cruise from "
+                f"{w[0]:.2f} to {w[1]:.2f} s; its error carries the passages' scatter and "
+                "the body's surge")
+    return ("the model does not describe the path, so the slip is read off the straight "
+            f"runs: the body's mean speed at cruise ({st['v_body_mm_s']:.2f} mm/s) "
+            f"against the belt's on the top run ({st['v_belt_mm_s']:.2f} mm/s, "
+            f"{st['visits']} visits of a lug marker), as the reference study read its "
+            "trajectories; its error carries the speeds' scatter and how much the "
+            "slip changes with the window")
+
+
+def not_claimed_clause(d: dict) -> str:
+    """The partial readings withheld from a misfit the model does not describe, or ""."""
+    w = d.get("not_claimed") or {}
+    if not w.get("readings"):
+        return ""
+    return ("; " + ", ".join(w["readings"]) + " took up a little of the mismatch and "
+            "are not claimed as physics")
