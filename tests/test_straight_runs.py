@@ -151,6 +151,10 @@ def test_a_misfits_frequency_is_named_in_a_tracks_terms():
     assert "twice the lug-passing" in located_sentence(line(2 * f_lug))
     assert "wheels' turning frequency" in located_sentence(line(f_wheel))
     assert "surging" in located_sentence(line(1.09, "x", "body"))
+    # the lug tips held on the ground see the body surge over them (the engine's mu025:
+    # 0.59 Hz in the bottom run's x)
+    assert "planted lugs" in located_sentence(line(0.588, "x", "bottom"))
+    assert "surging" not in located_sentence(line(0.588, "y", "bottom"))
     s = located_sentence(line(1.09, "y", "top_run"))
     assert "surging" not in s and "lug-passing" not in s
     # without the straight runs' reading nothing is said about the frequency

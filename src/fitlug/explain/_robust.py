@@ -205,9 +205,8 @@ def _with_straight(out: dict, st: dict, res) -> dict:
     from ..model import delta_l
 
     out = dict(out)
-    why = (f"not identifiable here: the model does not describe the path (chi2/dof "
-           f"{res.chi2_per_dof:.0f}), so its slip law's parameters are a compromise; only "
-           "the slip (and delta_l' = s L / (n - 1)) is read, off the straight runs")
+    why = (f"the model does not describe the path (chi2/dof {res.chi2_per_dof:.0f}): its slip "
+           "law's parameters are a compromise; only the slip is read, off the straight runs")
     for k in SLIP_LAW:
         if k in out:
             out[k] = Estimate(None, None, reason=why)

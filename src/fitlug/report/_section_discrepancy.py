@@ -131,6 +131,10 @@ def _frequency_hint(f: float, d: dict, axis, segment) -> str:
     if axis == "x" and "body" in str(segment):
         return (" (locked neither to the lugs nor to the wheels: the body surging fore and "
                 "aft on its own, as a body does on its lugs' springs)")
+    if axis == "x" and "bottom" in str(segment) and f < 0.5 * v / p:
+        return (" (locked neither to the lugs nor to the wheels, where the lugs hold on the "
+                "ground: the body surging fore and aft over its planted lugs, as a body does "
+                "on its lugs' springs)")
     return ""
 
 
