@@ -45,7 +45,7 @@ from ._engine import jacobian_of
 from ._image_motion import ImageMotion
 from ._marker_shift import MarkerShift
 from ._nuisance import holds, search
-from ._speed import speed_sensitivity
+from ._speed import cannot_hold, speed_sensitivity
 from ._straight import straight_runs_slip
 from ._table import Geometry
 
@@ -141,7 +141,11 @@ def robust_result(res, geo: Geometry, alpha: float = ALPHA):
         done = taken_out(res, geo, found) if found is not None else None
         if done is not None:
             return done
-    speed = speed_sensitivity(res)
+    straight = straight_headline(res)
+    # where the slip is read off the straight runs and no speed profile can hold the misfit
+    # (the body's own y floors it), the free-speed refit would only widen the geometry's
+    # errors: not made (15 s of an engine recording's 60)
+    speed = None if straight is not None and cannot_hold(res) else speed_sensitivity(res)
     if speed is not None and holds(geo, speed["_fit"].residuals, speed["_fit"].dof,
                                    alpha=alpha, sigma_estimated=sig_est):
         return _free_speed_result(res, geo, speed)
@@ -153,7 +157,6 @@ def robust_result(res, geo: Geometry, alpha: float = ALPHA):
                 out[k] = dataclasses.replace(out[k], std=float(np.hypot(out[k].std, d)),
                                              ci95=None)
         method += " + speed-profile sensitivity"
-    straight = straight_headline(res)
     if straight is not None:
         out = _with_straight(out, straight, res)
         how = (f"the belt's clock against the body, {straight['passages']} passages of "

@@ -42,6 +42,31 @@ def free_speed_breaks(lay) -> np.ndarray:
     return np.linspace(t0, t1, n + 1)
 
 
+def cannot_hold(res) -> bool:
+    """Whether no speed profile can hold `res`'s misfit: the body markers' y does not
+    depend on the speed profile (MODEL.md §2: y = c_yj, no catalog effect moving the body
+    or the image in the model), so its weighted scatter about each marker's mean is a
+    floor under any refit's chi^2; above twice the dof the refit cannot pass (a body that
+    pitches and heaves on its lugs: the engine's recordings, 10^4-10^5 of floor)."""
+    from ..model.effects import CATALOG
+
+    lay = res.problem.lay
+    if any(getattr(CATALOG[e], "body_dy", None) is not None
+           or getattr(CATALOG[e], "image", None) is not None for e in lay.effects):
+        return False
+    obs = res.problem.obs
+    w = np.asarray(obs["body_w"], float)
+    y = np.asarray(obs["body_y"], float)
+    j = np.asarray(lay.body_j)
+    ok = (w > 0) & np.isfinite(y)
+    if not np.any(ok):
+        return False
+    w2, y, j = w[ok] ** 2, y[ok], j[ok]
+    mean = np.bincount(j, w2 * y) / np.maximum(np.bincount(j, w2), 1e-300)
+    floor = float(np.sum(w2 * (y - mean[j]) ** 2))
+    return floor > 2.0 * max(res.dof, 1)
+
+
 def speed_sensitivity(res) -> dict | None:
     """Refit `res` with a free speed profile; {quantity: shift} and how the refit went.
 
