@@ -185,3 +185,16 @@ def test_partial_readings_of_a_gross_misfit_are_not_claimed(robust):
     # a model that describes its recording keeps what it named
     plain = dataclasses.replace(out, robust={**out.robust, "headline": None})
     assert _withheld(plain, ["marker_depth"], steps[1:], None)[1] == ["marker_depth"]
+
+
+def test_no_speed_profile_holds_a_body_that_pitches(stiff):
+    """The engine's body pitches and heaves on its lugs: its markers' y, which no speed
+    profile moves, floors chi^2 far above the dof, so the free-speed refit is not made
+    where the slip is read off the straight runs; on the contract's kinematics (the body's
+    y constant up to noise) the floor is the noise and the refit stays."""
+    from fitlug.explain._speed import cannot_hold
+
+    res, _ = stiff
+    assert cannot_hold(res)
+    rec, rig, _ = isim.make(5)
+    assert not cannot_hold(fitlug.fit(rec, rig))
