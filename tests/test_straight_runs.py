@@ -126,6 +126,16 @@ def test_belt_clock_counts_the_belt_and_holds_the_truth():
         # the window sits in the cruise: one contact time after the ramp up, before the
         # ramp down
         assert 1.6 + 0.8 * 106.0 / 120.0 < st["window_s"][0] and st["window_s"][1] < 6.5
+        if h == 1.0:
+            # without the rig's lug pitch the clock's scale is the top run's own spacing
+            # (exact on a belt), its error a 0.2 % pitch
+            import dataclasses
+
+            res2 = fitlug.fit(rec, dataclasses.replace(rig, lug_pitch_mm=None))
+            st2 = straight_runs_slip(res2)
+            assert st2["pitch_mm"] == pytest.approx(20.0, rel=1e-3)
+            assert abs(st2["slip"] - truth["slip"]) < 3.0 * st2["std"]
+            assert st2["std"] == pytest.approx(0.002 * (1 - truth["slip"]), rel=0.1)
 
 
 def test_no_reading_without_a_cruise_in_view():

@@ -27,8 +27,8 @@ profile's shape where no lug is seen free (the marked lugs all on the ground), t
 what differs, with a prior on its acceleration (ACC_PRIOR, the body's surge) that only
 matters there.
 
-The window is the body's cruise (its speed over BODY_MEAN_S within BODY_PLATEAU of a
-plateau, its ends where it comes within EDGE of it), from one contact time D / v after the
+The window is the body's cruise (explain._body_frame: its speed over BODY_MEAN_S within
+BODY_PLATEAU of a plateau, its ends within EDGE of it), from one contact time D / v after the
 ramp (the lugs that landed during the ramp have lifted off: the brush has settled) to its
 end; the slip is 1 - (X(b) - X(a)) / (psi(b) - psi(a)) there. Its error holds the spline's
 (the passages' scatter and, inside a gap, the prior), the body's noise and the surge: the
@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._plateau import plateau
+from ._body_frame import body_cruise, body_pose, loop_coordinate, top_run_pitch
 
 #: level spacing along the clean part of the path, mm
 LEVEL_MM = 1.0
@@ -66,66 +66,8 @@ WANDER_MAX = 0.125
 #: a window's end is read at a passage this close inside it, else at one this close
 #: outside it (s)
 NEAR_S, FAR_S = 0.15, 0.3
-#: the body's speed for its cruise: its mean over this time (s)
-BODY_MEAN_S = 0.5
-#: ... and within this share of its plateau (a body surging on its lugs swings by 5 %
-#: about it; a motor's ramp leaves it within a few tenths of a second)
-BODY_PLATEAU = 0.08
-#: the cruise's ends: where that mean speed comes within this share of its plateau
-EDGE = 0.02
-
-
-def _body_pose(prob, p, X_at):
-    """Per frame with a body marker in view: (t, Tx, Ty, theta), the body's frame from its
-    markers (rotation from two or more, else interpolated; translation from all)."""
-    obs = prob.obs
-    lay = prob.lay
-    w = (np.asarray(obs["body_w"]) > 0) & np.isfinite(np.asarray(obs["body_x"]))
-    if not np.any(w):
-        return None
-    tb = np.asarray(lay.body_t)[w]
-    jb = np.asarray(lay.body_j)[w]
-    bx, by = np.asarray(obs["body_x"])[w], np.asarray(obs["body_y"])[w]
-    cx, cy = np.asarray(p["cx"])[jb], np.asarray(p["cy"])[jb]
-    ut, inv = np.unique(tb, return_inverse=True)
-    cnt = np.bincount(inv)
-    X = np.asarray(X_at(ut))
-    # offsets about the frame's origin (X, 0): observed minus X against the model's (cx, cy)
-    ox, oy = bx - X[inv], by
-    th = np.full(len(ut), np.nan)
-    two = cnt >= 2
-    if np.any(two):
-        mx, my = (np.bincount(inv, ox) / cnt), (np.bincount(inv, oy) / cnt)
-        ax, ay = np.bincount(inv, cx) / cnt, np.bincount(inv, cy) / cnt
-        dox, doy = ox - mx[inv], oy - my[inv]
-        dcx, dcy = cx - ax[inv], cy - ay[inv]
-        s_ = np.bincount(inv, dcx * doy - dcy * dox)
-        c_ = np.bincount(inv, dcx * dox + dcy * doy)
-        th[two] = np.arctan2(s_, c_)[two]
-    if np.all(np.isnan(th)):
-        th[:] = 0.0
-    else:
-        ok = np.isfinite(th)
-        th = np.interp(ut, ut[ok], th[ok])
-    c, s = np.cos(th)[inv], np.sin(th)[inv]
-    # translation: observed = T + R(theta) (cx, cy)
-    tx = np.bincount(inv, bx - (c * cx - s * cy)) / cnt
-    ty = np.bincount(inv, by - (s * cx + c * cy)) / cnt
-    return ut, tx, ty, th
-
-
-def _loop_coordinate(x, y, D, R):
-    """The place u along the stadium (MODEL.md §2's belt coordinate from the bottom run's
-    front end) of body-frame points (x, y) relative to the bottom pitch line's middle, for
-    the rear arc, the top run and the front arc (NaN on the bottom run)."""
-    u = np.full(np.shape(x), np.nan)
-    ra = x < -D / 2
-    u[ra] = D + R * np.arctan2(-D / 2 - x[ra], R - y[ra])
-    top = (x >= -D / 2) & (x <= D / 2) & (y > R)
-    u[top] = D + np.pi * R + (x[top] + D / 2)
-    fa = x > D / 2
-    u[fa] = 2 * D + np.pi * R + R * np.arctan2(x[fa] - D / 2, y[fa] - R)
-    return u
+#: relative error of a lug pitch read off the top run (used only where the rig gives none)
+TOP_PITCH_REL = 0.002
 
 
 def _passages(t, i, u, lo, hi, levels):
@@ -210,29 +152,6 @@ def _end(et, t, inward):
     return float(t)
 
 
-def _body_cruise(ut, tx):
-    """(t1, t2, v) of the body's cruise: where its speed (from its markers, seen at the
-    frames `ut`) holds a plateau (explain._straight.plateau)."""
-    if len(ut) < 16:
-        return None
-    tg = np.linspace(float(ut[0]), float(ut[-1]), 2000)
-    # the body's mean speed over BODY_MEAN_S (its lug-passing ripple and most of its surge
-    # averaged out), centred
-    h = 0.5 * BODY_MEAN_S
-    v = (np.interp(tg + h, ut, tx) - np.interp(tg - h, ut, tx)) / (2 * h)
-    cr = plateau(tg, v, BODY_PLATEAU, 0.2)
-    if cr is None:
-        return None
-    t1, t2, v0 = cr
-    # its ends where the mean speed is within EDGE of the plateau: a ramp's end
-    run = np.flatnonzero((tg >= t1) & (tg <= t2) & (v >= (1.0 - EDGE) * v0))
-    if len(run) < 2:
-        return None
-    # the mean over BODY_MEAN_S reaches a ramp a quarter of that before the speed falls
-    # by EDGE (a cos ramp): the end is taken that much earlier
-    return float(tg[run[0]]), float(tg[run[-1]]) - 0.25 * BODY_MEAN_S, v0
-
-
 def belt_clock_slip(res, X_at) -> dict | None:
     """The slip over the cruise from the belt's clock (module docstring).
 
@@ -243,8 +162,9 @@ def belt_clock_slip(res, X_at) -> dict | None:
     passage pairs, or the cruise not inside the passages' span. Else a dict: slip, std,
     v_body_mm_s, v_belt_mm_s (and stds) over window_s, visits (lug markers that passed),
     passages, pairs (rows kept), pair_rms_mm (their scatter), surge_wander_mm,
-    lugs_on_belt (N as the passages one belt length apart count it, or None), pitch_mm,
-    R_mm, method 'belt clock'."""
+    lugs_on_belt (N as the passages one belt length apart count it, or None), pitch_mm
+    (the rig's, else the top run's), pitch_top_run_mm (the spacing of markers seen on the
+    top run together, or None), R_mm, method 'belt clock'."""
     import jax.numpy as jnp
 
     from ..model._model import ctx_of, integrate, kinematics
@@ -256,11 +176,11 @@ def belt_clock_slip(res, X_at) -> dict | None:
     ctx = ctx_of(p, lay)
     D, R = float(ctx.D), float(ctx.R)
     pitch = float(prob.rig.lug_pitch_mm or float(ctx.P) / int(lay.n_belt))
-    pose = _body_pose(prob, p, X_at)
+    pose = body_pose(prob, p, X_at)
     if pose is None:
         return None
     ut, tx, ty, th = pose
-    cr = _body_cruise(ut, tx)
+    cr = body_cruise(ut, tx)
     if cr is None:
         return None
     t1, t2, v_body0 = cr
@@ -282,7 +202,14 @@ def belt_clock_slip(res, X_at) -> dict | None:
     bxl, byl = c * dx + s * dy, -s * dx + c * dy
     x = bxl - float(p["x_off"])
     y = byl - float(p["y_off"])
-    u = np.where(ok, _loop_coordinate(x, y, D, R), np.nan)
+    u = np.where(ok, loop_coordinate(x, y, D, R), np.nan)
+    # the rig's lug pitch sets the clock's scale; without one, the top run's own spacing
+    seen_pitch = top_run_pitch(tl, li, x, u, D, R, pitch)
+    pitch_rel = 0.0
+    if prob.rig.lug_pitch_mm is None and seen_pitch is not None:
+        # the top run's links are not quite in line (a chain's polygon rides on it): its
+        # spacing read 0.16 % short on the engine's chain, exact on a belt
+        pitch, pitch_rel = seen_pitch, TOP_PITCH_REL
     lo, hi = D + LO * np.pi * R, 2 * D + np.pi * R + HI * np.pi * R
     levels = np.arange(lo + 0.5 * LEVEL_MM, hi, LEVEL_MM)
     ev = _passages(tl, li, u, lo, hi, levels)
@@ -386,12 +313,13 @@ def belt_clock_slip(res, X_at) -> dict | None:
         # the slip displacement steps across a gap: the belt lengths were miscounted
         return None
     std = float(np.sqrt(var_psi * (dX / dpsi ** 2) ** 2 + var_X / dpsi ** 2
-                        + 2.0 * (wander / dpsi) ** 2))
+                        + 2.0 * (wander / dpsi) ** 2 + ((1.0 - slip) * pitch_rel) ** 2))
     dt = tb - ta
     return {"slip": float(slip), "std": std, "v_body_mm_s": dX / dt,
             "v_body_std": float(np.sqrt(var_X) / dt), "v_belt_mm_s": dpsi / dt,
             "v_belt_std": float(np.sqrt(var_psi) / dt), "window_s": [ta, tb],
             "visits": int(len(np.unique(ev[:, 2]))), "passages": int(len(ev)), "pairs": int(np.sum(keep)),
             "pair_rms_mm": sig_c, "surge_wander_mm": wander, "window_shift": 0.0,
-            "margin_mm": 0.0, "pitch_mm": pitch, "R_mm": R, "method": "belt clock",
+            "margin_mm": 0.0, "pitch_mm": pitch, "pitch_top_run_mm": seen_pitch, "R_mm": R,
+            "method": "belt clock",
             "lugs_on_belt": n_belt}
