@@ -208,3 +208,23 @@ def test_no_speed_profile_holds_a_body_that_pitches(stiff):
     assert cannot_hold(res)
     rec, rig, _ = isim.make(5)
     assert not cannot_hold(fitlug.fit(rec, rig))
+
+
+def test_a_clock_the_top_run_contradicts_is_not_taken():
+    """A belt length miscounted across the gap moves the clock's slip by a pitch over the
+    window's travel (18 mm of ~300: 0.06, tens of its errors); the top run's reading,
+    independent of the count, then stands, and the clock's is kept for the record. Where
+    the two agree the clock's, sharper, is the reading."""
+    from fitlug.explain._straight import AGREE, choose
+
+    clock = {"slip": 0.092, "std": 0.0012, "method": "belt clock", "lugs_on_belt": 23}
+    top = {"slip": 0.031, "std": 0.0046, "method": "top run"}
+    got = choose(clock, top)
+    assert got["method"] == "top run" and got["slip"] == 0.031
+    assert got["belt_clock_rejected"]["lugs_on_belt"] == 23
+    assert got["belt_clock_rejected"]["apart_in_errors"] > AGREE
+    ok = dict(clock, slip=0.0305)
+    got = choose(ok, top)
+    assert got["method"] == "belt clock" and got["top_run"]["slip"] == 0.031
+    assert choose(None, top) is top and choose(clock, None) is clock
+    assert choose(None, None) is None

@@ -51,6 +51,8 @@ SMOOTH_S = 0.2
 MIN_CRUISE_S = 1.0
 #: Newey-West lag of the body's speed error (s): the body surges at ~1-3 Hz
 LAG_S = 1.0
+#: the clock's and the top run's slips may differ by this many of their joint errors
+AGREE = 4.0
 #: two-sided 95 % Student t over 1.96, by degrees of freedom (visits - 1)
 _T_OVER_Z = {1: 6.48, 2: 2.19, 3: 1.62, 4: 1.42, 5: 1.31, 6: 1.25, 7: 1.21, 8: 1.18}
 
@@ -83,9 +85,10 @@ def _cruise(p, lay, nodes):
 def straight_runs_slip(res, margin_mm: float = MARGIN_MM, clock: bool = True) -> dict | None:
     """The slip at cruise from the belt's and the body's travel (module docstring).
 
-    First the belt's own clock (explain._belt_clock: the lug markers' passages, whole
-    pitches and belt lengths, over the body's cruise); where it gives no reading (or
-    `clock` is False), the top run's visits as below.
+    The belt's own clock (explain._belt_clock: the lug markers' passages, whole pitches
+    and belt lengths, over the body's cruise) where it gives a reading that the top run's
+    visits (below) do not contradict (:func:`choose`; with the top run's reading under
+    "top_run"); else (or `clock` False) the top run's.
 
     `res` is a least-squares fit of the base model (its geometry and speed profile are
     used, not its slip). Returns None where the recording does not allow the reading:
@@ -97,7 +100,7 @@ def straight_runs_slip(res, margin_mm: float = MARGIN_MM, clock: bool = True) ->
     """
     import jax.numpy as jnp
 
-    from ..model._model import ctx_of, integrate, kinematics, positions, sampled_from_nodes
+    from ..model._model import integrate, kinematics
 
     from ._belt_clock import belt_clock_slip
 
@@ -105,14 +108,37 @@ def straight_runs_slip(res, margin_mm: float = MARGIN_MM, clock: bool = True) ->
     lay = prob.lay
     p = {k: jnp.asarray(v) for k, v in res.params.items()}
     nodes = integrate(p, lay)  # once: the cruise, the samples and the body's X read it
+    found = None
     if clock:
         try:
             found = belt_clock_slip(
                 res, lambda t: kinematics(p, lay, np.asarray(t), nodes)["X"])
         except (ValueError, np.linalg.LinAlgError):  # no reading: the top run's stands
             found = None
-        if found is not None:
-            return found
+    top = _top_run_slip(res, margin_mm, p, lay, nodes)
+    return choose(found, top)
+
+
+def choose(clock: dict | None, top: dict | None) -> dict | None:
+    """The clock's reading, unless the top run's disagrees with it by more than AGREE of
+    their errors together (a belt length miscounted across the time the marked lugs are
+    all on the ground moves the clock's slip by a pitch over the window's travel, ten or
+    more of its errors): then the top run's, the clock's kept beside it for the record."""
+    if clock is None or top is None:
+        return clock or top
+    d = abs(clock["slip"] - top["slip"]) / float(np.hypot(clock["std"], top["std"]))
+    if d > AGREE:
+        return {**top, "belt_clock_rejected": {
+            "slip": clock["slip"], "std": clock["std"], "apart_in_errors": d,
+            "lugs_on_belt": clock.get("lugs_on_belt")}}
+    return {**clock, "top_run": {"slip": top["slip"], "std": top["std"]}}
+
+
+def _top_run_slip(res, margin_mm, p, lay, nodes) -> dict | None:
+    """The top run's visits' reading (module docstring); see straight_runs_slip."""
+    from ..model._model import ctx_of, kinematics, positions, sampled_from_nodes
+
+    prob = res.problem
     cr = _cruise(p, lay, nodes)
     if cr is None:
         return None
