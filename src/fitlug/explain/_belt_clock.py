@@ -36,8 +36,9 @@ end; the slip is 1 - (X(b) - X(a)) / (psi(b) - psi(a)) there. Its error holds th
 lugs, so a slip over one window differs from another's by about sqrt(2) times that
 scatter over the belt's travel.
 
-Measured on the contact-dynamics engine's ten recordings (docs/engine.md, 2026-11-28):
-all within 1.7 of its errors of the engine's own slip, errors 3.6-11 % of the slip.
+Measured on the contact-dynamics engine's ten recordings end to end (docs/engine.md,
+2026-11-28): all within 2.3 of its errors of the engine's own slip, errors 2.4-12 % of the
+slip (median 4.4 %).
 """
 
 from __future__ import annotations
@@ -60,8 +61,10 @@ CLIP = 5.0
 #: the pitch grid are not paired with others (only with themselves, a belt length later)
 GRID_TOL = 0.25
 #: the slip displacement X - (1 - s) psi may wander about its line by this share of a
-#: pitch at most (the body's surge: 0.1-0.8 mm on the engine's recordings); a belt length
-#: miscounted across a gap makes it step by a pitch
+#: pitch at most (the body's surge: 0.1-0.8 mm on the engine's recordings). A belt length
+#: miscounted across a gap steps it by a pitch, but where the passages fall in two
+#: clusters the line takes the step up; the top run's reading catches that
+#: (explain._straight.choose)
 WANDER_MAX = 0.125
 #: a window's end is read at a passage this close inside it, else at one this close
 #: outside it (s)
@@ -152,12 +155,13 @@ def _end(et, t, inward):
     return float(t)
 
 
-def belt_clock_slip(res, X_at) -> dict | None:
+def belt_clock_slip(res, p: dict, nodes) -> dict | None:
     """The slip over the cruise from the belt's clock (module docstring).
 
     `res`: a least-squares fit (its geometry to place the levels, the markers' places on
-    the belt and its belt travel to count whole pitches); `X_at(t)`: the model's body
-    position at times t (the body markers' frame is fitted about it). None where the
+    the belt and its belt travel to count whole pitches); `p` its parameters as JAX
+    arrays and `nodes` their integration (model._model.integrate), which the caller has
+    already (the body markers' frame is fitted about the model's X(t)). None where the
     recording does not allow the reading: no body in view, no cruise, fewer than eight
     passage pairs, or the cruise not inside the passages' span. Else a dict: slip, std,
     v_body_mm_s, v_belt_mm_s (and stds) over window_s, visits (lug markers that passed),
@@ -165,18 +169,15 @@ def belt_clock_slip(res, X_at) -> dict | None:
     lugs_on_belt (N as the passages one belt length apart count it, or None), pitch_mm
     (the rig's, else the top run's), pitch_top_run_mm (the spacing of markers seen on the
     top run together, or None), R_mm, method 'belt clock'."""
-    import jax.numpy as jnp
-
-    from ..model._model import ctx_of, integrate, kinematics
+    from ..model._model import ctx_of, kinematics
     from .families._base import bspline
 
     prob = res.problem
     lay = prob.lay
-    p = {k: jnp.asarray(v) for k, v in res.params.items()}
     ctx = ctx_of(p, lay)
     D, R = float(ctx.D), float(ctx.R)
     pitch = float(prob.rig.lug_pitch_mm or float(ctx.P) / int(lay.n_belt))
-    pose = body_pose(prob, p, X_at)
+    pose = body_pose(prob, p, lambda t: kinematics(p, lay, np.asarray(t), nodes)["X"])
     if pose is None:
         return None
     ut, tx, ty, th = pose
@@ -220,7 +221,6 @@ def belt_clock_slip(res, X_at) -> dict | None:
     ph = np.angle(np.mean(np.exp(2j * np.pi * sig / pitch))) / (2 * np.pi)
     k_of = np.round(sig / pitch - ph)
     on_grid = np.abs(sig / pitch - ph - k_of) < GRID_TOL
-    nodes = integrate(p, lay)
     rows = []
     for lev in np.unique(ev[:, 0]):
         e = ev[ev[:, 0] == lev]
@@ -309,8 +309,7 @@ def belt_clock_slip(res, X_at) -> dict | None:
     if len(te) >= 8:
         Yd = np.interp(te, ut, tx) - (1.0 - slip) * (basis(te) @ coef)
         wander = float(np.std(Yd - np.polyval(np.polyfit(te, Yd, 1), te)))
-    if wander > WANDER_MAX * pitch:
-        # the slip displacement steps across a gap: the belt lengths were miscounted
+    if wander > WANDER_MAX * pitch:  # it steps: the belt lengths were miscounted
         return None
     std = float(np.sqrt(var_psi * (dX / dpsi ** 2) ** 2 + var_X / dpsi ** 2
                         + 2.0 * (wander / dpsi) ** 2 + ((1.0 - slip) * pitch_rel) ** 2))
@@ -318,7 +317,8 @@ def belt_clock_slip(res, X_at) -> dict | None:
     return {"slip": float(slip), "std": std, "v_body_mm_s": dX / dt,
             "v_body_std": float(np.sqrt(var_X) / dt), "v_belt_mm_s": dpsi / dt,
             "v_belt_std": float(np.sqrt(var_psi) / dt), "window_s": [ta, tb],
-            "visits": int(len(np.unique(ev[:, 2]))), "passages": int(len(ev)), "pairs": int(np.sum(keep)),
+            "visits": int(len(np.unique(ev[:, 2]))), "passages": int(len(ev)),
+            "pairs": int(np.sum(keep)),
             "pair_rms_mm": sig_c, "surge_wander_mm": wander, "window_shift": 0.0,
             "margin_mm": 0.0, "pitch_mm": pitch, "pitch_top_run_mm": seen_pitch, "R_mm": R,
             "method": "belt clock",

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._plateau import plateau
+from ._plateau import SMOOTH_S, plateau
 
 #: the body's speed for its cruise: its mean over this time (s)
 BODY_MEAN_S = 0.5
@@ -100,7 +100,7 @@ def body_cruise(ut, tx):
     # averaged out), centred
     h = 0.5 * BODY_MEAN_S
     v = (np.interp(tg + h, ut, tx) - np.interp(tg - h, ut, tx)) / (2 * h)
-    cr = plateau(tg, v, BODY_PLATEAU, 0.2)
+    cr = plateau(tg, v, BODY_PLATEAU, SMOOTH_S)
     if cr is None:
         return None
     t1, t2, v0 = cr

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+#: the running median (s) a speed is smoothed with before its plateau is found
+SMOOTH_S = 0.2
+
 
 def plateau(tg, vt, tol: float, smooth_s: float):
     """(t1, t2, v_plateau) of a speed `vt` on the even grid `tg`: the longest span where

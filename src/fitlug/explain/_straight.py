@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._plateau import plateau
+from ._plateau import SMOOTH_S, plateau
 
 #: distance kept from each end of the top run (mm): a link turns onto a wheel before its
 #: pitch-line point reaches the model's tangent point (a link pitch ~18 mm on the engine)
@@ -45,8 +45,6 @@ MARGIN_MM = 20.0
 MIN_SAMPLES, MIN_VISIT_S = 8, 0.25
 #: the cruise: where the base fit's belt speed stays within PLATEAU of its plateau value
 PLATEAU = 0.03
-#: the running median (s) the belt speed is smoothed with before its plateau is found
-SMOOTH_S = 0.2
 #: the least cruise (s) over which the body is seen for a reading
 MIN_CRUISE_S = 1.0
 #: Newey-West lag of the body's speed error (s): the body surges at ~1-3 Hz
@@ -100,7 +98,7 @@ def straight_runs_slip(res, margin_mm: float = MARGIN_MM, clock: bool = True) ->
     """
     import jax.numpy as jnp
 
-    from ..model._model import integrate, kinematics
+    from ..model._model import integrate
 
     from ._belt_clock import belt_clock_slip
 
@@ -111,8 +109,7 @@ def straight_runs_slip(res, margin_mm: float = MARGIN_MM, clock: bool = True) ->
     found = None
     if clock:
         try:
-            found = belt_clock_slip(
-                res, lambda t: kinematics(p, lay, np.asarray(t), nodes)["X"])
+            found = belt_clock_slip(res, p, nodes)
         except (ValueError, np.linalg.LinAlgError):  # no reading: the top run's stands
             found = None
     top = _top_run_slip(res, margin_mm, p, lay, nodes)
