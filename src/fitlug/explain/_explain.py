@@ -65,6 +65,16 @@ SLIDING_GRID_STEPS = 4
 DIRECT_SLIDING_CHI2 = 2.0
 
 
+def _noise_reached(fits, dof, eng, spread) -> bool:
+    """Whether a candidate fitted this round (and not rejected) has left no strong misfit:
+    chi^2/dof within STRONG_MISFIT_Z spreads of 1. Then the direct lug_sliding fit could
+    remove nothing the catalog's rules would take (a belt_sag at chi^2/dof 1.0 leaves
+    lug_sliding nothing to beat it by); it cost half of a catalog recording's explanation."""
+    cap = 1 + STRONG_MISFIT_Z * spread
+    return any(why is None and out.chi2 <= (dof - eng.n_free(e)) * cap
+               for e, (out, _, _, why) in fits.items())
+
+
 def _bar(progress, total, desc):
     if not progress or not sys.stderr.isatty():
         return None
@@ -134,6 +144,10 @@ def _explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA
             # a base that the sliding law distorts can hide it from the screening's
             # linear step (issue 32): its direct fit below decides
             to_fit.append("lug_sliding")
+        if direct:
+            # lug_sliding last: its direct fit (seconds: ~2 000 model evaluations) is needed
+            # only where no other candidate has taken the misfit down to the noise
+            to_fit.sort(key=lambda e: e == "lug_sliding")
         _progress.note("explaining", f"round {rnd + 1}: {len(cands)} candidates screened, "
                        f"{len(to_fit)} to fit")
         M_cur, _ = structured_misfit(geo, r)
@@ -155,7 +169,8 @@ def _explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA
                           extra + eng.free_names(e),
                           give_up=lambda c2, pr, k_e=k_e: give_up(c2, pr, k_e))
             if e == "lug_sliding" and direct and \
-                    out.chi2 > DIRECT_SLIDING_CHI2 * (dof_cur - k_e):
+                    out.chi2 > DIRECT_SLIDING_CHI2 * (dof_cur - k_e) and \
+                    not _noise_reached(fits, dof_cur, eng, det_cur.chi2_spread):
                 out = direct_candidate(res, eng, theta, out)
             dbic = out.chi2 - chi2 + eng.n_free(e) * lnN
             M_new, _ = structured_misfit(geo, out.r)
