@@ -75,11 +75,11 @@ class Context:
         return np.stack([np.interp(self.t, self.grid, c) for c in cum.T], 1) - at_ref
 
 
-def context(res, J: np.ndarray) -> Context:
-    """The :class:`Context` of FitResult `res` with its dense weighted Jacobian `J`."""
-    prob = res.problem
-    lay, obs = prob.lay, prob.obs
-    p = {k: jnp.asarray(v, float) for k, v in res.params.items()}
+@jax.jit
+def _kinematics(p, lay, obs):
+    """The model's kinematics at the samples, their residual derivatives by X and psi, the
+    lug rows' stadium segment and the node integration, as one compiled program (op by op
+    it was ~200 small programs for every new shape: ~5 s CPU on a fresh process)."""
     Xl, psil, Xb, psib = sampled_kinematics(p, lay)
     n_l, n_b = lay.lug_t.shape[0], lay.body_t.shape[0]
 
@@ -91,17 +91,32 @@ def context(res, J: np.ndarray) -> Context:
     _, dr_dX = jax.jvp(stage2, prim, (ol, zl, ob, zb))
     _, dr_dpsi = jax.jvp(stage2, prim, (zl, ol, zb, ob))
     ctx = ctx_of(p, lay)
-    R, D, P = float(ctx.R), float(ctx.D), float(ctx.P)
-    u = np.asarray(p["sigma0"][lay.lug_i] + psil)
-    px, _, seg_l = stadium(jnp.asarray(u), ctx)
+    u = p["sigma0"][lay.lug_i] + psil
+    px, _, seg_l = stadium(u, ctx)
+    return {"Xl": Xl, "psil": psil, "Xb": Xb, "dr_dX": dr_dX, "dr_dpsi": dr_dpsi,
+            "R": ctx.R, "D": ctx.D, "P": ctx.P, "u": u, "px": px, "seg_l": seg_l,
+            "nodes": integrate(p, lay), "m": positions(p, lay, Xl, psil, Xb, psib)}
+
+
+def context(res, J: np.ndarray) -> Context:
+    """The :class:`Context` of FitResult `res` with its dense weighted Jacobian `J`."""
+    prob = res.problem
+    lay, obs = prob.lay, prob.obs
+    p = {k: jnp.asarray(v, float) for k, v in res.params.items()}
+    k = jax.device_get(_kinematics(p, lay, obs))
+    n_l, n_b = lay.lug_t.shape[0], lay.body_t.shape[0]
+    dr_dX, dr_dpsi = k["dr_dX"], k["dr_dpsi"]
+    R, D, P = float(k["R"]), float(k["D"]), float(k["P"])
+    u = np.asarray(k["u"])
+    px = k["px"]
     um = np.mod(u, P)
-    seg_l = np.asarray(seg_l)
+    seg_l = np.asarray(k["seg_l"])
     xi_l = np.where(seg_l == 2, (um - D - np.pi * R) / D, np.nan)
-    lug_xg = np.asarray(Xl) + float(p["x_off"]) + np.asarray(px)
+    lug_xg = np.asarray(k["Xl"]) + float(p["x_off"]) + np.asarray(px)
     cx_b = np.asarray(p["cx"])[np.asarray(lay.body_j)]
-    X_b = np.asarray(Xb)
-    X_l = np.asarray(Xl)
-    X_n, psi_n, v_n, vt_n = (np.asarray(q) for q in integrate(p, lay))
+    X_b = np.asarray(k["Xb"])
+    X_l = np.asarray(k["Xl"])
+    X_n, psi_n, v_n, vt_n = (np.asarray(q) for q in k["nodes"])
     grid = np.asarray(lay.grid)
     a_n = np.gradient(v_n, grid)
     tl, tb = np.asarray(lay.lug_t), np.asarray(lay.body_t)
@@ -109,7 +124,7 @@ def context(res, J: np.ndarray) -> Context:
     w = np.concatenate([np.asarray(obs["lug_w"])] * 2 + [np.asarray(obs["body_w"])] * 2)
     # the model's points, not the observed ones: a warp evaluated at the data would hold
     # the residuals themselves (q_obs = q_model - r / w)
-    mlx, mly, mbx, mby = (np.asarray(q) for q in positions(p, lay, Xl, psil, Xb, psib))
+    mlx, mly, mbx, mby = (np.asarray(q) for q in k["m"])
     qx = np.concatenate([mlx, mlx, mbx, mbx])
     qy = np.concatenate([mly, mly, mby, mby])
     _, frame = np.unique(np.round(t * 1e7), return_inverse=True)
