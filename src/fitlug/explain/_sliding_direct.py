@@ -131,9 +131,9 @@ def direct_sliding(res, eng, theta) -> np.ndarray | None:
     c2_cur = float(r_cur @ r_cur)
     rows, c2 = refined(Z0_GRID, N_PEAK)
     if not (np.isfinite(np.min(c2)) and np.min(c2) < COARSE_GATE * c2_cur):
-        # the coarse grid, refined at every z0's peak, comes nowhere near the model
-        # without the law: a misfit of another kind (an engine's contact dynamics: the
-        # fine grid cost ~9 s there and was never lower)
+        # the coarse grid, refined at every z0's peak, is no lower than the model without
+        # the law: a misfit of another kind (an engine's contact dynamics: the fine grid
+        # cost ~9 s there and was never lower)
         return None
     z0 = rows[int(np.argmin(c2))][0]
     rows, c2 = refined(np.linspace(z0 - FINE_DZ0, z0 + FINE_DZ0, N_Z0_FINE), N_PEAK_FINE)
