@@ -289,6 +289,11 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
     if t2 - (t1 + settle_s) >= 0.5 * (t2 - t1):
         t1 = t1 + settle_s
     ta, tb = _end(et, t1, +1), _end(et, t2, -1)
+    # a cruise that begins or ends while every marked lug is on the ground (six marked of
+    # 26, a 1.1-s gap) is read from the first or to the last passage: the spline holds
+    # psi only between them
+    ta = float(et[0]) if ta < T0 else ta
+    tb = float(et[-1]) if tb > T1 else tb
     if not (T0 <= ta < tb <= T1) or tb - ta < 0.5 * (t2 - t1):
         return None
     Bab = basis([ta, tb])
