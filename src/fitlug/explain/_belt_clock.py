@@ -163,9 +163,10 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
     arrays and `nodes` their integration (model._model.integrate), which the caller has
     already (the body markers' frame is fitted about the model's X(t)). None where the
     recording does not allow the reading: no body in view, no cruise, fewer than eight
-    passage pairs, or the cruise not inside the passages' span. Else a dict: slip, std,
-    v_body_mm_s, v_belt_mm_s (and stds) over window_s, visits (lug markers that passed),
-    passages, pairs (rows kept), pair_rms_mm (their scatter), surge_wander_mm,
+    passage pairs, or less than half the cruise between the first and last passages. Else
+    a dict: slip, std, v_body_mm_s, v_belt_mm_s (and stds) over window_s, visits (lug
+    markers that passed), passages, pairs (rows kept), pair_rms_mm (their scatter),
+    surge_wander_mm,
     lugs_on_belt (N as the passages one belt length apart count it, or None), pitch_mm
     (the rig's, else the top run's), pitch_top_run_mm (the spacing of markers seen on the
     top run together, or None), R_mm, method 'belt clock'."""

@@ -65,13 +65,15 @@ SLIDING_GRID_STEPS = 4
 DIRECT_SLIDING_CHI2 = 2.0
 
 
+def _strong(chi2, dof, spread) -> bool:
+    """Whether chi^2's excess over the dof is over STRONG_MISFIT_Z spreads: a strong misfit."""
+    return chi2 - dof > STRONG_MISFIT_Z * spread * dof
+
+
 def _noise_reached(fits, dof, eng, spread) -> bool:
-    """Whether a candidate fitted this round (and not rejected) has left no strong misfit:
-    chi^2/dof within STRONG_MISFIT_Z spreads of 1. Then the direct lug_sliding fit could
-    remove nothing the catalog's rules would take (a belt_sag at chi^2/dof 1.0 leaves
-    lug_sliding nothing to beat it by); it cost half of a catalog recording's explanation."""
-    cap = 1 + STRONG_MISFIT_Z * spread
-    return any(why is None and out.chi2 <= (dof - eng.n_free(e)) * cap
+    """Whether a candidate fitted this round (not rejected) has left no strong misfit: the
+    direct lug_sliding fit could then remove nothing the catalog's rules would take."""
+    return any(why is None and not _strong(out.chi2, dof - eng.n_free(e), spread)
                for e, (out, _, _, why) in fits.items())
 
 
@@ -134,7 +136,7 @@ def _explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA
         to_fit = [e for e in order if lin[e] < BIC_THRESHOLD][:MAX_FITS_PER_ROUND]
         dof_cur = N - k_cur
         excess = chi2 - dof_cur  # chi^2 the misfit carries (noise scale known to ~2 %)
-        strong = excess > STRONG_MISFIT_Z * det_cur.chi2_spread * dof_cur
+        strong = _strong(chi2, dof_cur, det_cur.chi2_spread)
         # after an effect, a further one must account for what is left, not nibble at it
         # (issue 42: a 16 us 'frame drop' took 3 % of the 8 spreads a lens left)
         share_rule = strong or (bool(accepted) and

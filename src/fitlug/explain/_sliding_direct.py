@@ -20,9 +20,9 @@ largest traction seen). z_pk is spaced evenly in -ln(1 - z_pk): chi^2 is a narro
 there (F/F_max within a few % of 1 in the ramps, the slip there changes by tens of % for
 1 % of F_max), so each z0's peak is refined twice between the neighbours of its best.
 The grid's chi^2 costs model evaluations only (~1 100, batched); around its best z0 a
-finer grid (~1 200), searched only where the coarse one's best is below COARSE_GATE times
-the model without the law's chi^2 (near the limit it is ~0.16 of it; 1.01 under a lug
-splay, 1.7-130 on a contact-dynamics engine's recording); where the fine grid is no lower
+finer grid (~1 200), searched only where the coarse one's best is already lower than the
+model without the law (near the limit it is ~0.16 of that chi^2; 1.01 under a lug splay,
+1.7-130 on a contact-dynamics engine's recording); where the fine grid is no lower
 than the model without the law, the misfit is of another kind and nothing is fitted (a
 strong runout or sag costs the grids alone); else the fine grid's N_HELD best laws each
 with the law held while the rest settles, the best of them then with everything free (the
@@ -50,9 +50,6 @@ Z_PEAK_MAX = 0.995
 N_HELD, DZ0_APART = 3, 0.015
 #: points of each refinement of a z0's peak between the neighbours of its best
 N_REFINE = 21
-#: the fine grid is searched only where the coarse one's best is below this share of the
-#: model without the law's chi^2: lower than that model, as the fine grid must be
-COARSE_GATE = 1.0
 #: steps of the held-law fit and of the free fit
 HELD_STEPS, FREE_STEPS = 100, 300
 #: the most residuals a recording may have for the direct fit: its grids cost ~1 200 model
@@ -129,16 +126,20 @@ def direct_sliding(res, eng, theta) -> np.ndarray | None:
 
     r_cur = eng.residuals(theta)[0]
     c2_cur = float(r_cur @ r_cur)
+
+    def lower(c2):  # a grid point below the model without the law
+        return bool(np.isfinite(np.min(c2)) and np.min(c2) < c2_cur)
+
+    # each grid no lower than the model without the law: a misfit of another kind (the
+    # coarse grid, refined at every z0's peak, decides before the fine one: on an engine's
+    # contact dynamics the fine grid cost ~9 s and was never lower)
     rows, c2 = refined(Z0_GRID, N_PEAK)
-    if not (np.isfinite(np.min(c2)) and np.min(c2) < COARSE_GATE * c2_cur):
-        # the coarse grid, refined at every z0's peak, is no lower than the model without
-        # the law: a misfit of another kind (an engine's contact dynamics: the fine grid
-        # cost ~9 s there and was never lower)
+    if not lower(c2):
         return None
     z0 = rows[int(np.argmin(c2))][0]
     rows, c2 = refined(np.linspace(z0 - FINE_DZ0, z0 + FINE_DZ0, N_Z0_FINE), N_PEAK_FINE)
-    if not (np.isfinite(np.min(c2)) and np.min(c2) < c2_cur):
-        return None  # no better than the model without the law: a misfit of another kind
+    if not lower(c2):
+        return None
     picks = []  # the best row of each z0, the N_HELD best of those at least DZ0_APART apart
     for i in np.argsort(c2):
         if len(picks) == N_HELD or not np.isfinite(c2[i]):
