@@ -93,6 +93,28 @@ def test_convergence_from_perturbed_starts(reference_fit):
         assert abs(r2.chi2 - res.chi2) < 1e-3 * res.chi2
 
 
+def test_levenberg_marquardt_ends_at_the_minimum_without_idle_steps(reference_fit):
+    """The solver's end (fit/_lsq: a nearly undamped step that changed chi^2 by rounding
+    only) is the minimum: a full Gauss-Newton step from it (pseudo-inverse, numpy, outside
+    the solver) could remove less than 1e-6 of chi^2 and moves the slip by < 1e-3 sigma;
+    and the solve ends there instead of shrinking its trust region on rounding-noise steps
+    (18, 15 and 19 steps before, 10-12 of each idle)."""
+    from fitlug.fit._covariance import gauss_newton_polish
+    from fitlug.fit._lsq import least_squares
+
+    res, _ = reference_fit
+    prob = res.problem
+    p0 = {k: jnp.asarray(v) for k, v in res.params.items()}
+    out = least_squares(p0, list(res.packing.names), prob.lay, prob.obs)
+    assert out.converged and out.steps <= 6, out.steps  # from the minimum: a few steps
+    _, dec = gauss_newton_polish(out, prob.lay, prob.obs, tol=0.0, max_iter=0)
+    assert dec < 1e-6, dec  # what a full step could remove, at the solver's end
+    polished, _ = gauss_newton_polish(out, prob.lay, prob.obs, tol=0.0, max_iter=1)
+    i = res.packing.slices()["s0"].start
+    assert abs(polished.flat[i] - out.flat[i]) < 1e-3 * res.slip.std
+    assert res.steps <= 12, res.steps  # the glitch round's refit from the noise fit's end
+
+
 def test_data_derived_start_is_close(reference_fit):
     res, truth = reference_fit
     g0 = res.problem.init_info["geometry0"]
