@@ -107,3 +107,23 @@ def test_pytree_outputs_exported_and_read_back(solver_args, tmp_path, monkeypatc
                        zip(jax.tree_util.tree_leaves(out), jax.tree_util.tree_leaves(direct)))
     assert sorted(f.split("-")[0] for f in os.listdir(tmp_path)) == ["derived",
                                                                        "glitch_predict"]
+
+
+def test_source_identity_follows_contents_not_mtimes(tmp_path):
+    """The exported programs' key: a copy of the package with new mtimes (a fresh clone)
+    keeps it; an edit of one file, or a new file, changes it."""
+    import shutil
+
+    pkg = os.path.dirname(os.path.abspath(_exported.__file__))
+    copy = tmp_path / "fitlug"
+    shutil.copytree(pkg, copy, ignore=shutil.ignore_patterns("__pycache__"))
+    for f in copy.rglob("*.py"):
+        os.utime(f, (1e9, 1e9))
+    assert _exported._source_identity(str(copy)) == _exported._source_identity(pkg)
+    target = copy / "fit" / "_lsq.py"
+    target.write_text(target.read_text() + "\n# edited\n")
+    edited = _exported._source_identity(str(copy))
+    assert edited != _exported._source_identity(pkg)
+    (copy / "extra.py").write_text("x = 1\n")
+    assert _exported._source_identity(str(copy)) not in (edited,
+                                                         _exported._source_identity(pkg))

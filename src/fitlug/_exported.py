@@ -10,8 +10,9 @@ and calls it; the compilation of the deserialised module is then found in the pe
 compilation cache. The numbers are the same bit for bit (tests/test_exported.py).
 
 The key is the function's name, its static arguments' repr, the shapes and dtypes of its
-array arguments, the versions of jax and jaxlib, and the identity (path, size, mtime) of
-fitlug's own source files, so an edited or upgraded installation exports afresh, and the
+array arguments, the versions of jax and jaxlib, and a digest of the contents of
+fitlug's own source files, so an edited or upgraded installation exports afresh (and a
+fresh clone of the same code does not), and the
 code of every plugin effect (each source added by :func:`add_identity`: the catalog's
 digest of its plugins' files, so an edited user effect under the same id is never served
 a program traced from its old code; a plugin whose source cannot be read turns the disk
@@ -44,17 +45,24 @@ def add_identity(fn) -> None:
         _IDENTITIES.append(fn)
 
 
-def _source_identity() -> str:
-    if not _SOURCE:
-        root = os.path.dirname(os.path.abspath(__file__))
+def _source_identity(root: str | None = None) -> str:
+    """A digest of the contents of fitlug's own source files (every .py under the package,
+    by relative path): an edit exports afresh, a fresh clone or reinstall of the same code
+    (new mtimes) does not (4 ms for the package's 1.6 MB)."""
+    if root is not None or not _SOURCE:
+        base = root or os.path.dirname(os.path.abspath(__file__))
         h = hashlib.sha256()
-        for dirpath, dirnames, files in os.walk(root):
+        for dirpath, dirnames, files in os.walk(base):
             dirnames.sort()
             for f in sorted(files):
                 if f.endswith(".py"):
-                    st = os.stat(os.path.join(dirpath, f))
-                    h.update(f"{os.path.relpath(os.path.join(dirpath, f), root)}:"
-                             f"{st.st_size}:{st.st_mtime_ns};".encode())
+                    path = os.path.join(dirpath, f)
+                    with open(path, "rb") as fh:
+                        data = fh.read()
+                    h.update(f"{os.path.relpath(path, base)}:{len(data)}:".encode())
+                    h.update(hashlib.sha256(data).digest())
+        if root is not None:
+            return h.hexdigest()
         _SOURCE.append(h.hexdigest())
     return _SOURCE[0]
 
