@@ -119,11 +119,11 @@ def test_source_identity_follows_contents_not_mtimes(tmp_path):
     shutil.copytree(pkg, copy, ignore=shutil.ignore_patterns("__pycache__"))
     for f in copy.rglob("*.py"):
         os.utime(f, (1e9, 1e9))
-    assert _exported._source_identity(str(copy)) == _exported._source_identity(pkg)
+    assert _exported._tree_digest(str(copy)) == _exported._tree_digest(pkg)
     target = copy / "fit" / "_lsq.py"
     target.write_text(target.read_text() + "\n# edited\n")
-    edited = _exported._source_identity(str(copy))
-    assert edited != _exported._source_identity(pkg)
+    edited = _exported._tree_digest(str(copy))
+    assert edited != _exported._tree_digest(pkg)
     (copy / "extra.py").write_text("x = 1\n")
-    assert _exported._source_identity(str(copy)) not in (edited,
-                                                         _exported._source_identity(pkg))
+    assert _exported._tree_digest(str(copy)) not in (edited, _exported._tree_digest(pkg))
+    assert _exported._source_identity() == _exported._tree_digest(pkg)  # the key's part

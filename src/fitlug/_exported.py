@@ -45,25 +45,27 @@ def add_identity(fn) -> None:
         _IDENTITIES.append(fn)
 
 
-def _source_identity(root: str | None = None) -> str:
-    """A digest of the contents of fitlug's own source files (every .py under the package,
-    by relative path): an edit exports afresh, a fresh clone or reinstall of the same code
-    (new mtimes) does not (4 ms for the package's 1.6 MB)."""
-    if root is not None or not _SOURCE:
-        base = root or os.path.dirname(os.path.abspath(__file__))
-        h = hashlib.sha256()
-        for dirpath, dirnames, files in os.walk(base):
-            dirnames.sort()
-            for f in sorted(files):
-                if f.endswith(".py"):
-                    path = os.path.join(dirpath, f)
-                    with open(path, "rb") as fh:
-                        data = fh.read()
-                    h.update(f"{os.path.relpath(path, base)}:{len(data)}:".encode())
-                    h.update(hashlib.sha256(data).digest())
-        if root is not None:
-            return h.hexdigest()
-        _SOURCE.append(h.hexdigest())
+def _tree_digest(base: str) -> str:
+    """A digest of the contents of every .py file under `base`, by relative path (4 ms
+    for fitlug's 1.6 MB)."""
+    h = hashlib.sha256()
+    for dirpath, dirnames, files in os.walk(base):
+        dirnames.sort()
+        for f in sorted(files):
+            if f.endswith(".py"):
+                path = os.path.join(dirpath, f)
+                with open(path, "rb") as fh:
+                    data = fh.read()
+                h.update(f"{os.path.relpath(path, base)}:{len(data)}:".encode())
+                h.update(data)
+    return h.hexdigest()
+
+
+def _source_identity() -> str:
+    """fitlug's own sources' digest, once a process: an edit exports afresh, a fresh clone
+    or reinstall of the same code (new mtimes) does not."""
+    if not _SOURCE:
+        _SOURCE.append(_tree_digest(os.path.dirname(os.path.abspath(__file__))))
     return _SOURCE[0]
 
 

@@ -18,7 +18,8 @@ data's accelerations reach. With the base fit's steady slip S and the rig's mass
 (F_max = m a_max / (1000 (z_pk - z0)), MODEL.md §2-§3; F_max is thus bounded above the
 largest traction seen). z_pk is spaced evenly in -ln(1 - z_pk): chi^2 is a narrow valley
 there (F/F_max within a few % of 1 in the ramps, the slip there changes by tens of % for
-1 % of F_max), so each z0's peak is refined twice between the neighbours of its best.
+1 % of F_max), so each z0's peak is refined twice between the neighbours of its best
+(where the grid's best is within REFINE_GATE times the model without the law's chi^2).
 The grid's chi^2 costs model evaluations only (~1 100, batched); around its best z0 a
 finer grid (~1 200), searched only where the coarse one's best is already lower than the
 model without the law (near the limit it is ~0.16 of that chi^2; 1.01 under a lug splay,

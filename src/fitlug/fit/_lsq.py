@@ -44,6 +44,11 @@ from ._residuals import Packing, jacobian, residuals
 _START_GAIN = 100.0
 
 
+#: relative change of chi^2 below which a nearly undamped step counts as rounding (the
+#: bundled recording's chi^2 moves by 1e-14..1e-13 of itself between steps at its minimum)
+FLAT_REL = 1e-11
+
+
 class _StopState(eqx.Module):
     step_size: jax.Array
     stop: jax.Array  # the step just judged moved chi^2 by rounding only: the solve is over
@@ -60,12 +65,12 @@ class _RoundingAwareTrustRegion(optx.ClassicalTrustRegion):
     - a nearly undamped step (lambda at most its start) whose predicted and true changes of
       chi^2 are both below FLAT_REL of chi^2 ends the solve (:class:`_LevenbergMarquardt`
       reads `stop`): chi^2 is at its minimum to rounding, and the parameters are within
-      sqrt(2 FLAT_REL chi^2 / 2) of it in units of their errors (3e-4 sigma on the
-      bundled recording). The Cauchy test alone waited for the step in y itself to fall
+      sqrt(FLAT_REL chi^2) of it in units of their errors (4e-4 sigma on the bundled
+      recording). The Cauchy test alone waited for the step in y itself to fall
       below rtol, which in the weakly constrained directions of an ill-conditioned
       Jacobian it does only once the damping has grown: the bundled recording's three
       solves took 18, 15 and 19 steps, 10-12 of each after chi^2 had stopped changing
-      (2026-11-29: 7, 7 and 6 steps, the same digits).
+      (2026-11-29: 6, 7 and 6 steps, the same digits).
 
     Any larger step is judged as before."""
 
@@ -91,11 +96,6 @@ class _RoundingAwareTrustRegion(optx.ClassicalTrustRegion):
                 & (jnp.abs(pred) <= tiny) & (jnp.abs(loss1 - loss0) <= tiny))
         size = jnp.where((done | flat) & ~accept, state.step_size, size)
         return size, accept | done | flat, result, _StopState(step_size=size, stop=flat)
-
-
-#: relative change of chi^2 below which a nearly undamped step counts as rounding (the
-#: bundled recording's chi^2 moves by 1e-14..1e-13 of itself between steps at its minimum)
-FLAT_REL = 1e-11
 
 
 class _LevenbergMarquardt(optx.LevenbergMarquardt):
