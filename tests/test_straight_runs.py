@@ -109,6 +109,17 @@ def test_independent_recording_straight_runs_hold_the_truth(h):
     assert straight_headline(res) is None  # the model describes it: no straight headline
 
 
+def belt_clock_alone(res):
+    """The clock's own reading of a fit (explain._belt_clock), before the choice."""
+    import jax.numpy as jnp
+
+    from fitlug.explain._belt_clock import belt_clock_slip
+    from fitlug.model._model import integrate
+
+    p = {k: jnp.asarray(v) for k, v in res.params.items()}
+    return belt_clock_slip(res, p, integrate(p, res.problem.lay))
+
+
 def test_belt_clock_counts_the_belt_and_holds_the_truth():
     """Eight markers on consecutive lugs of the independent simulator's belt (N = 20 lugs
     of 20 mm) over a cruise longer than a belt's turn: the clock counts N from the passages
@@ -133,9 +144,14 @@ def test_belt_clock_counts_the_belt_and_holds_the_truth():
 
             res2 = fitlug.fit(rec, dataclasses.replace(rig, lug_pitch_mm=None))
             st2 = straight_runs_slip(res2)
-            assert st2["pitch_mm"] == pytest.approx(20.0, rel=1e-3)
+            clock = belt_clock_alone(res2)
+            assert clock["pitch_mm"] == pytest.approx(20.0, rel=1e-3)
+            assert abs(clock["slip"] - truth["slip"]) < 3.0 * clock["std"]
+            assert clock["std"] == pytest.approx(0.002 * (1 - truth["slip"]), rel=0.1)
+            # the top run's reading needs no pitch: sharper than that, it stands
+            assert st2["method"] == "top run" and st2["std"] < clock["std"] / 3
+            assert st2["belt_clock"]["std"] == pytest.approx(clock["std"])
             assert abs(st2["slip"] - truth["slip"]) < 3.0 * st2["std"]
-            assert st2["std"] == pytest.approx(0.002 * (1 - truth["slip"]), rel=0.1)
 
 
 def test_belt_clock_reads_a_cruise_that_ends_with_the_marked_lugs_on_the_ground():
@@ -242,3 +258,12 @@ def test_a_clock_the_top_run_contradicts_is_not_taken():
     assert got["method"] == "belt clock" and got["top_run"]["slip"] == 0.031
     assert choose(None, top) is top and choose(clock, None) is clock
     assert choose(None, None) is None
+    # agreeing, but the clock read its end inside a long gap (an engine chain of 30 links
+    # of 14 mm, four marked: 0.021 against the top run's 0.0016): the sharper one stands
+    from fitlug.explain._straight import PREFER_TOP
+
+    wide = dict(clock, slip=0.021, std=PREFER_TOP * 1.01 * 0.0016)
+    top2 = {"slip": 0.0207, "std": 0.0016, "method": "top run"}
+    got = choose(wide, top2)
+    assert got["method"] == "top run" and got["belt_clock"]["std"] == wide["std"]
+    assert choose(dict(wide, std=PREFER_TOP * 0.99 * 0.0016), top2)["method"] == "belt clock"

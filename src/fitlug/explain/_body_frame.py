@@ -109,5 +109,8 @@ def body_cruise(ut, tx):
     if len(run) < 2:
         return None
     # the mean over BODY_MEAN_S reaches a ramp a quarter of that before the speed falls
-    # by EDGE (a cos ramp): the end is taken that much earlier
-    return float(tg[run[0]]), float(tg[run[-1]]) - 0.25 * BODY_MEAN_S, v0
+    # by EDGE (a cos ramp): the end is taken that much earlier, and the start that much
+    # later (the mean reaches the plateau before the speed does: the cruise began 0.13 s
+    # early on the engine's recordings, the slip read partly in the ramp's end)
+    q = 0.25 * BODY_MEAN_S
+    return float(tg[run[0]]) + q, float(tg[run[-1]]) - q, v0
