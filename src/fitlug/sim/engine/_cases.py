@@ -28,4 +28,16 @@ CASES: dict[str, EngineCase] = {c.name: c for c in [
                      "and out of it"),
     EngineCase(name="h05_spread", **_REF, marker_h=0.5, lug_markers=(0, 5, 11, 16),
                notes="markers half-way up the lugs, on four lugs spread round the belt"),
+    EngineCase(name="heavy20", **_REF, chassis_mass_kg=20.0,
+               notes="a 20 kg chassis: twice the traction, a slower surge; its slip still "
+                     "swings between the cruise's two contact periods"),
+    EngineCase(name="pitch14_n30", **_REF, n_links=30, link_pitch_mm=14.0,
+               notes="30 links of 14 mm: ten or eleven lugs touching, the four marked lugs "
+                     "on the ground together for 1.3 s"),
+    EngineCase(name="damp_tau02", **_REF, tau_s=0.2,
+               notes="rubber damping of 0.2 s: the lift-off shear springs back slowly"),
+    EngineCase(name="fps50_slow", k_N_per_mm=0.25, fps=50.0, v_belt_mm_s=100.0,
+               notes="a 50 fps camera on a 100 mm/s run"),
+    EngineCase(name="two_markers", **_REF, marker_h=0.2, lug_markers=(0, 11),
+               notes="two lug markers half a belt apart, a fifth of the way up the lugs"),
 ]}

@@ -70,10 +70,18 @@ def _episodes(flag: np.ndarray):
     return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
 
 
+#: a chassis pitched further than this (rad) has tipped over (a cruise pitches 6-35 mrad)
+MAX_PITCH_RAD = 0.2
+
+
 def measure(case: EngineCase, o: dict) -> dict:
     """The engine's own figures at cruise (see docs/engine.md for each)."""
     t = o["t"]
     t1, t2 = case.cruise_window_s
+    tilt = float(np.max(np.abs(o["pitch"])))
+    if tilt > MAX_PITCH_RAD:  # e.g. lugs on every other link of the reference chain
+        raise RuntimeError(f"{case.name}: the chassis pitched {tilt:.2f} rad: the crawler "
+                           "tipped over, it has no cruise and no slip to measure")
     win = (t >= t1) & (t <= t2)
     w = np.hanning(win.sum() + 2)[1:-1]
     psi = belt_travel(case, o)
