@@ -163,6 +163,36 @@ def test_not_converged_far_from_the_data_says_so(reference_fit):
     assert "far from the data" not in str(err.value)
 
 
+def test_a_crawl_at_a_gross_misfit_is_stationary_in_its_units(reference_fit):
+    """At residuals in the thousands of sigma the Gauss-Newton model is poor and LM crawls
+    to its step limit, removing parts in 1e7 of chi^2 (an engine's 250-fps drive-through:
+    5.7078e7 after 50 steps, 5.7077915e7 after 579): that point is said converged where
+    CONFIRM_STEPS more steps remove less than DECREMENT_TOL in units of chi^2/dof; one still
+    descending (two steps from the start: the test above) and one near the data are not."""
+    from fitlug.fit._fit import (DECREMENT_TOL, _misfit_scale, _stationary_at_gross_misfit,
+                                 free_parameters, least_squares)
+    from fitlug.fit._problem import Problem
+    from fitlug.fit._result import GROSS_MISFIT
+
+    res, _ = reference_fit
+    prob = res.problem
+    obs = dict(prob.obs)
+    obs["lug_x"] = obs["lug_x"] + 3.0 * jnp.sin(jnp.arange(obs["lug_x"].shape[0]) / 7.0)
+    far = Problem(**{**prob.__dict__, "obs": obs})
+    free = free_parameters(far.lay)
+    end = least_squares(dict(res.params), free, far.lay, far.obs, max_steps=300)
+    assert end.converged and _misfit_scale(end, far) > GROSS_MISFIT
+    got = _stationary_at_gross_misfit(end._replace(converged=False), far, free)
+    assert got.converged
+    c_end, c_got = (float(np.sum(np.asarray(o.r) ** 2)) for o in (end, got))
+    assert c_got <= c_end and c_end - c_got < DECREMENT_TOL * _misfit_scale(end, far)
+    early = least_squares(dict(far.p0), free, far.lay, far.obs, max_steps=2)
+    assert not _stationary_at_gross_misfit(early, far, free).converged
+    near = least_squares(dict(res.params), free, prob.lay, prob.obs, max_steps=300)
+    assert not _stationary_at_gross_misfit(near._replace(converged=False), prob,
+                                           free).converged
+
+
 def _drop_role(rec, role):
     """The recording without the markers of `role` (gone from the marker list too)."""
     kept = [m for m, r in enumerate(rec.roles) if r != role]
