@@ -225,3 +225,26 @@ def test_engine_keeps_analytic_columns_only_where_every_effect_is_at_identity():
     J2 = eng.jacobian(moved, [])
     # the belt sag moves the top run's y: the differenced columns are the all-effects model's
     assert not np.allclose(J2[:, eng.cur_positions["R"]], Jb[:, eng.cur_positions["R"]])
+
+
+def test_entries_whose_final_fit_stops_worse_than_the_base_are_withdrawn():
+    """An engine's rubber belt seen through heavy occlusions (benchmarks/
+    make_engine_variants.py, `occldt`): the search accepted lug_sliding at s_K 1e-11 on a
+    misfit it measured in other units, and the exact final fit with it stopped unconverged
+    at chi2/dof 75 000 for the base model's 8 000, which the user saw as the model 'after'.
+    Such entries are withdrawn (the round says why) and the base model stands."""
+    from types import SimpleNamespace as NS
+
+    from fitlug.explain._final import withdrawn
+
+    base = NS(chi2_per_dof=8040.7)
+    rounds = [{"round": 1, "accepted": "lug_sliding"}, {"round": 2}]
+    assert withdrawn(base, NS(converged=False, chi2_per_dof=75211.2), ["lug_sliding"], rounds)
+    assert "accepted" not in rounds[0] and rounds[0]["withdrawn"].startswith("lug_sliding:")
+    assert "75211" in rounds[0]["withdrawn"] and "8041" in rounds[0]["withdrawn"]
+    assert rounds[1] == {"round": 2}
+    for final in (NS(converged=True, chi2_per_dof=75211.2),    # converged: its own answer
+                  NS(converged=False, chi2_per_dof=5000.0)):  # stopped short, but better
+        keep = [{"round": 1, "accepted": "lug_sliding"}]
+        assert not withdrawn(base, final, ["lug_sliding"], keep)
+        assert keep == [{"round": 1, "accepted": "lug_sliding"}]

@@ -11,3 +11,8 @@ LEFT_MISFIT_Z = 3.0
 #: chi^2/dof at or below which a model extended by family terms counts as modelling the
 #: misfit (verdict 'modelled'; above it the terms are reported as partial)
 MODELLED_CHI2 = 1.3
+
+
+def strong_misfit(chi2, dof, spread) -> bool:
+    """Whether chi^2's excess over the dof is over STRONG_MISFIT_Z spreads: a strong misfit."""
+    return chi2 - dof > STRONG_MISFIT_Z * spread * dof

@@ -44,12 +44,12 @@ from ..model import CATALOG
 from . import _display
 from ._candidates import in_picture, physical, screen, sliding_starts
 from ._correlated import catalog_minus_family_bic, effective_delta_bic, inflation_geo
-from ._criterion import BIC_THRESHOLD, LEFT_MISFIT_Z, MIN_SHARE_REMOVED, STRONG_MISFIT_Z
+from ._criterion import BIC_THRESHOLD, LEFT_MISFIT_Z, MIN_SHARE_REMOVED, strong_misfit
 from .families import after_catalog
 from ._detect import ALPHA, detect
 from ._engine import Engine
 from ._explanation import BASE_EFFECTS, Explanation, Step, as_base
-from ._final import final_fit, polished_theta
+from ._final import final_fit, polished_theta, withdrawn
 from ._locate import locate
 from ._robust import nuisance_result, partial_shift, robust_result
 from ._sliding_direct import direct_candidate
@@ -65,15 +65,10 @@ SLIDING_GRID_STEPS = 4
 DIRECT_SLIDING_CHI2 = 2.0
 
 
-def _strong(chi2, dof, spread) -> bool:
-    """Whether chi^2's excess over the dof is over STRONG_MISFIT_Z spreads: a strong misfit."""
-    return chi2 - dof > STRONG_MISFIT_Z * spread * dof
-
-
 def _noise_reached(fits, dof, eng, spread) -> bool:
     """Whether a candidate fitted this round (not rejected) has left no strong misfit: the
     direct lug_sliding fit could then remove nothing the catalog's rules would take."""
-    return any(why is None and not _strong(out.chi2, dof - eng.n_free(e), spread)
+    return any(why is None and not strong_misfit(out.chi2, dof - eng.n_free(e), spread)
                for e, (out, _, _, why) in fits.items())
 
 
@@ -136,7 +131,7 @@ def _explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA
         to_fit = [e for e in order if lin[e] < BIC_THRESHOLD][:MAX_FITS_PER_ROUND]
         dof_cur = N - k_cur
         excess = chi2 - dof_cur  # chi^2 the misfit carries (noise scale known to ~2 %)
-        strong = _strong(chi2, dof_cur, det_cur.chi2_spread)
+        strong = strong_misfit(chi2, dof_cur, det_cur.chi2_spread)
         # after an effect, a further one must account for what is left, not nibble at it
         # (issue 42: a 16 us 'frame drop' took 3 % of the 8 spreads a lens left)
         share_rule = strong or (bool(accepted) and
@@ -244,6 +239,12 @@ def _explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA
     if len(accepted) >= 2:
         accepted, steps, theta = _backward(eng, accepted, steps, theta, chi2, lnN)
 
+    if accepted:
+        t0 = time.perf_counter()
+        final = final_fit(res, eng, accepted, theta)
+        timing["final_fit"] = time.perf_counter() - t0
+        if withdrawn(res, final, accepted, rounds):  # worse than without them
+            accepted, steps = [], []
     if not accepted:
         timing["total"] = time.perf_counter() - t_start
         if not loc0.parts:  # a marginal test result that points nowhere: noise
@@ -267,9 +268,6 @@ def _explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA
         return Explanation("unexplained", res, final, [], loc0.parts, [], det0, det0, loc0,
                            loc0, rounds, method, timing, geo, sysb, disc)
 
-    t0 = time.perf_counter()
-    final = final_fit(res, eng, accepted, theta)
-    timing["final_fit"] = time.perf_counter() - t0
     det1 = detect(geo, final.residuals, final.dof, sigma_estimated=sig_est, alpha=alpha)
     loc1 = locate(geo, final.residuals, det1)
     if steps:  # the last step's chi2 from the exact final fit

@@ -183,3 +183,19 @@ def covariance_of(flat, fixed, packing, lay, obs) -> np.ndarray:
     if isinstance(J, RowChunks):
         return covariance_normal(normal_of(J)[0])
     return covariance(J)
+
+
+def withdrawn(res, final, accepted, rounds) -> bool:
+    """Whether the accepted entries' exact fit `final` stopped unconverged and worse than
+    the base fit `res` (chi^2/dof): the search took them on a misfit in other units (an
+    engine's rubber belt through heavy occlusions: lug_sliding at s_K 1e-11, the final fit
+    at chi^2/dof 75 000 for the base's 8 000). They are then withdrawn, not claimed: the
+    rounds that accepted them say so instead ('withdrawn': the id and why)."""
+    if final.converged or final.chi2_per_dof <= res.chi2_per_dof:
+        return False
+    for rd in rounds:
+        if rd.get("accepted") in accepted:
+            rd["withdrawn"] = (f"{rd.pop('accepted')}: the final fit with it stopped at "
+                               f"chi2/dof {final.chi2_per_dof:.0f}, above the base "
+                               f"model's {res.chi2_per_dof:.0f}")
+    return True
