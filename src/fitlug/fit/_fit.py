@@ -19,7 +19,6 @@ from . import _glitches
 from ._noise import fourth_differences, noise_from_differences
 from ._boundary import check_effects, check_free, check_noise
 from ._problem import Problem, build_problem
-from ._residuals import residuals
 from ._result import GROSS_MISFIT, FitResult, compute_quantities, not_converged
 
 
@@ -101,7 +100,6 @@ def fit_problem(prob: Problem, p_start: dict | None = None, *, free=None, max_st
             held_steps = held.steps
     out = least_squares(p0, free, prob.lay, prob.obs, max_steps=max_steps)
     out = out._replace(steps=out.steps + held_steps)
-    out = _held_on_its_bound(out, prob, free, max_steps)
     if not out.converged and out.J is not None and np.all(np.isfinite(out.r)):
         # LM stopped at its step limit (a direction the data hardly constrain, e.g. the slip
         # slope beta of a cruise-only recording, creeps on for hundreds of steps): full
@@ -126,29 +124,6 @@ def fit_problem(prob: Problem, p_start: dict | None = None, *, free=None, max_st
     if require_convergence and not (converged and np.isfinite(chi2)):
         raise not_converged(res, out.steps, "check the marker roles and the rig file")
     return res
-
-
-def _held_on_its_bound(out, prob: Problem, free, max_steps: int):
-    """The fit again with beta held at 0 where the solver ended below its physical range
-    by more than a hair. The solver keeps beta >= 0 by a stiff one-sided penalty and the
-    output projects beta onto 0 (_lsq._onto_range); at a gross misfit the data's pull
-    balances that penalty far enough below 0 that the projected parameters no longer give
-    the solver's residuals (an engine's drive-through: chi^2 1.76e7 at the solver's point,
-    1.06e8 at the reported one, so the explanation, the straight runs and the report all
-    worked from a model 6 times worse than the fit said). Held there, the other parameters
-    find the constrained minimum and the residuals are the parameters' own."""
-    if "beta" not in out.packing.names or float(np.ravel(out.params["beta"])[0]) != 0.0 \
-            or not np.all(np.isfinite(out.r)):
-        return out
-    p = {k: jnp.asarray(v) for k, v in out.params.items()}
-    here = float(np.sum(np.asarray(residuals(p, prob.lay, prob.obs)) ** 2))
-    if here - float(np.sum(np.asarray(out.r) ** 2)) <= DECREMENT_TOL * _misfit_scale(out, prob):
-        return out  # a hair below 0 (a cruise that leaves beta free): nothing moves
-    held = least_squares(out.params, [k for k in free if k != "beta"], prob.lay, prob.obs,
-                         max_steps=max_steps)
-    if not np.all(np.isfinite(held.r)):
-        return out
-    return held._replace(steps=out.steps + held.steps)
 
 
 def _stationary_at_gross_misfit(out, prob: Problem, free):
