@@ -352,3 +352,17 @@ def test_a_glitch_round_that_crawls_keeps_the_last_converged_fit():
         for r in np.asarray(rows)[ok & (w == 0)]:
             zero.add((rec.markers[rec.marker_index[r]], round(float(rec.t[r]), 4)))
     assert flagged == zero  # the listing is what the weights hold
+    # the reported parameters give the reported residuals: the solver ended with beta
+    # below its physical range by more than a hair, and its projection onto 0 made the
+    # model 58 times worse than the chi^2 the fit reported (_on_bound: refitted with beta
+    # held there); beta stays a free parameter on its bound, with its covariance column
+    import jax.numpy as jnp
+
+    from fitlug.fit import residuals
+
+    r = np.asarray(residuals({k: jnp.asarray(v) for k, v in res.params.items()},
+                             prob.lay, prob.obs))
+    assert float(r @ r) == pytest.approx(res.chi2, rel=1e-6)
+    assert "beta" in res.packing.names and float(np.ravel(res.params["beta"])[0]) >= 0.0
+    i = res.packing.slices()["beta"].start
+    assert np.isfinite(res.cov[i, i]) and res.cov[i, i] > 0

@@ -15,6 +15,7 @@ from ..model import param_names
 from ..model.effects import CATALOG
 from ._covariance import covariance, covariance_normal, gauss_newton_polish
 from ._lsq import least_squares
+from ._on_bound import held_on_bound
 from . import _glitches
 from ._noise import fourth_differences, noise_from_differences
 from ._boundary import check_effects, check_free, check_noise
@@ -98,18 +99,8 @@ def fit_problem(prob: Problem, p_start: dict | None = None, *, free=None, max_st
         if np.all(np.isfinite(held.r)):
             p0 = {**p0, **held.params}
             held_steps = held.steps
-    out = least_squares(p0, free, prob.lay, prob.obs, max_steps=max_steps)
-    out = out._replace(steps=out.steps + held_steps)
-    if not out.converged and out.J is not None and np.all(np.isfinite(out.r)):
-        # LM stopped at its step limit (a direction the data hardly constrain, e.g. the slip
-        # slope beta of a cruise-only recording, creeps on for hundreds of steps): full
-        # Gauss-Newton steps finish the walk; converged once a further step could remove
-        # less than DECREMENT_TOL of chi^2 (intervals are drawn at delta chi^2 = 1 and more)
-        out, _ = gauss_newton_polish(out, prob.lay, prob.obs,
-                                     tol=DECREMENT_TOL * _misfit_scale(out, prob),
-                                     max_iter=min(12, max_steps // 10))
-    if not out.converged and np.all(np.isfinite(out.r)):
-        out = _stationary_at_gross_misfit(out, prob, free)
+    out = _solve(p0, free, prob, max_steps)
+    out = _finish(out._replace(steps=out.steps + held_steps), prob, free, max_steps)
     chi2 = float(np.sum(out.r ** 2))
     n_data = prob.n_valid
     cov = covariance(out.J) if out.J is not None else covariance_normal(out.normal)
@@ -126,6 +117,31 @@ def fit_problem(prob: Problem, p_start: dict | None = None, *, free=None, max_st
     return res
 
 
+def _solve(p0: dict, free, prob: Problem, max_steps: int):
+    """least_squares, refitted with beta held on its bound where the solver ended far
+    below it (:mod:`._on_bound`: else the reported parameters do not give the residuals)."""
+    out = least_squares(p0, free, prob.lay, prob.obs, max_steps=max_steps)
+    return held_on_bound(out, prob.lay, prob.obs, free, max_steps=max_steps,
+                         tol=DECREMENT_TOL * _misfit_scale(out, prob),
+                         finish=lambda o, fr: _finish(o, prob, fr, max_steps))
+
+
+def _finish(out, prob: Problem, free, max_steps: int):
+    """A fit LM left at its step limit, finished: Gauss-Newton polish, else stationarity at
+    a gross misfit; `out` unchanged when converged."""
+    if not out.converged and out.J is not None and np.all(np.isfinite(out.r)):
+        # LM stopped at its step limit (a direction the data hardly constrain, e.g. the slip
+        # slope beta of a cruise-only recording, creeps on for hundreds of steps): full
+        # Gauss-Newton steps finish the walk; converged once a further step could remove
+        # less than DECREMENT_TOL of chi^2 (intervals are drawn at delta chi^2 = 1 and more)
+        out, _ = gauss_newton_polish(out, prob.lay, prob.obs,
+                                     tol=DECREMENT_TOL * _misfit_scale(out, prob),
+                                     max_iter=min(12, max_steps // 10))
+    if not out.converged and np.all(np.isfinite(out.r)):
+        out = _stationary_at_gross_misfit(out, prob, free)
+    return out
+
+
 def _stationary_at_gross_misfit(out, prob: Problem, free):
     """LM's output at its step limit, said converged where the misfit is gross (chi^2/dof
     above GROSS_MISFIT) and CONFIRM_STEPS more steps remove less than DECREMENT_TOL of
@@ -136,7 +152,7 @@ def _stationary_at_gross_misfit(out, prob: Problem, free):
     scale = _misfit_scale(out, prob)
     if scale <= GROSS_MISFIT:
         return out
-    more = least_squares(out.params, free, prob.lay, prob.obs, max_steps=CONFIRM_STEPS)
+    more = _solve(out.params, free, prob, CONFIRM_STEPS)
     c0, c1 = float(np.sum(out.r ** 2)), float(np.sum(np.asarray(more.r) ** 2))
     if not (np.all(np.isfinite(more.r)) and c0 - c1 < DECREMENT_TOL * scale):
         return out

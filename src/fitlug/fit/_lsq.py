@@ -197,6 +197,9 @@ class LsqOutput(NamedTuple):
     steps: int
     packing: Packing
     normal: np.ndarray | None = None  # J^T J, given when J is not (chunked solve)
+    #: beta where the solver ended, before _onto_range (None: beta not fitted); see
+    #: fitlug.fit._on_bound for what a projection by more than a hair means
+    beta_solver: float | None = None
 
 
 def least_squares(p0: dict, free, lay, obs, *, max_steps: int = 200, rtol: float = 1e-8,
@@ -214,11 +217,12 @@ def least_squares(p0: dict, free, lay, obs, *, max_steps: int = 200, rtol: float
     if chunked and chunkable(p0, lay, packing):
         flat, A, r, ok, steps = _solve_chunked(packing.pack(p0), fixed, lay, obs, packing,
                                                chunk_plan(lay), max_steps, rtol, 1e-9)
+        b = _beta_of(np.asarray(flat), packing)
         flat = _onto_range(np.asarray(flat), packing)
         p = packing.unpack(flat, fixed)
         return LsqOutput(params=p, flat=flat, J=None, r=np.asarray(r),
                          converged=bool(ok), steps=int(steps), packing=packing,
-                         normal=np.asarray(A))
+                         normal=np.asarray(A), beta_solver=b)
     # through a module exported to disk: a new process skips the solver's tracing (~6 s);
     # on bucketed shapes (_buckets): a recording of a new length compiles nothing new
     pb = _buckets.pad(packing.pack(p0), fixed, lay, obs, packing)
@@ -232,10 +236,17 @@ def least_squares(p0: dict, free, lay, obs, *, max_steps: int = 200, rtol: float
                                                pb.flat, pb.fixed, pb.lay, pb.obs)
         flat, J, r = pb.flat_of(flat), pb.J_of(J), pb.r_of(r)
     # unpacked in numpy: jax slices compile once per (offset, size)
+    b = _beta_of(np.asarray(flat), packing)
     flat = _onto_range(np.asarray(flat), packing)
     p = packing.unpack(flat, fixed)
     return LsqOutput(params=p, flat=flat, J=np.asarray(J), r=np.asarray(r),
-                     converged=bool(ok), steps=int(steps), packing=packing)
+                     converged=bool(ok), steps=int(steps), packing=packing, beta_solver=b)
+
+
+def _beta_of(flat: np.ndarray, packing: Packing) -> float | None:
+    if "beta" not in packing.names or "s0" not in packing.names:
+        return None
+    return float(flat[packing.slices()["beta"].start])
 
 
 def _onto_range(flat: np.ndarray, packing: Packing) -> np.ndarray:
@@ -245,7 +256,8 @@ def _onto_range(flat: np.ndarray, packing: Packing) -> np.ndarray:
     recording that does not fix beta (a cruise) balances a hair outside it: the issue saw
     beta = -9.7e-9. The projection moves beta by that hair (far inside its error), so
     that the least squares never reports a negative beta; its residuals and Jacobian are
-    those of the solver's point (the difference is below the penalty's tolerance)."""
+    those of the solver's point. Where the hair is more than that (a gross misfit pulls
+    beta far below 0) the caller refits with beta held at 0 (:mod:`._on_bound`)."""
     if "beta" not in packing.names or "s0" not in packing.names:
         return flat
     i = packing.slices()["beta"].start

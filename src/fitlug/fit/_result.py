@@ -386,7 +386,8 @@ def compute_quantities(res_params, packing, flat, cov, lay, mass_kg, fixed,
     out = {}
     for k, v in vals.items():
         g = np.asarray(jac[k]) if pb is None else np.asarray(jac[k])[pb.cols]
-        var = float(g @ cov @ g)
+        with np.errstate(invalid="ignore"):  # k = inf at beta = 0: no error (not identifiable)
+            var = float(g @ cov @ g)
         out[k] = Estimate(float(v), float(np.sqrt(max(var, 0.0))))
     from ._identifiable import mark_not_identifiable
 
