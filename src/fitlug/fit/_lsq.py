@@ -244,6 +244,8 @@ def least_squares(p0: dict, free, lay, obs, *, max_steps: int = 200, rtol: float
 
 
 def _beta_of(flat: np.ndarray, packing: Packing) -> float | None:
+    """beta in the free vector `flat`, where the slip law's range applies (s0 and beta
+    both fitted); else None."""
     if "beta" not in packing.names or "s0" not in packing.names:
         return None
     return float(flat[packing.slices()["beta"].start])
@@ -258,12 +260,10 @@ def _onto_range(flat: np.ndarray, packing: Packing) -> np.ndarray:
     that the least squares never reports a negative beta; its residuals and Jacobian are
     those of the solver's point. Where the hair is more than that (a gross misfit pulls
     beta far below 0) the caller refits with beta held at 0 (:mod:`._on_bound`)."""
-    if "beta" not in packing.names or "s0" not in packing.names:
-        return flat
-    i = packing.slices()["beta"].start
-    if flat[i] < 0:
+    b = _beta_of(flat, packing)
+    if b is not None and b < 0:
         flat = flat.copy()
-        flat[i] = 0.0
+        flat[packing.slices()["beta"].start] = 0.0
     return flat
 
 

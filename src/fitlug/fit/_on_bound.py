@@ -19,8 +19,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from ._lsq import LsqOutput, least_squares
-from ..model._physics import beta_max
+from ._lsq import LsqOutput, bound_residuals, least_squares
 
 
 def held_on_bound(out: LsqOutput, lay, obs, free, *, max_steps: int, tol: float,
@@ -30,14 +29,11 @@ def held_on_bound(out: LsqOutput, lay, obs, free, *, max_steps: int, tol: float,
     `finish(out, free)` completes an unconverged held fit as the caller completes its own
     (polish, stationarity at a gross misfit). The output has `out`'s packing; converged is
     the held fit's."""
-    names = out.packing.names
-    if "beta" not in names or "s0" not in names or out.beta_solver is None:
+    if out.beta_solver is None or out.beta_solver >= 0.0:  # beta not fitted, or in range
         return out
-    b = float(out.beta_solver)
-    if b >= 0.0:
-        return out
-    ref = abs(float(np.ravel(beta_max(np.asarray(out.params["s0"])))[0])) + 1e-12
-    pen = 1e3 * (-b) / ref
+    # the lower bound's penalty row (the last) at the solver's point, as the solver saw it
+    pen = float(np.ravel(bound_residuals({"beta": jnp.asarray(out.beta_solver, float),
+                                          "s0": jnp.asarray(out.params["s0"], float)}))[-1])
     if not (np.all(np.isfinite(out.r)) and 2.0 * pen * pen > tol):
         return out
     rest = [k for k in free if k != "beta"]
