@@ -33,13 +33,14 @@ ramp (the lugs that landed during the ramp have lifted off: the brush has settle
 end, each end moved inward to the nearest passage (where the cruise ends in a gap of the
 passages, the marked lugs on the ground or hidden, the last passage before the gap; at
 least MIN_WINDOW_S remain): psi is read where passages pin it, never from the spline's
-prior across a gap, and the window never reaches into a ramp. The slip is
-1 - (X(b) - X(a)) / (psi(b) - psi(a)) there. Its error holds the spline's (the passages'
-scatter and, where no passage lies inside the window, the prior), the body's noise and
-the surge: the
-'slip displacement' X - (1 - s) psi wanders about its line while the body surges on its
-lugs, so a slip over one window differs from another's by about sqrt(2) times that
-scatter over the belt's travel.
+prior across a gap, and the window never reaches into a ramp. The belt's speed is read
+over that window, the body's over the whole cruise (a belt driven steadily, the body
+carrying the slip's changes), and the slip is 1 - v_body / v_belt. Its error holds the
+spline's (the passages' scatter and, where no passage lies inside the window, the
+prior), the body's noise, the belt speed's trend carried from the window to the cruise,
+and the surge: the 'slip displacement' X - (1 - s) psi wanders about its line while the
+body surges on its lugs, so a slip over one window differs from another's by about
+sqrt(2) times that scatter over the belt's travel.
 
 Measured on the contact-dynamics engine's ten recordings end to end (docs/engine.md,
 2026-11-28): all within 2.3 of its errors of the engine's own slip, errors 2.4-12 % of the
@@ -170,8 +171,8 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
     passage pairs, or less than half the cruise between the first and last passages. Else
     a dict: slip, std, v_body_mm_s, v_belt_mm_s (and stds) over window_s, visits (lug
     markers that passed), passages, pairs (rows kept), pair_rms_mm (their scatter),
-    surge_wander_mm,
-    lugs_on_belt (N as the passages one belt length apart count it, or None), pitch_mm
+    surge_wander_mm, window_shift (the slip's error for the body's speed taken over
+    cruise_s, the belt's over window_s), lugs_on_belt (N as the passages one belt length apart count it, or None), pitch_mm
     (the rig's, else the top run's), pitch_top_run_mm (the spacing of markers seen on the
     top run together, or None), R_mm, method 'belt clock'."""
     from ..model._model import ctx_of, kinematics
@@ -321,16 +322,20 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
         wander = float(np.std(Yd - np.polyval(np.polyfit(te, Yd, 1), te)))
     if wander > WANDER_MAX * pitch:  # it steps: the belt lengths were miscounted
         return None
+    # the belt is driven at a steady speed and the body carries the slip's changes (a
+    # brush settling over its first contact periods: the engine's rubber belt slips 0.059
+    # and 0.078 over two), so the body's speed over the cruise against the belt's over
+    # the window (the cruise itself where passages reach its ends). The error of that
+    # (window_shift): the belt's speed carried from the window's middle to the cruise's
+    # at the trend between the window's halves
     dt = tb - ta
-    v_body, shift = dX / dt, 0.0
-    if t2 - t1 > dt + dt_frame:
-        # a window shorter than the cruise: the belt is driven at a steady speed and the
-        # body carries the slip's changes (a brush settling over its first contact
-        # periods: the engine's rubber belt slips 0.059 and 0.078 over two), so the body's
-        # speed over the whole cruise; the difference stays in the error, as the top run's
-        v_body = (float(np.interp(t2, ut, tx)) - float(np.interp(t1, ut, tx))) / (t2 - t1)
-        shift = abs((1.0 - v_body * dt / dpsi) - slip)
-        slip = 1.0 - v_body * dt / dpsi
+    v_body = (float(np.interp(t2, ut, tx)) - float(np.interp(t1, ut, tx))) / (t2 - t1)
+    tm = 0.5 * (ta + tb)
+    pa, pm, pb = basis([ta, tm, tb]) @ coef
+    trend = ((pb - pm) - (pm - pa)) / (0.5 * dt) ** 2  # mm/s^2
+    drift = abs(trend * (0.5 * (t1 + t2) - tm))  # mm/s
+    shift = v_body * dt / dpsi * drift / (dpsi / dt)
+    slip = 1.0 - v_body * dt / dpsi
     std = float(np.sqrt(var_psi * (v_body * dt / dpsi ** 2) ** 2 + var_X / dpsi ** 2
                         + 2.0 * (wander / dpsi) ** 2 + ((1.0 - slip) * pitch_rel) ** 2
                         + shift ** 2))
@@ -339,7 +344,7 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
             "v_belt_std": float(np.sqrt(var_psi) / dt), "window_s": [ta, tb],
             "visits": int(len(np.unique(ev[:, 2]))), "passages": int(len(ev)),
             "pairs": int(np.sum(keep)),
-            "pair_rms_mm": sig_c, "surge_wander_mm": wander, "window_shift": shift,
+            "pair_rms_mm": sig_c, "surge_wander_mm": wander, "window_shift": float(shift),
             "cruise_s": [t1, t2],
             "margin_mm": 0.0, "pitch_mm": pitch, "pitch_top_run_mm": seen_pitch, "R_mm": R,
             "method": "belt clock",
