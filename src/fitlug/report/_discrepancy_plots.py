@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _format as F
+from ._figure import log_axis
 
 SHARED_SCALE_MAX_RATIO = 30.0  # before/after maps share a colour scale below this ratio
 
@@ -91,7 +92,8 @@ def plot_spectra(spectra: dict):
     for k, col in (("before", "#d95f02"), ("after", "#1b9e77")):
         s = spectra.get(k)
         if s and s.get("f_hz"):
-            ax.semilogy(s["f_hz"], s["power"], "-", lw=1, color=col, label=k)
+            ax.plot(s["f_hz"], s["power"], "-", lw=1, color=col, label=k)
+    log_axis(ax)
     for key, lab, c in (("lug_passing_hz", "lug passing", "C3"),
                         ("wheel_revolution_hz", "wheel revolution", "C2")):
         f = s0.get(key)
@@ -129,7 +131,7 @@ def plot_breakdown(before: dict, after: dict | None):
         if a:
             ax.bar(x + 0.2, [clip(a.get(n, {}).get("misfit_chi2")) for n in names], 0.4,
                    label="after", color="#1b9e77")
-        ax.set_yscale("log")
+        log_axis(ax)
         ax.set_xticks(x, [str(n).replace("_", " ") for n in names], rotation=35, ha="right",
                       fontsize=8)
         ax.set_title(f"by {dim}", fontsize=9)

@@ -55,7 +55,7 @@ def plot_velocity(st: dict, ax=None):
     ax.plot(t, v, ".", ms=1.5, color="#999999", label="data (central differences)")
     ax.plot(st["fine_t"], st["fine_v"], "-", color="#1f77b4", lw=1.2, label="body speed v")
     ax.plot(st["fine_t"], st["fine_vt"], "--", color="#d62728", lw=1.0,
-            label="belt speed $v_t = v/(1-s)$")
+            label="belt speed vₜ = v/(1−s)")
     ax.set_xlabel("t (s)")
     ax.set_ylabel("velocity (mm/s)")
     ax.set_title("Body velocity")

@@ -79,7 +79,7 @@ def plot_slip_posterior(samples, ax=None, reference: float | None = None,
     if reference is not None:
         ax.axvline(reference, color="#cb181d", lw=1.2, ls="-.",
                    label=f"reference paper {reference:g}")
-    ax.set_xlabel("steady slippage $s_0$")
+    ax.set_xlabel("steady slippage s₀")
     ax.set_yticks([])
     ax.legend(frameon=False, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.ticklabel_format(axis="x", useOffset=False)
