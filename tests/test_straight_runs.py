@@ -287,3 +287,40 @@ def test_a_clock_the_top_run_contradicts_is_not_taken():
     got = choose(wide, top2)
     assert got["method"] == "top run" and got["belt_clock"]["std"] == wide["std"]
     assert choose(dict(wide, std=PREFER_TOP * 0.99 * 0.0016), top2)["method"] == "belt clock"
+
+
+def test_the_posterior_of_a_path_the_model_does_not_describe_is_its_gaussian_limit(robust):
+    """With the slip read off the straight runs, 'auto' samples the slip law's Gaussian
+    limit without the linearisation check (the exact marginal of a model at chi^2/dof in
+    the thousands is 10^6 in chi^2 off it and took 1 300 steps, 170 s, on an engine
+    recording for quantities reported not identifiable); the chain converges, and the slip
+    law's quantities keep the explanation's reason."""
+    from fitlug.posterior import sample_posterior
+
+    out, _ = robust
+    assert out.robust["headline"] == "straight runs"
+    post = sample_posterior(out, seed=0)
+    mc = post.mcmc_json()
+    assert mc["method"].startswith("gaussian") and "straight runs" in mc["method"]
+    assert mc["linearity_check"] is None and mc["converged"], mc["message"]
+    for k in ("stiffness_N_per_mm", "rolling_resistance"):
+        assert post.estimates[k].value is None
+        assert "does not describe the path" in post.estimates[k].reason
+    # asked for, the exact marginal is still sampled after its check
+    assert sample_posterior(out, seed=0, method="exact", max_steps=200).check is not None
+
+
+def test_the_clock_sentence_names_the_belts_window_and_the_bodys_cruise():
+    """Where the belt's speed is read over a shorter window than the body's cruise, the
+    report's sentence gives both spans; where they are the same, one."""
+    from fitlug.report._straight_text import straight_sentence
+
+    st = {"method": "belt clock", "passages": 700, "visits": 4, "lugs_on_belt": 22,
+          "v_belt_mm_s": 148.69, "v_body_mm_s": 139.11, "window_s": [2.07, 3.13],
+          "cruise_s": [2.07, 3.85]}
+    s = straight_sentence(st)
+    assert "(148.69 mm/s from 2.07 to 3.13 s)" in s and "cruise from 2.07 to 3.85 s" in s
+    assert "trend" in s
+    s = straight_sentence({**st, "cruise_s": [2.07, 3.13]})
+    assert "from 2.07 to 3.13 s)" not in s and "cruise from 2.07 to 3.13 s" in s
+    assert "scatter and the body's surge" in s

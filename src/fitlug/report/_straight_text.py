@@ -10,15 +10,18 @@ def straight_sentence(st: dict) -> str:
     belt's own clock (method 'belt clock') or the top run's visits."""
     if st.get("method") == "belt clock":
         w = st.get("window_s") or [float("nan")] * 2
+        c = st.get("cruise_s") or w
         n = st.get("lugs_on_belt")
+        same = abs(c[0] - w[0]) < 0.02 and abs(c[1] - w[1]) < 0.02
         return ("the model does not describe the path, so the slip is read off the belt's own "
                 "clock: the lug markers' passages of the same places in the body's frame "
                 f"({st['passages']} passages of {st['visits']} markers), whole lug pitches "
                 + (f"and belt lengths of {n} lugs " if n else "")
-                + f"apart, give the belt's travel ({st['v_belt_mm_s']:.2f} mm/s) against "
-                f"the body's ({st['v_body_mm_s']:.2f} mm/s) over the cruise from "
-                f"{w[0]:.2f} to {w[1]:.2f} s; its error carries the passages' scatter and "
-                "the body's surge")
+                + f"apart, give the belt's travel ({st['v_belt_mm_s']:.2f} mm/s"
+                + ("" if same else f" from {w[0]:.2f} to {w[1]:.2f} s")
+                + f") against the body's ({st['v_body_mm_s']:.2f} mm/s) over the cruise "
+                f"from {c[0]:.2f} to {c[1]:.2f} s; its error carries the passages' scatter"
+                + ("" if same else ", the belt speed's trend") + " and the body's surge")
     return ("the model does not describe the path, so the slip is read off the straight "
             f"runs: the body's mean speed at cruise ({st['v_body_mm_s']:.2f} mm/s) "
             f"against the belt's on the top run ({st['v_belt_mm_s']:.2f} mm/s, "
