@@ -35,12 +35,13 @@ passages, the marked lugs on the ground or hidden, the last passage before the g
 least MIN_WINDOW_S remain): psi is read where passages pin it, never from the spline's
 prior across a gap, and the window never reaches into a ramp. The belt's speed is read
 over that window, the body's over the whole cruise (the belt is driven: its speed
-changes over a cruise half as much as the body's, which carries the slip's changes), and the slip is 1 - v_body / v_belt. Its error holds the
-spline's (the passages' scatter and, where no passage lies inside the window, the
-prior), the body's noise, the belt speed's trend carried from the window to the cruise,
-and the surge: the 'slip displacement' X - (1 - s) psi wanders about its line while the
-body surges on its lugs, so a slip over one window differs from another's by about
-sqrt(2) times that scatter over the belt's travel.
+changes over a cruise half as much as the body's, which carries the slip's changes), and
+the slip is 1 - v_body / v_belt. Its error holds the spline's (the passages' scatter
+and, where no passage lies inside the window, the prior), the body's noise, the belt
+speed's trend carried from the window to the cruise, and the surge: the 'slip
+displacement' X - (1 - s) psi wanders about its line while the body surges on its lugs,
+so a slip over one window differs from another's by about sqrt(2) times that scatter over
+the belt's travel.
 
 Measured on the contact-dynamics engine's ten recordings end to end (docs/engine.md,
 2026-11-28): all within 2.3 of its errors of the engine's own slip, errors 2.4-12 % of the
@@ -172,7 +173,8 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
     a dict: slip, std, v_body_mm_s, v_belt_mm_s (and stds) over window_s, visits (lug
     markers that passed), passages, pairs (rows kept), pair_rms_mm (their scatter),
     surge_wander_mm, window_shift (the slip's error for the body's speed taken over
-    cruise_s, the belt's over window_s), lugs_on_belt (N as the passages one belt length apart count it, or None), pitch_mm
+    cruise_s, the belt's over window_s), lugs_on_belt (N as the passages one belt length
+    apart count it, or None), pitch_mm
     (the rig's, else the top run's), pitch_top_run_mm (the spacing of markers seen on the
     top run together, or None), R_mm, method 'belt clock'."""
     from ..model._model import ctx_of, kinematics
@@ -302,15 +304,17 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
     tb = float(et[-1]) if tb > T1 else tb
     if not (T0 <= ta < tb <= T1) or tb - ta < min(0.5 * (t2 - t1), MIN_WINDOW_S):
         return None
-    Bab = basis([ta, tb])
-    dpsi = float(np.diff(Bab @ coef)[0])
-    g = Bab[1] - Bab[0]
+    tm = 0.5 * (ta + tb)
+    B3 = basis([ta, tm, tb])  # the window's ends and its middle (the trend, below)
+    pa, pm, pb = B3 @ coef
+    dpsi = float(pb - pa)
+    g = B3[2] - B3[0]
     var_psi = float(g @ cov @ g)
     Xa, Xb = (float(np.interp(tq, ut, tx)) for tq in (ta, tb))
     dX = Xb - Xa
     if not (dpsi > 0 and np.isfinite(dpsi)):
         return None
-    slip = 1.0 - dX / dpsi
+    s_window = 1.0 - dX / dpsi  # the slip over the window itself (the surge's line)
     # body noise at the ends: the frame's translation from its markers
     sb = float(prob.noise.get("body", 0.005)) if isinstance(prob.noise, dict) else 0.005
     var_X = 2.0 * sb ** 2
@@ -318,7 +322,7 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
     te = et[(et >= ta) & (et <= tb)]
     wander = 0.0
     if len(te) >= 8:
-        Yd = np.interp(te, ut, tx) - (1.0 - slip) * (basis(te) @ coef)
+        Yd = np.interp(te, ut, tx) - (1.0 - s_window) * (basis(te) @ coef)
         wander = float(np.std(Yd - np.polyval(np.polyfit(te, Yd, 1), te)))
     if wander > WANDER_MAX * pitch:  # it steps: the belt lengths were miscounted
         return None
@@ -331,8 +335,6 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
     # at the trend between the window's halves
     dt = tb - ta
     v_body = (float(np.interp(t2, ut, tx)) - float(np.interp(t1, ut, tx))) / (t2 - t1)
-    tm = 0.5 * (ta + tb)
-    pa, pm, pb = basis([ta, tm, tb]) @ coef
     trend = ((pb - pm) - (pm - pa)) / (0.5 * dt) ** 2  # mm/s^2
     drift = abs(trend * (0.5 * (t1 + t2) - tm))  # mm/s
     shift = v_body * dt / dpsi * drift / (dpsi / dt)
@@ -341,7 +343,7 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
                         + 2.0 * (wander / dpsi) ** 2 + ((1.0 - slip) * pitch_rel) ** 2
                         + shift ** 2))
     return {"slip": float(slip), "std": std, "v_body_mm_s": v_body,
-            "v_body_std": float(np.sqrt(var_X) / dt), "v_belt_mm_s": dpsi / dt,
+            "v_body_std": float(np.sqrt(var_X) / (t2 - t1)), "v_belt_mm_s": dpsi / dt,
             "v_belt_std": float(np.sqrt(var_psi) / dt), "window_s": [ta, tb],
             "visits": int(len(np.unique(ev[:, 2]))), "passages": int(len(ev)),
             "pairs": int(np.sum(keep)),

@@ -109,7 +109,8 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     names = slip_law_parameters(res)
     user_lp = user_log_prior(priors, names, res)
     marg, temper = tempered_marginal(res, names, batch=walkers // 2)
-    straight = (getattr(res, "robust", None) or {}).get("headline") == "straight runs"
+    robust = getattr(res, "robust", None) or {}
+    straight = robust.get("headline") == "straight runs"
     # the slip read off the straight runs: the model does not describe the path, its slip
     # law's quantities are reported not identifiable (explain._robust.SLIP_LAW) and the
     # exact marginal of that model (its Gauss-Newton profile 10^6 in chi^2 off its
@@ -120,7 +121,7 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     if method == "auto":
         use = ("gaussian" if straight or check["max_delta_chi2"] <= LINEARITY_TOL
                else "exact")
-        if (getattr(res, "robust", None) or {}).get("method") == "family term":
+        if robust.get("method") == "family term":
             # the model extended by a family term (fitlug.explain.families) has no exact
             # marginal here (res.problem is the catalog's model, without the term): the
             # Gaussian limit at the extended fit, stretched to its covariance
@@ -180,7 +181,7 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     for k, why in unident.items():  # never a number for what the data cannot fix
         if k in estimates:
             estimates[k] = Estimate(None, None, reason=why)
-    if (getattr(res, "robust", None) or {}).get("headline") == "straight runs":
+    if straight:
         # the slip law's quantities of a model that does not describe the path: left not
         # identifiable as the explanation said (explain._robust.SLIP_LAW)
         for k, e in res.quantities.items():
@@ -189,7 +190,7 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     t3 = time.perf_counter()
     desc = {"gaussian": "emcee on the Gaussian limit of the linearly marginalised likelihood",
             "exact": "emcee on the exact-model, linearly marginalised likelihood"}[use]
-    if straight and check is None:
+    if check is None:  # 'auto' on a straight-runs headline: no check was made
         desc += (" (the slip read off the straight runs: the model does not describe the "
                  "path, its slip law is sampled only in its Gaussian limit)")
     if where and use == "gaussian":
@@ -198,11 +199,11 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     elif where:
         desc += "; sampled in the slip law's own coordinates from the marginal's mode"
     how = "posterior (emcee)"
-    headline = (getattr(res, "robust", None) or {}).get("headline")
+    headline = robust.get("headline")
     if headline:  # a nuisance taken out, a free speed profile: the fit is another model's
-        how += "; " + res.robust["uncertainty_method"]
+        how += "; " + robust["uncertainty_method"]
         if temper["factor"] > 1.01:  # an error 0.5 % wider or more
-            what = ("the family term's" if res.robust.get("method") == "family term"
+            what = ("the family term's" if robust.get("method") == "family term"
                     else "the unexplained misfit's" if headline == "straight runs"
                     else "the nuisance's own")
             how += (f"; likelihood stretched (steady-slip error x "
