@@ -40,9 +40,10 @@ The rule (a test on standardised residuals with the noise known from the data):
 
 :func:`fitlug.fit.fit` sets the flagged samples' weights to zero, refits, and repeats the
 search on the new residuals (flags are recomputed from scratch each round, so a flag
-caused by the first fit's distortion is dropped) until the set no longer changes, at
-most MAX_ROUNDS rounds. The problem keeps the zero weights, so the explanation's
-candidate fits and the posterior see the clean problem.
+caused by the first fit's distortion is dropped) until the set no longer changes (at most
+SETTLED_FLIPS samples, or 2 % of the set, flip across the threshold), at most MAX_ROUNDS
+rounds. The problem keeps the zero weights, so the explanation's candidate fits and the
+posterior see the clean problem.
 """
 
 from __future__ import annotations
@@ -59,6 +60,8 @@ from ..model import predict, predict_from_nodes
 ALPHA = 0.01
 MAX_RUN = 3
 MAX_ROUNDS = 3
+#: a set whose refit flips at most this many samples (or 2 % of it) is stable
+SETTLED_FLIPS = 2
 NEAR, FAR = 2, 5  # neighbours used: frames NEAR..FAR away on each side
 _MAX_PASSES = 20
 COMMON = 3  # markers flagged in one frame: a common cause, not glitches
