@@ -339,6 +339,10 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
     drift = abs(trend * (0.5 * (t1 + t2) - tm))  # mm/s
     shift = v_body * dt / dpsi * drift / (dpsi / dt)
     slip = 1.0 - v_body * dt / dpsi
+    # the surge's term is the window's (sqrt 2 x wander over the window's travel), though
+    # the body's speed is over the longer cruise: scaled to the cruise it halves the error
+    # and leaves the belt's speed-up over the cruise's part without passages uncovered (2
+    # of 14 engine readings then beyond 3 sigma; docs/engine.md, session 31)
     std = float(np.sqrt(var_psi * (v_body * dt / dpsi ** 2) ** 2 + var_X / dpsi ** 2
                         + 2.0 * (wander / dpsi) ** 2 + ((1.0 - slip) * pitch_rel) ** 2
                         + shift ** 2))

@@ -154,9 +154,8 @@ def _explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA
         bar_bic = BIC_THRESHOLD  # what a candidate must beat: the threshold, then the best
 
         def give_up(c2, predicted, k_e):
-            # even 3 times the Gauss-Newton prediction cannot bring it below the bar, or,
-            # where the share rule holds, cannot remove MIN_SHARE_REMOVED of the excess
-            # (an engine recording's lug_sliding took 30 steps, 13 s, to remove 1 %)
+            # even 3 times the Gauss-Newton prediction cannot beat the bar or (share rule)
+            # remove its share of the excess (an engine's lug_sliding: 30 steps for 1 %)
             reach = chi2 - (c2 - 3.0 * predicted)
             return (reach - k_e * lnN < -bar_bic
                     or (share_rule and reach < MIN_SHARE_REMOVED * max(excess, reach)))
@@ -164,11 +163,10 @@ def _explain(res, *, seed: int = 0, progress: bool = False, alpha: float = ALPHA
         for i_fit, e in enumerate(to_fit):
             _progress.note("explaining", f"round {rnd + 1}: fitting candidate {i_fit + 1}/"
                            f"{len(to_fit)} ({e})")
-            t1 = time.perf_counter()
-            k_e = eng.n_free(e)
-            out = eng.fit(_start(eng, scr[e], chi2, extra + eng.free_names(e)),
-                          extra + eng.free_names(e),
-                          give_up=lambda c2, pr, k_e=k_e: give_up(c2, pr, k_e))
+            t1, k_e = time.perf_counter(), eng.n_free(e)
+            stop = lambda c2, pr, k_e=k_e: give_up(c2, pr, k_e)  # noqa: E731
+            out = eng.fit(_start(eng, scr[e], chi2, extra + eng.free_names(e), stop),
+                          extra + eng.free_names(e), give_up=stop)
             if e == "lug_sliding" and direct and \
                     out.chi2 > DIRECT_SLIDING_CHI2 * (dof_cur - k_e) and \
                     not _noise_reached(fits, dof_cur, eng, det_cur.chi2_spread):
@@ -376,9 +374,9 @@ def _method(res) -> str:
     return info["label"] if info else "least squares"
 
 
-def _start(eng, scr, chi2_cur, names):
+def _start(eng, scr, chi2_cur, names, give_up=None):
     """The best of: the screening's Gauss-Newton step, its effect part alone, half of that
-    (and, for lug_sliding, the grid of :func:`._candidates.sliding_starts`).
+    (and, for lug_sliding, the grid of :func:`._candidates.sliding_starts`; `give_up`).
 
     A large nonlinear effect can make the linear step overshoot; the fit then starts
     from whichever of these is lowest in chi^2.
@@ -396,7 +394,7 @@ def _start(eng, scr, chi2_cur, names):
         # the fit (the first moves the belt coordinates by millimetres, the next ones
         # settle the law; after one step the order of the grid points is still wrong)
         for th in sliding_starts(eng, cur):
-            out = eng.fit(th, names, max_iter=SLIDING_GRID_STEPS)
+            out = eng.fit(th, names, max_iter=SLIDING_GRID_STEPS, give_up=give_up)
             if np.isfinite(out.chi2) and out.chi2 < best_c2:
                 best, best_c2 = out.theta, out.chi2
     return best
