@@ -324,3 +324,25 @@ def test_the_clock_sentence_names_the_belts_window_and_the_bodys_cruise():
     s = straight_sentence({**st, "cruise_s": [2.07, 3.13]})
     assert "from 2.07 to 3.13 s)" not in s and "cruise from 2.07 to 3.13 s" in s
     assert "scatter and the body's surge" in s
+
+
+def test_the_final_fit_of_a_path_the_model_does_not_describe_runs_no_glitch_rounds(
+        stiff, monkeypatch):
+    """The final fit's glitch rounds give back the samples a base model without the
+    marker's place on the lug took for glitches; where even the final model misfits
+    grossly, the glitch rule flags the misfit's structure (a different set each round) and
+    the rounds' refits crawled (pitch14_n30: 486 steps, 26 s), so they are not run."""
+    import fitlug.fit._fit as fit_module
+    from fitlug.explain._engine import Engine
+    from fitlug.explain._final import final_fit
+
+    res, _ = stiff
+    assert res.problem.init_info.get("glitches")  # the base fit's rounds flagged samples
+    calls = []
+    monkeypatch.setattr(fit_module, "remove_glitches",
+                        lambda r, **kw: calls.append(kw) or r)
+    eng = Engine(res)
+    final = final_fit(res, eng, ["lug_shear"], eng.theta0)
+    assert final.chi2_per_dof > GROSS_CHI2 and calls == []
+    # the base fit's flags stay on the final problem
+    assert final.problem.init_info["glitches"] == res.problem.init_info["glitches"]
