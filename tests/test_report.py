@@ -403,3 +403,31 @@ def test_report_draws_without_mathtext(folder, monkeypatch):
     monkeypatch.setattr(matplotlib.mathtext.MathTextParser, "parse", refuse)
     write_report(folder)
     assert (folder / "report.html").stat().st_size > 0
+
+
+def test_the_estimates_say_a_slip_read_off_the_straight_runs_comes_from_them():
+    """Where the model does not describe the path, the headline slip (and Δl′ from it) is
+    the straight runs' reading, which the posterior only samples: the table's 'from' says
+    so; other quantities keep their source; without that headline, 'posterior'."""
+    import re
+
+    from fitlug.report._section_estimates import _estimates
+
+    q = {"value": 0.02, "std": 0.0015, "ci95": [0.017, 0.023]}
+    fj = {"slip": q, "delta_l_mm": {**q, "value": 0.3}, "mcmc": {"n_steps": 400},
+          "geometry": {"R_mm": 24.4}, "geometry_std": {"R_mm": 0.3},
+          "uncertainty_method": "posterior (emcee); the slip read off the straight runs",
+          "discrepancy": {"straight_runs": {"method": "belt clock", "slip": 0.02}}}
+    st = {"meta": {"least_squares": {}}}
+
+    def sources(html):
+        rows = re.findall(r"<tr>(.*?)</tr>", html, re.S)
+        cells = [re.findall(r"<t[dh][^>]*>(.*?)</t[dh]>", r, re.S) for r in rows]
+        return {c[0]: c[4] for c in cells if len(c) >= 5}
+
+    got = sources(_estimates(fj, st))
+    assert got["steady slippage s₀"] == "straight runs (belt clock)"
+    assert got["lug deflection Δl′"] == "straight runs (belt clock)"
+    assert got["wheel pitch radius R"] == "least squares"
+    fj["uncertainty_method"] = "posterior (emcee)"  # straight runs not the headline
+    assert sources(_estimates(fj, st))["steady slippage s₀"] == "posterior"

@@ -11,6 +11,11 @@ from ._section_summary import _LSQ_NAME, _QUANTITIES, _not_identifiable, _pm, _s
 def _estimates(fj, st) -> str:
     lsq = st["meta"].get("least_squares", {})
     src = "posterior" if fj.get("mcmc") else "least squares"
+    # a slip read off the straight runs (the model does not describe the path): that is
+    # where it and Δl′ come from, whatever samples them after
+    runs = (fj.get("discrepancy") or {}).get("straight_runs") or {}
+    if runs and "straight runs" not in (fj.get("uncertainty_method") or ""):
+        runs = {}
     rows = []
     for key, label, unit in _QUANTITIES:
         e = fj.get(key)
@@ -20,8 +25,10 @@ def _estimates(fj, st) -> str:
                          _pm(ls) if ls.get("value") is not None and key in fj else ""])
             continue
         ci = e.get("ci95") or [None, None]
-        rows.append([label, unit, _pm(e), F.interval(ci[0], ci[1], e.get("std"), 95), src,
-                     _pm(ls)])
+        how = f"straight runs ({runs.get('method', '')})" \
+            if runs and key in ("slip", "delta_l_mm") else src
+        rows.append([label, unit, _pm(e), F.interval(ci[0], ci[1], e.get("std"), 95),
+                     _e(how), _pm(ls)])
     geo, gsd = fj.get("geometry") or {}, fj.get("geometry_std") or {}
     names = {"R_mm": "wheel pitch radius R", "D_mm": "wheel distance D",
              "e_mm": "marker offset e", "pitch_mm": "lug pitch p"}
