@@ -306,6 +306,8 @@ def test_the_posterior_of_a_path_the_model_does_not_describe_is_its_gaussian_lim
     for k in ("stiffness_N_per_mm", "rolling_resistance"):
         assert post.estimates[k].value is None
         assert "does not describe the path" in post.estimates[k].reason
+        # the same reason where the CLI and fit.json read it (was the chain's own)
+        assert post.not_identifiable[k] == post.estimates[k].reason
     # asked for, the exact marginal is still sampled after its check
     assert sample_posterior(out, seed=0, method="exact", max_steps=200).check is not None
 

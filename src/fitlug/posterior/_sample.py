@@ -187,6 +187,7 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
         for k, e in res.quantities.items():
             if k in estimates and e.value is None and e.reason:
                 estimates[k] = e
+                unident[k] = e.reason  # the reason printed and in fit.json: the same
     t3 = time.perf_counter()
     desc = {"gaussian": "emcee on the Gaussian limit of the linearly marginalised likelihood",
             "exact": "emcee on the exact-model, linearly marginalised likelihood"}[use]
