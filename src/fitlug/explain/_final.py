@@ -25,9 +25,9 @@ from ..fit._residuals import Packing
 from ..fit._rowchunks import RowChunks
 from ..fit._result import compute_quantities
 from ._engine import jacobian_of
+from ._criterion import GROSS_CHI2
 from ._explanation import BASE_EFFECTS
 from ._normal import normal_of, pinv_factor
-from ._robust import GROSS_CHI2
 
 MAX_STEPS = 8
 TOL = 1e-6

@@ -40,6 +40,7 @@ from ..fit import covariance as _covariance_dense
 from ..fit._covariance import covariance_normal
 from ..fit._rowchunks import RowChunks
 from ..fit._result import compute_quantities
+from ._criterion import GROSS_CHI2
 from ._detect import ALPHA
 from ._engine import jacobian_of
 from ._image_motion import ImageMotion
@@ -174,14 +175,6 @@ def robust_result(res, geo: Geometry, alpha: float = ALPHA):
                     ), method
 
 
-#: chi^2/dof of the final fit above which the model is taken not to describe the path
-#: (a contact-dynamics track: thousands on the engine's recordings) and the slip is read
-#: off the straight runs (explain._straight) where the recording allows it. The
-#: engine's recordings end at 1 100-9 500 (docs/engine.md); physics outside the catalog
-#: on kinematic recordings mostly ends below it (bench_discovery: 1.0-1.7 after), and
-#: where not (a clock wobble, a strong cogging) the straight runs still measure the slip:
-#: it is the ratio of two measured mean speeds
-GROSS_CHI2 = 25.0
 
 
 def straight_headline(res) -> dict | None:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._criterion import BIC_THRESHOLD, MIN_SHARE_REMOVED
+from .._criterion import BIC_THRESHOLD, GROSS_CHI2, MIN_SHARE_REMOVED
 from ._base import Choice, Family, best_size, bspline_on, names
 from ._ride import ride_residuals
 
@@ -22,11 +22,11 @@ MIN_SPACING_MM = 4.0
 MAX_ADDED = 24  # knots added where the ground changes fast
 MIN_ADDED_SPACING_MM = 0.25
 CANDIDATES = 3  # the intervals of most misfit tried for each added knot
-#: knots are not added where the misfit is gross (chi^2/dof above GROSS) and the equal
-#: spacing's term removes less than MIN_SHARE_REMOVED / REACH of the excess: the share
+#: knots are not added where the misfit is gross (chi^2/dof above GROSS_CHI2) and the
+#: equal spacing's term removes less than MIN_SHARE_REMOVED / REACH of the excess: the share
 #: rule rejects the term, and the added knots raised its gain 1.15-1.35-fold on the
 #: engine's recordings (24 knots, ~4 s each time)
-GROSS, REACH = 25.0, 3.0
+REACH = 3.0
 #: where the profile acts (:func:`_cols`); "lugs" first: a profile the lugs do not show is
 #: not the ground's
 MODES = ("lugs", "shared", "separate", "frame", "frame_own")
@@ -77,7 +77,8 @@ class GroundProfile(Family):
         mode, n_int, fitted = best
         breaks = np.linspace(lo, hi, n_int + 1)
         chi2, dof = float(proj.r @ proj.r), max(proj.n - proj.Js.shape[1], 1)
-        if not (chi2 > GROSS * dof and REACH * fitted.dchi2 < MIN_SHARE_REMOVED * (chi2 - dof)):
+        share = MIN_SHARE_REMOVED * (chi2 - dof)  # what the share rule asks
+        if not (chi2 > GROSS_CHI2 * dof and REACH * fitted.dchi2 < share):
             breaks, fitted = _refined(ctx, proj, breaks, mode, fitted)
         added = len(breaks) - n_int - 1
         with_body = mode != "lugs"
