@@ -175,8 +175,6 @@ def robust_result(res, geo: Geometry, alpha: float = ALPHA):
                     ), method
 
 
-
-
 def straight_headline(res) -> dict | None:
     """The straight runs' slip (explain._straight) when `res` misfits grossly, else None."""
     if not (res.chi2_per_dof > GROSS_CHI2):

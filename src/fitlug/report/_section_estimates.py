@@ -11,11 +11,10 @@ from ._section_summary import _LSQ_NAME, _QUANTITIES, _not_identifiable, _pm, _s
 def _estimates(fj, st) -> str:
     lsq = st["meta"].get("least_squares", {})
     src = "posterior" if fj.get("mcmc") else "least squares"
-    # a slip read off the straight runs (the model does not describe the path): that is
-    # where it and Δl′ come from, whatever samples them after
+    # a slip read off the straight runs (the model does not describe the path; fit.json
+    # holds them only then, as the discrepancy section reads it): that is where it and Δl′
+    # come from, whatever samples them after
     runs = (fj.get("discrepancy") or {}).get("straight_runs") or {}
-    if runs and "straight runs" not in (fj.get("uncertainty_method") or ""):
-        runs = {}
     rows = []
     for key, label, unit in _QUANTITIES:
         e = fj.get(key)
