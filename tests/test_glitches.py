@@ -352,6 +352,11 @@ def test_a_glitch_round_that_crawls_keeps_the_last_converged_fit():
         for r in np.asarray(rows)[ok & (w == 0)]:
             zero.add((rec.markers[rec.marker_index[r]], round(float(rec.t[r]), 4)))
     assert flagged == zero  # the listing is what the weights hold
+    # each flag listed with the size it was flagged at, above the threshold: its size
+    # after the search (its flagged neighbours out of its local level) or in the last
+    # round's search (which a settled set need not repeat) was listed as 0.2-5 sigma
+    thr = prob.init_info["glitch_threshold_sigma"]
+    assert all(g["size_sigma"] > thr for g in prob.init_info["glitches"])
     # the reported parameters give the reported residuals: the solver ended with beta
     # below its physical range by more than a hair, and its projection onto 0 made the
     # model 58 times worse than the chi^2 the fit reported (_on_bound: refitted with beta

@@ -289,6 +289,7 @@ def remove_glitches(res: FitResult, *, renoise: bool = True, **kw) -> FitResult:
     none = {k: np.zeros(len(getattr(res.problem, k + "_rows")), bool) for k in ("lug", "body")}
     applied = none  # the flags the current fit's weights carry
     found = _glitches.find(res)
+    flagged_by = (res, found)  # the fit and the search that set `applied`: their sizes
     for rnd in range(_glitches.MAX_ROUNDS):
         # the set is stable when at most a couple of samples (or 2 % of it) flip: samples
         # at the threshold that a refit moves across it and back (an engine recording's
@@ -310,12 +311,16 @@ def remove_glitches(res: FitResult, *, renoise: bool = True, **kw) -> FitResult:
             # structure the finder took for glitches: an engine's drive-through, 3 of 17):
             # the last converged fit and its flags stand
             break
+        flagged_by = (res, found)
         res = new_res
         applied = found
         found = _glitches.find(res)
-    found = {**found, "lug": applied["lug"], "body": applied["body"]}  # what the weights hold
-    info = {**res.problem.init_info, "glitches": _glitches.listing(res, found),
-            "glitch_rule": _glitches.RULE, "glitch_threshold_sigma": float(found["c"])}
+    # what the weights hold, each flag with its size in the search that set it (the last
+    # search may no longer find a flag that the settle rule left: 0-2 sigma there)
+    src_res, src = flagged_by
+    src = {**src, "lug": applied["lug"], "body": applied["body"]}
+    info = {**res.problem.init_info, "glitches": _glitches.listing(src_res, src),
+            "glitch_rule": _glitches.RULE, "glitch_threshold_sigma": float(src["c"])}
     prob = Problem(**{**res.problem.__dict__, "init_info": info})
     return dataclasses.replace(res, problem=prob)
 

@@ -291,6 +291,7 @@ def find(res, alpha: float = ALPHA) -> dict:
             rows = rows[np.argsort(t_all[rows], kind="stable")]
             t = t_all[rows]
             f = np.zeros(len(rows), bool)
+            z_at_flag = np.zeros(len(rows))  # each flag's z in the pass that set it
             frame = np.rint((t - t[0]) * fps).astype(np.int64)
             for _ in range(_MAX_PASSES):
                 z = _local_z(t, ex[rows], ey[rows], ~f, fps)
@@ -302,7 +303,12 @@ def find(res, alpha: float = ALPHA) -> dict:
                 new = [i for i in cand
                        if zz[i] >= zz[np.abs(frame - frame[i]) <= FAR].max()]
                 f[new] = True
+                z_at_flag[new] = zz[new]
             z = _local_z(t, ex[rows], ey[rows], ~f, fps)
+            # a flagged sample's size is the one it was flagged at: once its flagged
+            # neighbours leave its local level, that level can move onto it (a structured
+            # misfit's flags listed at 0.2-5 sigma under a 5-sigma threshold)
+            z = np.where(f, z_at_flag, z)
             on = np.flatnonzero(f)
             for run in _runs(frame[f]):
                 if len(run) > MAX_RUN:
