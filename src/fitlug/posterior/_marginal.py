@@ -61,6 +61,9 @@ CHECK_SIGMA = 2.0
 #: node values (4 x grid nodes per theta) the blocked exact chi^2 holds at once: 128 MB;
 #: 16 parameter vectors of a 100 000-frame recording (200 000 nodes)
 NODE_ENTRIES = 16_000_000
+#: where a singular marginal is allowed (``singular_ok``), each parameter of the law gets a
+#: std this many times its conditional one (from Att's diagonal), and at least its value
+SINGULAR_RIDGE = 1e4
 
 
 def slip_law_parameters(res: FitResult) -> list[str]:
@@ -83,7 +86,7 @@ def slip_law_parameters(res: FitResult) -> list[str]:
 class _Marginal:
     """The linearised marginal of theta for one FitResult: Gaussian limit and exact."""
 
-    def __init__(self, res: FitResult, names: list[str], batch: int):
+    def __init__(self, res: FitResult, names: list[str], batch: int, singular_ok: bool = False):
         prob = res.problem
         self.names = names
         sl = res.packing.slices()
@@ -162,11 +165,21 @@ class _Marginal:
         self._Aee, self._s = Aee, s  # the step model's C_00 and its scaling
         F = Att - Aet.T @ (self.Minv @ Aet)
         self.F = 0.5 * (F + F.T)
-        # s0 ~ 1e-6 and beta ~ 1e-8 in std: invert the correlation form
-        d = 1.0 / np.sqrt(np.maximum(np.diag(self.F), 1e-300))
-        Fs = self.F * np.outer(d, d)
-        w = np.linalg.eigvalsh(Fs)
-        if not np.all(np.isfinite(w)) or not np.all(w > 1e-10 * max(w.max(), 1e-300)):
+        Fs, d, ok = _scaled(self.F)
+        self.singular = not ok
+        if self.singular and singular_ok:
+            # a model that does not describe the path (the slip read off the straight
+            # runs): its nuisance is so nearly degenerate that the Schur complement is
+            # rounding (an engine's crawler whose tips slide, h 0.71: F negative definite,
+            # -4e14 on beta's diagonal). Its quantities are not identifiable
+            # (explain._robust) and its slip is not the headline: each parameter of the law
+            # is left uncorrelated, with a std of SINGULAR_RIDGE times its conditional one
+            # and at least its own size (not identifiable by any reading)
+            var = np.maximum(SINGULAR_RIDGE ** 2 / np.maximum(np.diag(Att), 1e-300),
+                             self.theta_hat ** 2)
+            self.F = np.diag(1.0 / var)
+            Fs, d, ok = _scaled(self.F)
+        if not ok:
             raise FitError(f"the data do not constrain the slip law ({', '.join(names)}): "
                            "its marginal information matrix is singular")
         self.cov = np.linalg.inv(Fs) * np.outer(d, d)
@@ -394,3 +407,15 @@ class _Marginal:
                 "delta_chi2_gaussian": float(np.median(gauss)),
                 "delta_chi2_exact_range": [float(exact.min()), float(exact.max())],
                 "tolerance": LINEARITY_TOL}
+
+
+def _scaled(F):
+    """(F in correlation form, the scaling d, whether it is positive definite): s0 ~ 1e-6
+    and beta ~ 1e-8 in std, so the check and the inverse are made on d F d."""
+    diag = np.diag(F)
+    if not np.all(np.isfinite(diag)) or not np.all(diag > 0):
+        return None, None, False
+    d = 1.0 / np.sqrt(diag)
+    Fs = F * np.outer(d, d)
+    w = np.linalg.eigvalsh(Fs)
+    return Fs, d, bool(np.all(np.isfinite(w)) and np.all(w > 1e-10 * max(w.max(), 1e-300)))

@@ -108,9 +108,9 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     t0 = time.perf_counter()
     names = slip_law_parameters(res)
     user_lp = user_log_prior(priors, names, res)
-    marg, temper = tempered_marginal(res, names, batch=walkers // 2)
     robust = getattr(res, "robust", None) or {}
     straight = robust.get("headline") == "straight runs"
+    marg, temper = tempered_marginal(res, names, batch=walkers // 2, singular_ok=straight)
     # the slip read off the straight runs: the model does not describe the path, its slip
     # law's quantities are reported not identifiable (explain._robust.SLIP_LAW) and the
     # exact marginal of that model (its Gauss-Newton profile 10^6 in chi^2 off its

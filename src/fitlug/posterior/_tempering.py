@@ -98,11 +98,12 @@ def tempering(res: FitResult, marg: "_Marginal | None" = None) -> dict:
             "extra_scale": float(extra), "note": note}
 
 
-def tempered_marginal(res: FitResult, names, batch: int) -> tuple:
+def tempered_marginal(res: FitResult, names, batch: int, singular_ok: bool = False) -> tuple:
     """(the marginal of `names`, its tempering): the likelihood the posterior samples,
     stretched to the robust covariance when the misfit is unexplained (see `tempering`;
-    the returned dict without its "cov")."""
-    marg = _Marginal(res, names, batch=batch)
+    the returned dict without its "cov"). `singular_ok`: a singular marginal is ridged
+    (`_Marginal`), not an error."""
+    marg = _Marginal(res, names, batch=batch, singular_ok=singular_ok)
     temper = tempering(res, marg)
     if temper.get("cov") is not None:
         marg.widened(temper.pop("cov"))
