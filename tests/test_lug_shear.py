@@ -70,3 +70,28 @@ def test_tip_markers_found_and_fitted(tip_recording):
     assert abs(p["h"]) < 0.02 and abs(p["tau_s"] - 0.04) < 0.008, p
     mol = ex.to_json()["marker_on_lug"][0]
     assert "on the lug tips" in mol["reading"]
+
+
+def test_a_drift_in_contact_is_not_claimed_as_the_markers_height_alone():
+    """A marker at height h on a lug whose tip slides at r of the creep drifts at
+    r + h (1 - r): the engine's crawler at friction 0.16 and 0.12 (data/engine/mu016,
+    mu012: markers on the tips, a quarter and two thirds of the tip contacts at the
+    friction limit) fitted h 0.49 and 0.71, read as "half-way up the lugs" and "near the
+    belt's pitch line". Above the tips the reading names both: the height where the tips
+    hold, or the tips sliding; on the tips (where they hold still) it names the tips."""
+    from fitlug.explain._explanation import base_reading
+
+    class Res:
+        def __init__(self, h):
+            self.h = h
+
+        def effect_params(self, eid):
+            assert eid == "lug_shear"
+            return {"h": self.h, "tau_s": 0.08}
+
+    for h, where in ((0.49, "half-way up the lugs"), (0.71, "near the belt's pitch line"),
+                     (0.25, "near the lug tips")):
+        s = base_reading(Res(h))
+        assert where in s and "tips slide" in s and f"{h:.2f} of the pitch line's creep" in s
+    s = base_reading(Res(0.03))
+    assert "on the lug tips" in s and "stand still" in s and "slide" not in s

@@ -242,10 +242,20 @@ def base_reading(res) -> str:
         return ""
     h, tau = float(p["h"]), float(p["tau_s"])
     hs = f"{h:.2f}" if abs(h) >= 0.005 else "0.00"
-    where = ("on the lug tips" if h < 0.15 else "near the lug tips" if h < 0.4
-             else "half-way up the lugs" if h < 0.7 else "near the belt's pitch line")
-    still = ("stand still on the ground" if h < 0.15 else
-             f"drift over the ground at {hs} of the pitch line's creep")
-    return (f"the lug markers sit {where} (h = {hs}; 0 tip, 1 pitch line): in contact they "
-            f"{still} while each lug shears under the traction, and the shear springs back "
-            f"in {1000 * tau:.0f} ms after the lug lifts off at the rear of the contact patch")
+    back = (f"the shear springs back in {1000 * tau:.0f} ms after the lug lifts off at the "
+            "rear of the contact patch")
+    if h < 0.15:
+        return (f"the lug markers sit on the lug tips (h = {hs}; 0 tip, 1 pitch line): in "
+                "contact they stand still on the ground while each lug shears under the "
+                f"traction, and {back}")
+    where = ("near the lug tips" if h < 0.4 else "half-way up the lugs" if h < 0.7
+             else "near the belt's pitch line")
+    # a tip that slides drifts too: a marker at height h' on a lug whose tip slides at r of
+    # the creep drifts at r + h' (1 - r) >= h' (an engine's crawler at friction 0.16 and
+    # 0.12, markers on the tips: h 0.49 and 0.71), so h is the markers' height only where
+    # the tips hold
+    return (f"in contact the lug markers drift over the ground at {hs} of the pitch line's "
+            f"creep (h = {hs}; 0 tip, 1 pitch line): they sit {where} while the lug tips "
+            "hold, or lower (down to the tips) while the tips slide over the ground: the "
+            f"drift alone does not tell the two apart; each lug shears under the traction, "
+            f"and {back}")
