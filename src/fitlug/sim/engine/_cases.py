@@ -40,4 +40,10 @@ CASES: dict[str, EngineCase] = {c.name: c for c in [
                notes="a 50 fps camera on a 100 mm/s run"),
     EngineCase(name="two_markers", **_REF, marker_h=0.2, lug_markers=(0, 11),
                notes="two lug markers half a belt apart, a fifth of the way up the lugs"),
+    EngineCase(name="mu016", **_REF, mu=0.16,
+               notes="friction 0.16: a quarter of the tip contacts at the limit, the tips "
+                     "drift 2 mm over the ground in contact"),
+    EngineCase(name="mu012", **_REF, mu=0.12,
+               notes="friction 0.12: the rear tips slide (two thirds of the tip contacts at "
+                     "the limit), the slip near 0.2"),
 ]}
