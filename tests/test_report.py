@@ -431,3 +431,27 @@ def test_the_estimates_say_a_slip_read_off_the_straight_runs_comes_from_them():
     assert got["wheel pitch radius R"] == "least squares"
     fj["discrepancy"] = {}  # no straight-runs headline
     assert sources(_estimates(fj, st))["steady slippage s₀"] == "posterior"
+
+
+def test_the_unexplained_box_names_its_error_once():
+    """The unexplained verdict's box ended with the discrepancy's uncertainty method in
+    brackets wherever it was not the page's whole method string: a straight-runs headline
+    under a posterior ("posterior (emcee); the slip read off ...") repeated the 200-letter
+    sentence the page's top already shows. It is named only where the top's does not hold
+    it."""
+    from fitlug.report._section_summary import _verdict_main
+
+    ref = os.path.join(os.path.dirname(__file__), "..", "fits", "reference", "fit.json")
+    doc = json.load(open(ref, encoding="utf-8"))
+    how = ("the slip read off the straight runs (the belt's clock against the body, 782 "
+           "passages of 4 lug markers)")
+    doc["uncertainty_method"] = f"posterior (emcee); {how}; other quantities: robust in time"
+    doc["discrepancy"] = dict(doc.get("discrepancy") or {}, verdict="unexplained",
+                              slip_after_uncertainty=how, located=[])
+    doc["slip"] = dict(doc["slip"], std=10 * doc["slip"]["std"])
+    doc["least_squares"] = dict(doc["least_squares"], slip=doc["slip"])
+    box = _verdict_main(doc)
+    assert "Unexplained" in box and "unmodelled systematic" in box
+    assert "passages of 4 lug markers" not in box
+    doc["discrepancy"]["slip_after_uncertainty"] = "cluster-robust sandwich by marker"
+    assert "(cluster-robust sandwich by marker)" in _verdict_main(doc)

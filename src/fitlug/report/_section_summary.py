@@ -133,7 +133,7 @@ def _verdict_main(fj) -> str:
         # the method once on the page's top (the headline's note names it): here only
         # where the verdict's own differs from it
         how = d.get("slip_after_uncertainty")
-        how = f" ({_e(how)})" if how and how != fj.get("uncertainty_method") else ""
+        how = f" ({_e(how)})" if how and how not in (fj.get("uncertainty_method") or "") else ""
         tail = f"{how}; treat the slip as a measurement with an unmodelled systematic."
     else:  # modelled outside the catalog: the headline is that model's fit
         tail = "."
