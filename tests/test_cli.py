@@ -295,3 +295,39 @@ def test_executable_runs_without_dask_except_campaign():
 
     assert cli.main(["--version"]) == 0
     assert sys.modules.get("dask", "absent") is not None
+
+
+def test_a_slip_law_that_cannot_be_sampled_still_writes_the_fit(tmp_path, capsys, monkeypatch):
+    """An engine crawler whose lug tips slide ended `fit-lug` with "the data do not
+    constrain the slip law (s0, beta): its marginal information matrix is singular" after
+    two minutes of fitting and explaining, and wrote nothing. Where the slip law's marginal
+    cannot be formed the fit and its explanation are still written; no error bar of the law
+    is promised (the slip's included: each says why), and fit.json says why there is no
+    posterior."""
+    import fitlug.posterior as posterior
+    from fitlug import FitError
+
+    why = ("the data do not constrain the slip law (s0, beta): its marginal information "
+           "matrix is singular")
+
+    def singular(*a, **k):
+        raise FitError(why)
+
+    monkeypatch.setattr(posterior, "sample_posterior", singular)
+    monkeypatch.setattr(posterior, "least_squares_identifiability", singular)
+    out = tmp_path / "fit"
+    assert main([REF, "--no-explain", "--no-report", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "no posterior: " + why in printed
+    doc = json.loads((out / "fit.json").read_text())
+    assert doc["mcmc"] is None and doc["mcmc_skipped"].startswith(why)
+    for key in ("slip", "delta_l_mm", "stiffness_N_per_mm", "rolling_resistance"):
+        assert doc[key] is None and doc["not_identifiable"][key] == why, key
+    assert "slip s0            not identifiable: " + why in printed
+    assert doc["chi2_per_dof"] < 1.5 and doc["geometry"]["R_mm"] > 0  # the fit is written
+    # the report's headline says why for the slip too (it showed a bare dash)
+    from fitlug.report._section_summary import _headline
+
+    html = _headline(doc, {"meta": {}})
+    first = html.split("</tr>")[0]
+    assert "slippage" in first and "not identifiable: " + why in first

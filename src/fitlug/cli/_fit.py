@@ -12,6 +12,9 @@ from ._common import (check_out_folder, positive_seconds, progress_enabled, prog
 
 
 GUARD_S = 900.0  # fitlug.posterior._mcmc.GUARD_S (not imported: the command starts cheap)
+#: the quantities the slip law's marginal decides (fitlug.posterior._identify._LABEL)
+_SLIP_LAW_QUANTITIES = ("slip", "delta_l_mm", "stiffness_N_per_mm", "rolling_resistance",
+                        "k_over_m")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -71,6 +74,7 @@ def _size_note(path: str) -> str:
 
 
 def _run(args, rec, rig, out, run_id, t_start) -> int:
+    from .._errors import FitError
     from ..io import write_json
 
     prog = progress_enabled(args)
@@ -93,18 +97,28 @@ def _run(args, rec, rig, out, run_id, t_start) -> int:
 
         expl = explain(res, seed=args.seed, progress=prog)
         final = expl.final
-    post = None
+    post, no_chain = None, None  # no_chain: why no posterior could be formed
     if not args.no_mcmc:
         stage(args, "sampling", "posterior (emcee), until the effective samples suffice")
         from ..posterior import sample_posterior
 
-        post = sample_posterior(final, seed=args.seed, progress=prog,
-                                time_budget_s=args.mcmc_budget)
+        try:
+            post = sample_posterior(final, seed=args.seed, progress=prog,
+                                    time_budget_s=args.mcmc_budget)
+        except FitError as exc:  # the fit and its explanation still stand: written
+            no_chain = str(exc)
+            stage(args, "sampling", f"no posterior: {no_chain}")
 
     if post is None:
         from ..posterior import least_squares_identifiability
 
-        unident = least_squares_identifiability(final, seed=args.seed)
+        try:
+            unident = least_squares_identifiability(final, seed=args.seed)
+        except FitError as exc:
+            # the slip law's marginal cannot be formed: no error bar of the law is a
+            # promise then, the slip's included (fit.json keeps the least-squares values)
+            no_chain = no_chain or str(exc)
+            unident = dict.fromkeys(_SLIP_LAW_QUANTITIES, str(exc))
     else:
         unident = post.not_identifiable
 
@@ -118,7 +132,8 @@ def _run(args, rec, rig, out, run_id, t_start) -> int:
                    discrepancy=None if expl is None else expl.to_json())
     if post is None:
         doc["mcmc"] = None
-        doc["mcmc_skipped"] = f"--no-mcmc: uncertainties are {doc['uncertainty_method']}"
+        why = "--no-mcmc" if args.no_mcmc and not no_chain else no_chain
+        doc["mcmc_skipped"] = f"{why}: uncertainties are {doc['uncertainty_method']}"
     if args.no_explain:
         doc["discrepancy_skipped"] = "--no-explain"
     _display_keys(doc, args)

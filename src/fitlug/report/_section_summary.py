@@ -197,6 +197,8 @@ def _headline(fj, st) -> str:
                          "lug tips slipping at the friction limit"])
         else:
             rows.append(["slippage s₀", f'<span class="big">{_pm(s)}</span>', ""])
+    elif s.get("value") is None:
+        rows.append(["slippage s₀", _not_identifiable(fj, "slip"), ""])
     else:
         rows.append(["slippage s₀", f'<span class="big">{_pm(s)}</span>', ""])
     for key, label, unit in _QUANTITIES[1:4]:
