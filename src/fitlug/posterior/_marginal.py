@@ -169,12 +169,10 @@ class _Marginal:
         self.singular = not ok
         if self.singular and singular_ok:
             # a model that does not describe the path (the slip read off the straight
-            # runs): its nuisance is so nearly degenerate that the Schur complement is
-            # rounding (an engine's crawler whose tips slide, h 0.71: F negative definite,
-            # -4e14 on beta's diagonal). Its quantities are not identifiable
-            # (explain._robust) and its slip is not the headline: each parameter of the law
-            # is left uncorrelated, with a std of SINGULAR_RIDGE times its conditional one
-            # and at least its own size (not identifiable by any reading)
+            # runs), its nuisance so nearly degenerate that F is rounding (an engine crawler
+            # whose tips slide, h 0.71: -4e14 on beta). Its law is not identifiable
+            # (explain._robust) nor its slip the headline: each parameter is left
+            # uncorrelated, std SINGULAR_RIDGE x its conditional one, at least its size
             var = np.maximum(SINGULAR_RIDGE ** 2 / np.maximum(np.diag(Att), 1e-300),
                              self.theta_hat ** 2)
             self.F = np.diag(1.0 / var)
