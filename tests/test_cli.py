@@ -331,3 +331,6 @@ def test_a_slip_law_that_cannot_be_sampled_still_writes_the_fit(tmp_path, capsys
     html = _headline(doc, {"meta": {}})
     first = html.split("</tr>")[0]
     assert "slippage" in first and "not identifiable: " + why in first
+    # and why no posterior, once (mcmc_skipped names the errors' method already)
+    assert f"Posterior not sampled ({why}: uncertainties are " in html.replace("&#x27;", "'")
+    assert "the errors are the least-squares (Jacobian) ones" not in html

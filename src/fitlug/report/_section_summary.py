@@ -236,7 +236,10 @@ def _headline(fj, st) -> str:
     mc = fj.get("mcmc")
     if not mc:
         why = fj.get("mcmc_skipped") or "least squares only"
-        notes.append(f"Posterior not sampled ({_e(why)}): the errors are the least-squares "
+        # fitlug's own mcmc_skipped says what the errors are ("--no-mcmc: uncertainties
+        # are least squares (Jacobian)"): the page said it twice
+        notes.append(f"Posterior not sampled ({_e(why)})." if "uncertainties are" in why else
+                     f"Posterior not sampled ({_e(why)}): the errors are the least-squares "
                      "(Jacobian) ones.")
     elif not mc.get("converged"):
         notes.append(f'<span class="bad">The posterior chain did not converge: '
