@@ -455,3 +455,21 @@ def test_the_unexplained_box_names_its_error_once():
     assert "passages of 4 lug markers" not in box
     doc["discrepancy"]["slip_after_uncertainty"] = "cluster-robust sandwich by marker"
     assert "(cluster-robust sandwich by marker)" in _verdict_main(doc)
+
+
+def test_a_frequencys_reading_is_said_once():
+    """mu012's unexplained box read the lug-passing frequency twice, ~150 letters each:
+    once for the located part (8.3 Hz) and again for the spectral line at 8.27 Hz. The
+    line says "(the same)" where its reading is the part's; another reading stays."""
+    from fitlug.report._section_discrepancy import located_sentence
+
+    st = {"v_belt_mm_s": 147.7, "pitch_mm": 18.41, "R_mm": 24.5}  # v/p = 8.02 Hz
+    part = {"markers": ["C1"], "axis": "y", "segment": "body", "share_of_misfit": 0.33,
+            "frequency_hz": 8.3, "t_range_s": [0.13, 4.28]}
+    line = {"axis": "y", "segment": "body", "test": "spectral line", "frequency_hz": 8.27}
+    s = located_sentence({"straight_runs": st, "located": [part, line]})
+    assert s.count("chordal action") == 1 and "8.27 Hz in y (body) (the same)" in s
+    other = dict(line, frequency_hz=0.96, axis="x")  # the wheels' turning, 0.959 Hz
+    s = located_sentence({"straight_runs": st, "located": [part, other]})
+    assert s.count("chordal action") == 1 and "the wheels' turning frequency" in s
+    assert "(the same)" not in s

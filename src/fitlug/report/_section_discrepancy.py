@@ -81,7 +81,7 @@ def located_sentence(d: dict) -> str:
             return (f"The residuals carry a common spectral line at "
                     f"{F.sig(det['line_hz'], 3)} Hz ({_e(det.get('line_group', ''))}).")
         return "The residuals are not white, but no single place carries the mismatch."
-    parts = []
+    parts, hint = [], None
     if shares:
         p = max(shares, key=lambda q: q.get("share_of_misfit") or 0)
         tr = p.get("t_range_s") or [None, None]
@@ -93,15 +93,18 @@ def located_sentence(d: dict) -> str:
                      f"is in the {_e(p.get('axis'))} residuals of markers on the "
                      f"{_e(seg)} {when} ({F.sig(tr[0], 3)}–{F.sig(tr[1], 3)} s)")
         if p.get("frequency_hz"):
-            parts[-1] += (f", varying at about {F.sig(p['frequency_hz'], 2)} Hz"
-                          + _frequency_hint(p["frequency_hz"], d, p.get("axis"),
-                                            p.get("segment")))
+            hint = _frequency_hint(p["frequency_hz"], d, p.get("axis"), p.get("segment"))
+            parts[-1] += f", varying at about {F.sig(p['frequency_hz'], 2)} Hz" + hint
     if lines:
         q = lines[0]
-        parts.append(f"a spectral line stands out at {F.sig(q.get('frequency_hz'), 3)} Hz "
-                     f"in {_e(q.get('axis', ''))} ({_e(q.get('segment', ''))})"
-                     + _frequency_hint(q["frequency_hz"], d, q.get("axis"), q.get("segment"))
-                     if q.get("frequency_hz") else "a spectral line stands out")
+        if q.get("frequency_hz"):
+            again = _frequency_hint(q["frequency_hz"], d, q.get("axis"), q.get("segment"))
+            # the same reading as the part's above is said once (it is ~150 letters)
+            again = " (the same)" if again and again == hint else again
+            parts.append(f"a spectral line stands out at {F.sig(q['frequency_hz'], 3)} Hz "
+                         f"in {_e(q.get('axis', ''))} ({_e(q.get('segment', ''))})" + again)
+        else:
+            parts.append("a spectral line stands out")
     return "; ".join(parts) + "."
 
 
