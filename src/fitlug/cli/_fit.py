@@ -12,9 +12,6 @@ from ._common import (check_out_folder, positive_seconds, progress_enabled, prog
 
 
 GUARD_S = 900.0  # fitlug.posterior._mcmc.GUARD_S (not imported: the command starts cheap)
-#: the quantities the slip law's marginal decides (fitlug.posterior._identify._LABEL)
-_SLIP_LAW_QUANTITIES = ("slip", "delta_l_mm", "stiffness_N_per_mm", "rolling_resistance",
-                        "k_over_m")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -117,8 +114,10 @@ def _run(args, rec, rig, out, run_id, t_start) -> int:
         except FitError as exc:
             # the slip law's marginal cannot be formed: no error bar of the law is a
             # promise then, the slip's included (fit.json keeps the least-squares values)
+            from ..posterior._derived import REPORTED
+
             no_chain = no_chain or str(exc)
-            unident = dict.fromkeys(_SLIP_LAW_QUANTITIES, str(exc))
+            unident = dict.fromkeys(REPORTED, str(exc))
     else:
         unident = post.not_identifiable
 

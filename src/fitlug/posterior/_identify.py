@@ -32,7 +32,7 @@ from ..fit._identifiable import REL_STD_MAX  # one threshold for least squares a
 from ..fit._result import FitResult
 from ._derived import _derived_samples
 from ._marginal import slip_law_parameters
-from ._tempering import tempered_marginal
+from ._tempering import reads_straight_runs, tempered_marginal
 
 LINEAR_R2 = 0.99
 
@@ -105,12 +105,11 @@ def least_squares_identifiability(res: FitResult, *, seed: int = 0, draws: int =
     posterior's (fitlug.posterior._identify), on draws from the Gaussian limit of the
     marginal of the slip law (tempered like the posterior when the misfit is unexplained)."""
     names = slip_law_parameters(res)
-    straight = (getattr(res, "robust", None) or {}).get("headline") == "straight runs"
-    marg, _ = tempered_marginal(res, names, batch=16, singular_ok=straight)
+    marg, _ = tempered_marginal(res, names, batch=16)
     rng = np.random.default_rng(seed)
     th = marg.theta_hat + rng.standard_normal((draws, len(names))) @ marg.chol.T
     out = not_identifiable(_derived_samples(res, names, th), names)
-    if straight:
+    if reads_straight_runs(res):
         # the slip (and dl' with it) is read off the straight runs, with its own error;
         # the slip law's other quantities are as the explanation left them (as
         # sample_posterior does)

@@ -39,7 +39,7 @@ from ._mcmc import GUARD_S, MAX_STEPS, run_ensemble
 from ._posterior import Posterior
 from ._priors import _log_prior
 from ._reparam import SlipCoordinates, has_own_coordinates
-from ._tempering import tempered_marginal
+from ._tempering import reads_straight_runs, tempered_marginal
 
 
 def _gaussian_log_prob(marg: _Marginal):
@@ -109,8 +109,8 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     names = slip_law_parameters(res)
     user_lp = user_log_prior(priors, names, res)
     robust = getattr(res, "robust", None) or {}
-    straight = robust.get("headline") == "straight runs"
-    marg, temper = tempered_marginal(res, names, batch=walkers // 2, singular_ok=straight)
+    straight = reads_straight_runs(res)
+    marg, temper = tempered_marginal(res, names, batch=walkers // 2)
     # the slip read off the straight runs: the model does not describe the path, its slip
     # law's quantities are reported not identifiable (explain._robust.SLIP_LAW) and the
     # exact marginal of that model (its Gauss-Newton profile 10^6 in chi^2 off its

@@ -98,12 +98,18 @@ def tempering(res: FitResult, marg: "_Marginal | None" = None) -> dict:
             "extra_scale": float(extra), "note": note}
 
 
-def tempered_marginal(res: FitResult, names, batch: int, singular_ok: bool = False) -> tuple:
+def reads_straight_runs(res: FitResult) -> bool:
+    """Whether `res`'s headline slip is read off the straight runs (explain._robust): its
+    model does not describe the path and its slip law is reported not identifiable."""
+    return (getattr(res, "robust", None) or {}).get("headline") == "straight runs"
+
+
+def tempered_marginal(res: FitResult, names, batch: int) -> tuple:
     """(the marginal of `names`, its tempering): the likelihood the posterior samples,
     stretched to the robust covariance when the misfit is unexplained (see `tempering`;
-    the returned dict without its "cov"). `singular_ok`: a singular marginal is ridged
-    (`_Marginal`), not an error."""
-    marg = _Marginal(res, names, batch=batch, singular_ok=singular_ok)
+    the returned dict without its "cov"). Under a straight-runs headline a singular
+    marginal is ridged (`_Marginal`'s singular_ok), not an error."""
+    marg = _Marginal(res, names, batch=batch, singular_ok=reads_straight_runs(res))
     temper = tempering(res, marg)
     if temper.get("cov") is not None:
         marg.widened(temper.pop("cov"))
