@@ -609,6 +609,8 @@ def make(mechanism: str, seed: int, *, size: float | None = None, faults: bool =
         "v_cruise_mm_s": sc.v_cruise,
         "window": None if window is None else [float(v) for v in window],
         "n_glitches": len(info.get("glitches", [])), "seed": seed,
+        # (marker, time_s) of each injected glitch
+        "glitches": [(g[0], round(float(g[1]), 6)) for g in info.get("glitches", [])],
         "scenario": {k: v for k, v in dataclasses.asdict(sc).items() if k != "effects"},
     }
     return rec, rig_of(sc), truth

@@ -288,7 +288,8 @@ def with_flags(prob: Problem, flags: dict) -> Problem:
 
 def remove_glitches(res: FitResult, *, renoise: bool = True, **kw) -> FitResult:
     """Find glitches (:func:`fitlug.fit._glitches.find`), zero their weights and refit,
-    until the flagged set is stable (at most _glitches.MAX_ROUNDS refits). With `renoise`
+    until the flagged set is stable (at most _glitches.MAX_ROUNDS refits; one where the
+    refit still misfits at chi^2/dof above _glitches.GROSS_ROUNDS_CHI2). With `renoise`
     the noise per role is re-estimated from the residuals (flagged samples left out)
     before each refit, so a clean recording costs the one refit of :func:`refit_noise`.
 
@@ -327,6 +328,8 @@ def remove_glitches(res: FitResult, *, renoise: bool = True, **kw) -> FitResult:
         flagged_by = (res, found)
         res = new_res
         applied = found
+        if res.chi2_per_dof > _glitches.GROSS_ROUNDS_CHI2:
+            break  # the misfit's structure, not glitches, would decide further rounds
         found = _glitches.find(res)
     # what the weights hold, each flag with its size in the search that set it (the last
     # search may no longer find a flag that the settle rule left: 0-2 sigma there)
