@@ -120,16 +120,28 @@ def straight_runs_slip(res, margin_mm: float = MARGIN_MM, clock: bool = True) ->
 
 
 def choose(clock: dict | None, top: dict | None) -> dict | None:
-    """The clock's reading, unless the top run's disagrees with it by more than AGREE of
-    their errors together (a belt length miscounted across the time the marked lugs are
-    all on the ground moves the clock's slip by a pitch over the window's travel, ten or
-    more of its errors): then the top run's, the clock's kept beside it for the record.
-    Where they agree, the top run's too if the clock's error is more than PREFER_TOP
-    times its own (the clock's window end read from its spline inside a long gap)."""
+    """The clock's reading, unless the top run's disagrees with it by what a miscounted
+    belt length makes: more than AGREE of their errors together, and within AGREE of them
+    of a whole number of lug pitches over the clock's window travel (a belt length
+    miscounted across the time the marked lugs are all on the ground moves the clock's
+    slip by a pitch over that travel, ten or more of its errors). Then the top run's, the
+    clock's kept beside it for the record. A disagreement that no miscount makes is the top
+    run's own: it reads the markers' speed along x, which is the belt's only where the top
+    run is straight, and a chain's links ride it tilted (the engine's chain, a 6-s cruise:
+    147.8 mm/s against the clock's 148.4 and the chain's own 148.4; slip 0.0300 +- 0.0004
+    and 0.0344 +- 0.0004 for the engine's 0.0346); the clock's reading stands, the top
+    run's beside it (`top_run_disagrees`). Where they agree, the top run's too if the
+    clock's error is more than PREFER_TOP times its own (the clock's window end read from
+    its spline inside a long gap)."""
     if clock is None or top is None:
         return clock or top
-    d = abs(clock["slip"] - top["slip"]) / float(np.hypot(clock["std"], top["std"]))
+    joint = float(np.hypot(clock["std"], top["std"]))
+    d = abs(clock["slip"] - top["slip"]) / joint
     if d > AGREE:
+        k, off = _pitches_apart(clock, top)
+        rec = {"slip": top["slip"], "std": top["std"], "apart_in_errors": d}
+        if k is not None and (k == 0 or off > AGREE * joint):
+            return {**clock, "top_run_disagrees": {**rec, "pitches_apart": k}}
         return {**top, "belt_clock_rejected": {
             "slip": clock["slip"], "std": clock["std"], "apart_in_errors": d,
             "lugs_on_belt": clock.get("lugs_on_belt")}}
@@ -139,6 +151,22 @@ def choose(clock: dict | None, top: dict | None) -> dict | None:
         return {**top, "belt_clock": {"slip": clock["slip"], "std": clock["std"],
                                       "lugs_on_belt": clock.get("lugs_on_belt")}}
     return {**clock, "top_run": {"slip": top["slip"], "std": top["std"]}}
+
+
+def _pitches_apart(clock: dict, top: dict):
+    """(k, rest): the two slips' difference as k whole lug pitches over the clock's window
+    travel and what is left of it; (None, None) where the clock's reading does not say its
+    travel (then any disagreement is taken for a miscount)."""
+    try:
+        travel = clock["v_belt_mm_s"] * (clock["window_s"][1] - clock["window_s"][0])
+        unit = (1.0 - clock["slip"]) * clock["pitch_mm"] / travel
+    except (KeyError, TypeError, IndexError):
+        return None, None
+    if not (np.isfinite(unit) and unit > 0):
+        return None, None
+    diff = clock["slip"] - top["slip"]
+    k = int(np.round(diff / unit))
+    return k, abs(diff - k * unit)
 
 
 def _top_run_slip(res, margin_mm, p, lay, nodes) -> dict | None:

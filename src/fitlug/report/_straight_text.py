@@ -21,7 +21,8 @@ def straight_sentence(st: dict) -> str:
                 + ("" if same else f" from {w[0]:.2f} to {w[1]:.2f} s")
                 + f") against the body's ({st['v_body_mm_s']:.2f} mm/s) over the cruise "
                 f"from {c[0]:.2f} to {c[1]:.2f} s; its error carries the passages' scatter"
-                + ("" if same else ", the belt speed's trend") + " and the body's surge")
+                + ("" if same else ", the belt speed's trend") + " and the body's surge"
+                + _top_run_clause(st))
     return ("the model does not describe the path, so the slip is read off the straight "
             f"runs: the body's mean speed at cruise ({st['v_body_mm_s']:.2f} mm/s) "
             f"against the belt's on the top run ({st['v_belt_mm_s']:.2f} mm/s, "
@@ -30,10 +31,22 @@ def straight_sentence(st: dict) -> str:
             "slip changes with the window")
 
 
+def _top_run_clause(st: dict) -> str:
+    """The top run's disagreeing reading, where the clock's stands against it."""
+    top = st.get("top_run_disagrees")
+    if not top:
+        return ""
+    return (f"; the top run's visits read {top['slip']:.4f} ± {top['std']:.4f}, "
+            f"{top['apart_in_errors']:.0f} joint errors off and no whole number of lug "
+            "pitches: the markers' speed along x, slower than the belt's where the top run "
+            "is not straight (a chain's links ride it tilted)")
+
+
 def not_claimed_clause(d: dict) -> str:
     """The partial readings withheld from a misfit the model does not describe, or ""."""
     w = d.get("not_claimed") or {}
     if not w.get("readings"):
         return ""
+    n = len(w["readings"])
     return ("; " + ", ".join(w["readings"]) + " took up a little of the mismatch and "
-            "are not claimed as physics")
+            + ("are" if n > 1 else "is") + " not claimed as physics")

@@ -46,4 +46,8 @@ CASES: dict[str, EngineCase] = {c.name: c for c in [
     EngineCase(name="mu012", **_REF, mu=0.12,
                notes="friction 0.12: the rear tips slide (two thirds of the tip contacts at "
                      "the limit), the slip near 0.2"),
+    EngineCase(name="long_cruise", **_REF, cruise_s=7.0,
+               notes="the reference rig over a 7 s cruise: a dozen visits of the top run, "
+                     "whose links ride it tilted (their speed along x 0.4 % under the "
+                     "chain's)"),
 ]}
