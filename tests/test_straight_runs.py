@@ -416,8 +416,8 @@ def test_a_singular_slip_law_marginal_under_the_straight_runs_is_no_error(robust
 def test_a_long_cruise_reads_the_belt_clock_where_the_top_run_reads_the_links_slow():
     """The engine's reference rig over a 7 s cruise (data/engine/long_cruise, MuJoCo: its
     slip 0.0346 from the chain's own travel). A dozen visits of the top run read the
-    markers' speed along x 0.4 % under the chain's (its links ride the unsupported top run
-    tilted): 0.0300 +- 0.0004, 11 of its errors off, and the top run's reading was taken
+    markers' speed along x 0.4 % under the chain's travel (its unsupported top run moves
+    4 mm up and down): 0.0300 +- 0.0004, 11 of its errors off, and its reading was taken
     over the clock's 0.0344 +- 0.0004 as if the clock had miscounted a belt length, which
     would put them 0.020 apart. The clock's stands, within 3 of its errors and at 2 % of
     the slip: issue 41's bar, where the recording is long enough to give it."""

@@ -127,7 +127,8 @@ def choose(clock: dict | None, top: dict | None) -> dict | None:
     slip by a pitch over that travel, ten or more of its errors). Then the top run's, the
     clock's kept beside it for the record. A disagreement that no miscount makes is the top
     run's own: it reads the markers' speed along x, which is the belt's only where the top
-    run is straight, and a chain's links ride it tilted (the engine's chain, a 6-s cruise:
+    run is straight and steady, and the clock counts the travel along the path (the
+    engine's chain, whose unsupported top run moves 4 mm up and down, over a 6-s cruise:
     147.8 mm/s against the clock's 148.4 and the chain's own 148.4; slip 0.0300 +- 0.0004
     and 0.0344 +- 0.0004 for the engine's 0.0346); the clock's reading stands, the top
     run's beside it (`top_run_disagrees`). Where they agree, the top run's too if the

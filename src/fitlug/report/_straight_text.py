@@ -38,8 +38,8 @@ def _top_run_clause(st: dict) -> str:
         return ""
     return (f"; the top run's visits read {top['slip']:.4f} ± {top['std']:.4f}, "
             f"{top['apart_in_errors']:.0f} joint errors off and no whole number of lug "
-            "pitches: the markers' speed along x, slower than the belt's where the top run "
-            "is not straight (a chain's links ride it tilted)")
+            "pitches: the markers' speed along x, which is the belt's only where the top "
+            "run is straight and steady")
 
 
 def not_claimed_clause(d: dict) -> str:

@@ -48,6 +48,6 @@ CASES: dict[str, EngineCase] = {c.name: c for c in [
                      "the limit), the slip near 0.2"),
     EngineCase(name="long_cruise", **_REF, cruise_s=7.0,
                notes="the reference rig over a 7 s cruise: a dozen visits of the top run, "
-                     "whose links ride it tilted (their speed along x 0.4 % under the "
-                     "chain's)"),
+                     "where the markers' speed along x reads 0.4 % under the chain's "
+                     "travel"),
 ]}
