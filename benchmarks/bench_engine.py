@@ -83,8 +83,14 @@ def one(folder: str, timeout: float) -> dict:
                    std=float(fin.slip.std),
                    headline=(getattr(fin, "robust", None) or {}).get("headline") or "model")
         st = (getattr(fin, "robust", None) or {}).get("straight_runs") or {}
+        other = st.get("top_run") or st.get("top_run_disagrees") or \
+            st.get("belt_clock_rejected") or st.get("belt_clock") or {}
         out.update(straight_method=st.get("method"), lugs_on_belt=st.get("lugs_on_belt"),
-                   window_s=st.get("window_s"))
+                   window_s=st.get("window_s"),
+                   # the other reading beside the one taken (explain._straight.choose)
+                   other_slip=other.get("slip"), other_std=other.get("std"),
+                   top_run_disagrees="top_run_disagrees" in st,
+                   belt_clock_rejected="belt_clock_rejected" in st)
         out["z"] = (out["slip"] - out["engine_slip"]) / out["std"] if out["std"] > 0 else None
     except _Timeout:
         out["error"] = f"timeout after {timeout:g} s"
