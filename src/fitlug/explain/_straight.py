@@ -25,7 +25,8 @@ the scatter of the visits' slopes (the small number of visits carried by Student
 and, in quadrature, how much the slip changes when the body's speed is taken over the
 visits' own time span instead of the whole cruise (a speed that creeps over the cruise,
 or a slip still settling after the ramp, makes the two differ; measured on the engine's
-recordings 0.000-0.004).
+recordings 0.000-0.004), and TOP_RUN_REL of the belt's speed: the markers' speed along x
+is the belt's only where the top run is straight and steady.
 
 Measured on the engine's ten recordings (docs/engine.md, 2026-11-28): within 3 of its
 errors of the engine's slip on 9 (the drive-through misses by 3.2), errors 4-25 % of the
@@ -54,6 +55,11 @@ AGREE = 4.0
 #: where the two agree, the top run's reading stands where the clock's error is more than
 #: this many times its own (on the engine's ten recordings 0.1-1.5 times it)
 PREFER_TOP = 3.0
+#: relative error of the belt's speed read as the top-run markers' speed along x: it is
+#: the belt's only where the run is straight and steady, and on the contact-dynamics
+#: engine's chains it read 0.3-0.5 % under the chain's travel (six geometries over 7-s
+#: cruises, 7-12 of the visits' own errors; docs/engine.md, session 33)
+TOP_RUN_REL = 0.005
 #: two-sided 95 % Student t over 1.96, by degrees of freedom (visits - 1)
 _T_OVER_Z = {1: 6.48, 2: 2.19, 3: 1.62, 4: 1.42, 5: 1.31, 6: 1.25, 7: 1.21, 8: 1.18}
 
@@ -243,7 +249,7 @@ def _top_run_slip(res, margin_mm, p, lay, nodes) -> dict | None:
     if np.sum(span) >= MIN_SAMPLES and np.ptp(ut[span]) > 0.5 * MIN_CRUISE_S:
         shift = abs((1.0 - _hac_slope(ut[span], X[span], LAG_S)[0] / v_belt) - slip)
     std = float(np.sqrt((s_body / v_belt) ** 2 + (v_body * s_belt / v_belt ** 2) ** 2
-                        + shift ** 2))
+                        + shift ** 2 + ((1.0 - slip) * TOP_RUN_REL) ** 2))
     return {"slip": float(slip), "std": std, "v_body_mm_s": float(v_body),
             "v_body_std": float(s_body), "v_belt_mm_s": v_belt, "v_belt_std": float(s_belt),
             "window_s": [t1, t2], "visits": n, "window_shift": float(shift),
