@@ -346,6 +346,10 @@ def test_the_clock_sentence_names_the_belts_window_and_the_bodys_cruise():
                                                        "apart_in_errors": 7.4,
                                                        "pitches_apart": 0}})
     assert "the top run's visits read 0.0301 ± 0.0004, 7 joint errors off" in s
+    # the top run's own reading says what its error carries
+    s = straight_sentence({"method": "top run", "v_body_mm_s": 143.4, "v_belt_mm_s": 147.8,
+                           "visits": 4, "straightness_rel": 0.005})
+    assert "(147.80 mm/s, 4 visits" in s and "0.5 % of the belt's speed" in s
 
 
 def test_the_final_fit_of_a_path_the_model_does_not_describe_runs_no_glitch_rounds(

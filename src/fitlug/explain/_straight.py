@@ -254,7 +254,7 @@ def _top_run_slip(res, margin_mm, p, lay, nodes) -> dict | None:
             "v_body_std": float(s_body), "v_belt_mm_s": v_belt, "v_belt_std": float(s_belt),
             "window_s": [t1, t2], "visits": n, "window_shift": float(shift),
             "margin_mm": float(margin_mm), "pitch_mm": P / lay.n_belt, "R_mm": R,
-            "method": "top run"}
+            "straightness_rel": TOP_RUN_REL, "method": "top run"}
 
 
 def withheld(final, accepted, steps, disc):

@@ -46,8 +46,9 @@ The rule (a test on standardised residuals with the noise known from the data):
 search on the new residuals (flags are recomputed from scratch each round, so a flag
 caused by the first fit's distortion is dropped) until the set no longer changes (at most
 SETTLED_FLIPS samples, or 2 % of the set, flip across the threshold), at most MAX_ROUNDS
-rounds, and one where the refit still misfits grossly (GROSS_ROUNDS_CHI2). The problem keeps the zero weights, so the explanation's candidate fits and the
-posterior see the clean problem.
+rounds, and one where the refit still misfits grossly (GROSS_ROUNDS_CHI2). The problem
+keeps the zero weights, so the explanation's candidate fits and the posterior see the
+clean problem.
 """
 
 from __future__ import annotations
@@ -87,11 +88,11 @@ RULE = ("standardised residual of each sample (noise per role from 4th differenc
         "leverage and the neighbours' own roughness; flagged when z^2 > 2 ln(N / alpha), a "
         f"family-wise false-alarm rate alpha = {ALPHA:g} over the N valid samples "
         f"(Bonferroni, chi^2 with 2 dof); runs of more than {MAX_RUN} consecutive frames "
-        f"are not isolated and not glitches, nor are flags that {COMMON} or more markers share "
-        "within a frame (a common cause) unless one stands off the others' median deviation "
-        f"by more than {ON_TOP:g} times the largest of theirs; flagged samples get zero "
-        "weight and the fit is "
-        f"repeated until the set is stable (at most {MAX_ROUNDS} rounds; one where the refit "
+        f"are not isolated and not glitches, nor are flags that {COMMON} or more markers "
+        "share within a frame (a common cause) unless one stands off the others' median "
+        f"deviation by more than {ON_TOP:g} times the largest of theirs; flagged samples get "
+        "zero weight and the fit is repeated until the set is stable "
+        f"(at most {MAX_ROUNDS} rounds; one where the refit "
         f"still misfits at chi^2/dof above {GROSS_ROUNDS_CHI2:g})")
 
 

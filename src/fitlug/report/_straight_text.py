@@ -28,8 +28,10 @@ def straight_sentence(st: dict) -> str:
             f"against the belt's on the top run ({st['v_belt_mm_s']:.2f} mm/s, "
             f"{st['visits']} visits of a lug marker), as the reference study read its "
             "trajectories; its error carries the speeds' scatter, how much the slip "
-            "changes with the window and 0.5 % of the belt's speed (the markers' speed "
-            "along x is the belt's only where the top run is straight and steady)")
+            "changes with the window"
+            + (f" and {100 * st['straightness_rel']:.1g} % of the belt's speed (the markers' "
+               "speed along x is the belt's only where the top run is straight and steady)"
+               if st.get("straightness_rel") else ""))
 
 
 def _top_run_clause(st: dict) -> str:
