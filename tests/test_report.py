@@ -473,3 +473,23 @@ def test_a_frequencys_reading_is_said_once():
     s = located_sentence({"straight_runs": st, "located": [part, other]})
     assert s.count("chordal action") == 1 and "the wheels' turning frequency" in s
     assert "(the same)" not in s
+
+
+def test_a_long_glitch_list_is_folded_after_its_first_rows():
+    """An engine recording's misfit flags 100-140 samples of its structure (long_cruise:
+    142): the table shows the first GLITCH_ROWS in time order and folds the rest into a
+    <details> the reader can open; every row is still in the page, none twice."""
+    import re
+
+    from fitlug.report._section_estimates import GLITCH_ROWS, _glitches
+
+    gl = [{"marker": f"B{i % 4:02d}", "time_s": 0.01 * i, "dx_mm": 0.5, "dy_mm": -0.2,
+           "size_sigma": 6.0 + i} for i in range(GLITCH_ROWS + 7)]
+    html_ = _glitches({"glitches": gl, "glitch_rule": "a rule"})
+    shown, folded = html_.split("<details>")
+    assert f"({GLITCH_ROWS + 7})" in shown and "the other 7" in folded
+    assert len(re.findall(r"<tr>", shown)) == GLITCH_ROWS + 1  # header + rows
+    assert len(re.findall(r"<tr>", folded)) == 7 + 1
+    assert "</details>" in folded and "Rule: a rule." in folded
+    short = _glitches({"glitches": gl[:3], "glitch_rule": "a rule"})
+    assert "<details>" not in short and len(re.findall(r"<tr>", short)) == 4
