@@ -53,7 +53,7 @@ from ._final import final_fit, polished_theta, withdrawn
 from ._locate import locate
 from ._robust import nuisance_result, partial_shift, robust_result
 from ._sliding_direct import direct_candidate
-from ._straight import withheld as _withheld
+from ._straight import reads_straight_runs, withheld as _withheld
 from ._systematics import tracker_systematics
 from ._table import geometry, structured_misfit
 
@@ -327,7 +327,7 @@ def _family_instead(res, geo, loc0, det0, sig_est, alpha, final, accepted, verdi
     if not accepted or (verdict == "explained" and not image_stack):
         return None
     if verdict == "unexplained" and set(accepted) <= set(BASE_EFFECTS) and \
-            (getattr(final, "robust", None) or {}).get("headline") == "straight runs":
+            reads_straight_runs(final):
         # only the base model's marker placement was taken, the families already failed
         # beside it, and the whole-path model misfits grossly (chi2/dof > GROSS_CHI2): the
         # base fit without the placement is further from the path still (the engine's

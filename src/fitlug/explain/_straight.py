@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..fit._result import reads_straight_runs as reads_straight_runs
 from ._plateau import SMOOTH_S, plateau
 
 #: distance kept from each end of the top run (mm): a link turns onto a wheel before its
@@ -273,7 +274,7 @@ def withheld(final, accepted, steps, disc):
 
     from ._explanation import BASE_EFFECTS
 
-    if (getattr(final, "robust", None) or {}).get("headline") != "straight runs":
+    if not reads_straight_runs(final):
         return final, accepted, steps, disc
     entries = [e for e in accepted if e not in BASE_EFFECTS]
     terms = [t.to_json() for t in (getattr(disc, "terms", None) or [])]

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from ..fit._result import FitResult
+from ..fit._result import FitResult, reads_straight_runs
 from ._derived import _derived_gradients
 from ._marginal import _Marginal, slip_law_parameters
 
@@ -96,12 +96,6 @@ def tempering(res: FitResult, marg: "_Marginal | None" = None) -> dict:
                  "each quantity when the speed spline is freed)")
     return {"factor": factor, "cov": S, "method": method, "clusters": G,
             "extra_scale": float(extra), "note": note}
-
-
-def reads_straight_runs(res: FitResult) -> bool:
-    """Whether `res`'s headline slip is read off the straight runs (explain._robust): its
-    model does not describe the path and its slip law is reported not identifiable."""
-    return (getattr(res, "robust", None) or {}).get("headline") == "straight runs"
 
 
 def tempered_marginal(res: FitResult, names, batch: int) -> tuple:
