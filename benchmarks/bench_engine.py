@@ -86,7 +86,9 @@ def one(folder: str, timeout: float) -> dict:
         other = st.get("top_run") or st.get("top_run_disagrees") or \
             st.get("belt_clock_rejected") or st.get("belt_clock") or {}
         out.update(straight_method=st.get("method"), lugs_on_belt=st.get("lugs_on_belt"),
-                   window_s=st.get("window_s"),
+                   window_s=st.get("window_s"), cruise_s=st.get("cruise_s"),
+                   v_body=st.get("v_body_mm_s"), v_belt=st.get("v_belt_mm_s"),
+                   v_body_window=st.get("v_body_window_mm_s"),
                    # the other reading beside the one taken (explain._straight.choose)
                    other_slip=other.get("slip"), other_std=other.get("std"),
                    top_run_disagrees="top_run_disagrees" in st,

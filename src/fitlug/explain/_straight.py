@@ -166,7 +166,8 @@ def _pitches_apart(clock: dict, top: dict):
     travel and what is left of it; (None, None) where the clock's reading does not say its
     travel (then any disagreement is taken for a miscount)."""
     try:
-        travel = clock["v_belt_mm_s"] * (clock["window_s"][1] - clock["window_s"][0])
+        v_window = clock.get("v_belt_window_mm_s", clock["v_belt_mm_s"])
+        travel = v_window * (clock["window_s"][1] - clock["window_s"][0])
         unit = (1.0 - clock["slip"]) * clock["pitch_mm"] / travel
     except (KeyError, TypeError, IndexError):
         return None, None

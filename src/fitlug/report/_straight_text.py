@@ -17,12 +17,12 @@ def straight_sentence(st: dict) -> str:
                 "clock: the lug markers' passages of the same places in the body's frame "
                 f"({st['passages']} passages of {st['visits']} markers), whole lug pitches "
                 + (f"and belt lengths of {n} lugs " if n else "")
-                + f"apart, give the belt's travel ({st['v_belt_mm_s']:.2f} mm/s"
-                + ("" if same else f" from {w[0]:.2f} to {w[1]:.2f} s")
+                + "apart, give the belt's travel ("
+                + (f"{st['v_belt_mm_s']:.2f} mm/s" if same else _window_clause(st, w))
                 + f") against the body's ({st['v_body_mm_s']:.2f} mm/s) over the cruise "
                 f"from {c[0]:.2f} to {c[1]:.2f} s; its error carries the passages' scatter"
-                + ("" if same else ", the belt speed's trend") + " and the body's surge"
-                + _top_run_clause(st))
+                + ("" if same else ", the belt speed's trend and that change")
+                + " and the body's surge" + _top_run_clause(st))
     return ("the model does not describe the path, so the slip is read off the straight "
             f"runs: the body's mean speed at cruise ({st['v_body_mm_s']:.2f} mm/s) "
             f"against the belt's on the top run ({st['v_belt_mm_s']:.2f} mm/s, "
@@ -32,6 +32,15 @@ def straight_sentence(st: dict) -> str:
             + (f" and {100 * st['straightness_rel']:.1g} % of the belt's speed (the markers' "
                "speed along x is the belt's only where the top run is straight and steady)"
                if st.get("straightness_rel") else ""))
+
+
+def _window_clause(st: dict, w) -> str:
+    """The belt's speed over a clock window shorter than the cruise, and over the cruise
+    (explain._belt_clock.BELT_FOLLOWS: it follows half the body's change outside it)."""
+    v_w = st.get("v_belt_window_mm_s", st["v_belt_mm_s"])
+    return (f"{v_w:.2f} mm/s from {w[0]:.2f} to {w[1]:.2f} s where its passages are seen, "
+            f"{st['v_belt_mm_s']:.2f} mm/s over the cruise, taken to change by half the "
+            f"body's change in the other {100 * st.get('unseen_share', 0.0):.0f} % of it")
 
 
 def _top_run_clause(st: dict) -> str:
