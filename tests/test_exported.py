@@ -27,7 +27,9 @@ def solver_args():
 
     packing = _lsq.Packing.of(prob.p0, free_parameters(prob.lay))
     fixed = {k: jnp.asarray(v, float) for k, v in prob.p0.items() if k not in packing.names}
-    args, static = (packing.pack(prob.p0), fixed, prob.lay, prob.obs), (packing, 200, 1e-8, 1e-6)
+    flat = packing.pack(prob.p0)
+    args = (flat, fixed, prob.lay, prob.obs, jnp.ones_like(flat))  # nothing held
+    static = (packing, 200, 1e-8, 1e-6)
     return args, static, _lsq._solve(*args, *static)
 
 
@@ -88,7 +90,7 @@ def test_pytree_outputs_exported_and_read_back(solver_args, tmp_path, monkeypatc
     from fitlug.fit._glitches import _predict
     from fitlug.fit._result import _derived_exported
 
-    (flat, fixed, lay, _), static, _ = solver_args
+    (flat, fixed, lay, _, _), static, _ = solver_args
     packing = static[0]
     zero = jnp.asarray(0.0, float)
     cases = [("derived", _derived_exported, (packing, False, False), (flat, fixed, lay, zero,

@@ -115,6 +115,34 @@ def test_levenberg_marquardt_ends_at_the_minimum_without_idle_steps(reference_fi
     assert res.steps <= 12, res.steps  # the glitch round's refit from the noise fit's end
 
 
+def test_a_held_parameter_is_solved_in_the_free_fits_program(reference_fit):
+    """The fit's first stage holds beta at its start (fit_problem): held by a masked column
+    in the program of the fit that frees it, it lands where the fit without beta in its
+    free set lands (to the solver's tolerance), keeps beta exactly, and loads no program
+    of its own (a new process loaded two 1 MB executables for the two, ~0.5 s)."""
+    from fitlug import _exported
+    from fitlug.fit._lsq import least_squares
+
+    res, _ = reference_fit
+    prob = res.problem
+    p0 = dict(prob.p0)
+    free = list(res.packing.names)
+    least_squares(p0, free, prob.lay, prob.obs)  # the program of the free fit
+    n_programs = len(_exported._MEMO)
+    held = least_squares(p0, free, prob.lay, prob.obs, hold=("beta",))
+    assert len(_exported._MEMO) == n_programs  # nothing new loaded or exported
+    plain = least_squares(p0, [k for k in free if k != "beta"], prob.lay, prob.obs)
+    assert held.converged and plain.converged
+    assert float(held.params["beta"]) == float(p0["beta"])
+    assert list(held.packing.names) == free  # the output's packing frees beta
+    chi2_h, chi2_p = float(np.sum(held.r ** 2)), float(np.sum(plain.r ** 2))
+    assert abs(chi2_h - chi2_p) < 1e-6 * chi2_p
+    sl = res.packing.slices()
+    err = np.sqrt(np.diag(res.cov))
+    for k in ("s0", "R", "D", "e"):
+        assert abs(float(held.params[k]) - float(plain.params[k])) < 1e-3 * err[sl[k].start], k
+
+
 def test_data_derived_start_is_close(reference_fit):
     res, truth = reference_fit
     g0 = res.problem.init_info["geometry0"]

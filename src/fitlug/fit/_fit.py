@@ -96,8 +96,8 @@ def fit_problem(prob: Problem, p_start: dict | None = None, *, free=None, max_st
         # against spurious accelerations and stopped at chi2/dof 1e4..1e7 (issue 26); with
         # beta held the geometry, phases and speed converge in a few steps, and beta then
         # moves from a point where the accelerations are the data's own
-        held = least_squares(p0, [k for k in free if k != "beta"], prob.lay, prob.obs,
-                             max_steps=max_steps)
+        held = least_squares(p0, free, prob.lay, prob.obs, max_steps=max_steps,
+                             hold=("beta",))
         if np.all(np.isfinite(held.r)):
             p0 = {**p0, **held.params}
             held_steps = held.steps

@@ -138,14 +138,16 @@ def _with_structured_jacobian(fixed, lay, obs, packing: Packing):
 
 
 @eqx.filter_jit
-def _solve(flat0, fixed, lay, obs, packing: Packing, max_steps: int, rtol: float, atol: float,
-           gn_steps: int = 0):
+def _solve(flat0, fixed, lay, obs, mask, packing: Packing, max_steps: int, rtol: float,
+           atol: float, gn_steps: int = 0):
     r_of_flat = _with_structured_jacobian(fixed, lay, obs, packing)
 
     # unit Jacobian columns, times _START_GAIN: optimistix's trust region starts at lambda = 1,
     # which is 1 / _START_GAIN^2 in unit columns (LM alone: mean 20 steps instead of 30 over
-    # five recordings); tolerances kept in unit columns
-    scale = _column_scale(jacobian(flat0, fixed, lay, obs, packing)) * _START_GAIN
+    # five recordings); tolerances kept in unit columns. `mask` (0: held at flat0) zeroes a
+    # held element's column, which the damped normal equations leave at 0 (as a padded
+    # bucket's): one program for every held set of this packing
+    scale = _column_scale(jacobian(flat0, fixed, lay, obs, packing)) * _START_GAIN * mask
     atol = atol / _START_GAIN
 
     bounded = "s0" in packing.names and "beta" in packing.names
@@ -203,17 +205,27 @@ class LsqOutput(NamedTuple):
 
 
 def least_squares(p0: dict, free, lay, obs, *, max_steps: int = 200, rtol: float = 1e-8,
-                  atol: float = 1e-6, chunked: bool | None = None) -> LsqOutput:
+                  atol: float = 1e-6, chunked: bool | None = None, hold=()) -> LsqOutput:
     """Minimise |residuals|^2 over the `free` parameters of `p0` (others held fixed).
+
+    `hold`: names among `free` kept at their values in `p0`, in the compiled program of the
+    fit that frees them (their columns masked: a new process loads one program, not two;
+    the output's packing and J include them, J at the held values).
 
     Long recordings (dense Jacobian above LARGE_ENTRIES entries; `chunked` forces the
     choice) are solved on normal equations accumulated in time chunks: then the output's
     J is None and `normal` holds J^T J."""
+    hold = [k for k in hold if k in free]
     packing = Packing.of(p0, free)
     fixed = {k: jnp.asarray(v, float) for k, v in p0.items() if k not in packing.names}
     n_res = 2 * (lay.lug_t.shape[0] + lay.body_t.shape[0])
     if chunked is None:
         chunked = n_res * sum(packing.sizes) > LARGE_ENTRIES
+    if chunked and hold:  # the chunked solver is Python round kernels: no program to share
+        return least_squares(p0, [k for k in free if k not in hold], lay, obs,
+                             max_steps=max_steps, rtol=rtol, atol=atol, chunked=chunked)
+    mask = np.concatenate([np.full(n, 0.0 if k in hold else 1.0)
+                           for k, n in zip(packing.names, packing.sizes)])
     if chunked and chunkable(p0, lay, packing):
         flat, A, r, ok, steps = _solve_chunked(packing.pack(p0), fixed, lay, obs, packing,
                                                chunk_plan(lay), max_steps, rtol, 1e-9)
@@ -229,11 +241,15 @@ def least_squares(p0: dict, free, lay, obs, *, max_steps: int = 200, rtol: float
     if pb is None:
         flat, J, r, ok, steps = _exported.call("lsq_solve", _solve,
                                                (packing, max_steps, rtol, atol),
-                                               packing.pack(p0), fixed, lay, obs)
+                                               packing.pack(p0), fixed, lay, obs,
+                                               jnp.asarray(mask))
     else:
+        mask_b = np.ones(np.shape(pb.flat)[0])
+        mask_b[pb.cols] = mask
         flat, J, r, ok, steps = _exported.call("lsq_solve", _solve,
                                                (pb.packing, max_steps, rtol, atol),
-                                               pb.flat, pb.fixed, pb.lay, pb.obs)
+                                               pb.flat, pb.fixed, pb.lay, pb.obs,
+                                               jnp.asarray(mask_b))
         flat, J, r = pb.flat_of(flat), pb.J_of(J), pb.r_of(r)
     # unpacked in numpy: jax slices compile once per (offset, size)
     b = _beta_of(np.asarray(flat), packing)
