@@ -330,6 +330,30 @@ def test_the_posterior_of_a_path_the_model_does_not_describe_is_its_gaussian_lim
     assert sample_posterior(out, seed=0, method="exact", max_steps=200).check is not None
 
 
+def test_a_wide_straight_runs_slip_keeps_its_interval_in_the_posterior(robust):
+    """The slip read off the straight runs replaces the slip law's draws: a measurement of
+    its own, not a function of the slip law. With an error above a quarter of the slip (a
+    light robot's 0.0093 +- 0.0026, where its belt is seen over half the cruise) it is
+    still reported with its interval, as the least-squares run reports it; the posterior
+    had withheld it as "nonlinear in beta" (its draws do not follow the slip law's)."""
+    import dataclasses
+
+    from fitlug.posterior import least_squares_identifiability, sample_posterior
+
+    out, _ = robust
+    term = out.robust["slip_term"]
+    assert term.get("replace")
+    wide = dataclasses.replace(out, robust={**out.robust,
+                                            "slip_term": {**term, "std": 0.4 * term["value"]}})
+    post = sample_posterior(wide, seed=0)
+    e = post.estimates["slip"]
+    assert e.value is not None and "slip" not in post.not_identifiable
+    assert e.value == pytest.approx(term["value"], rel=0.05)
+    assert e.std == pytest.approx(0.4 * term["value"], rel=0.05)
+    assert post.estimates["delta_l_mm"].value is not None
+    assert "slip" not in least_squares_identifiability(wide)
+
+
 def test_the_clock_sentence_names_the_belts_window_and_the_bodys_cruise():
     """Where the belt's speed is read over a shorter window than the body's cruise, the
     report's sentence gives both spans; where they are the same, one."""

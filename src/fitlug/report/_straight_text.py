@@ -36,10 +36,13 @@ def straight_sentence(st: dict) -> str:
 
 def _window_clause(st: dict, w) -> str:
     """The belt's speed over a clock window shorter than the cruise, and over the cruise
-    (explain._belt_clock.BELT_FOLLOWS: it follows half the body's change outside it)."""
+    (explain._belt_clock.BELT_FOLLOWS: it follows that share of the body's change outside
+    the window)."""
     v_w = st.get("v_belt_window_mm_s", st["v_belt_mm_s"])
+    f = st.get("belt_follows", 0.5)
+    share = "half" if f == 0.5 else f"{f:g} times"
     return (f"{v_w:.2f} mm/s from {w[0]:.2f} to {w[1]:.2f} s where its passages are seen, "
-            f"{st['v_belt_mm_s']:.2f} mm/s over the cruise, taken to change by half the "
+            f"{st['v_belt_mm_s']:.2f} mm/s over the cruise, taken to change by {share} the "
             f"body's change in the other {100 * st.get('unseen_share', 0.0):.0f} % of it")
 
 
