@@ -33,7 +33,7 @@ from .._errors import FitError
 from ..model._physics import C_RR_MIN, beta_max
 from ..fit._result import Estimate, FitResult
 from ._derived import REPORTED, _derived_samples, _estimate
-from ._identify import not_identifiable
+from ._identify import not_identifiable, read_apart
 from ._marginal import LINEARITY_TOL, _Marginal, slip_law_parameters
 from ._mcmc import GUARD_S, MAX_STEPS, run_ensemble
 from ._posterior import Posterior
@@ -177,13 +177,7 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     _slip_term(samples, res, rng)
     mass_prior(samples, priors, rng)
     estimates = {k: _estimate(samples[k]) for k in REPORTED if k in samples}
-    unident = not_identifiable(samples, names)
-    if straight:
-        # the slip read off the straight runs is a measurement of its own (its draws
-        # replaced the slip law's, _slip_term), not a function of the slip law: its
-        # interval stands however wide (a light robot's 0.0093 +- 0.0026 was withheld as
-        # "nonlinear in beta"), as least_squares_identifiability decides
-        unident = {k: v for k, v in unident.items() if k not in ("slip", "delta_l_mm")}
+    unident = not_identifiable(samples, names, read_apart(res))
     for k, why in unident.items():  # never a number for what the data cannot fix
         if k in estimates:
             estimates[k] = Estimate(None, None, reason=why)
