@@ -317,16 +317,21 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
             coef, keep, sig_c, W = fitted
     cov = np.linalg.pinv(W.T @ W)
     et = np.unique(np.r_[rows[keep, 0], rows[keep, 1]])
-    # the brush settles one contact time after the speed does (its lugs landed before)
-    if t2 - (t1 + settle_s) >= 0.5 * (t2 - t1):
-        t1 = t1 + settle_s
-    ta, tb = _end(et, t1, +1), _end(et, t2, -1)
-    # a cruise that begins or ends while every marked lug is on the ground (six marked of
-    # 26, a 1.1-s gap) is read from the first or to the last passage: the spline holds
-    # psi only between them
-    ta = float(et[0]) if ta < T0 else ta
-    tb = float(et[-1]) if tb > T1 else tb
-    if not (T0 <= ta < tb <= T1) or tb - ta < min(0.5 * (t2 - t1), MIN_WINDOW_S):
+    # the brush settles one contact time after the speed does (its lugs landed before);
+    # where the settled cruise leaves no window (its passages fall in a gap: a heavy body
+    # on soft lugs, the marked lugs on the ground for the cruise's last 0.9 s), the whole
+    # cruise is read
+    starts = [t1 + settle_s, t1] if t2 - (t1 + settle_s) >= 0.5 * (t2 - t1) else [t1]
+    for t1 in starts:
+        ta, tb = _end(et, t1, +1), _end(et, t2, -1)
+        # a cruise that begins or ends while every marked lug is on the ground (six marked
+        # of 26, a 1.1-s gap) is read from the first or to the last passage: the spline
+        # holds psi only between them
+        ta = float(et[0]) if ta < T0 else ta
+        tb = float(et[-1]) if tb > T1 else tb
+        if T0 <= ta < tb <= T1 and tb - ta >= min(0.5 * (t2 - t1), MIN_WINDOW_S):
+            break
+    else:
         return None
     tm = 0.5 * (ta + tb)
     B3 = basis([ta, tm, tb])  # the window's ends and its middle (the trend, below)

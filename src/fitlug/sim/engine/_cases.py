@@ -54,4 +54,12 @@ CASES: dict[str, EngineCase] = {c.name: c for c in [
                notes="a 5 kg chassis on half the rolling resistance: a slip of 0.01, its "
                      "belt 0.6 % faster in the half of the cruise the clock's passages "
                      "do not see"),
+    EngineCase(name="window_late", **_REF, camera_window_mm=(300.0, 650.0),
+               notes="the reference run through a late window: the body comes into the "
+                     "picture 1.1 s into its cruise, which ends with the marked lugs on "
+                     "the ground"),
+    EngineCase(name="k015_heavy15", k_N_per_mm=0.15, fps=100.0, chassis_mass_kg=15.0,
+               notes="a 15 kg chassis on 0.15 N/mm lugs: the body surges by +-10 % at "
+                     "about 1 Hz, its slip 0.025 and 0.075 over the cruise's two contact "
+                     "periods"),
 ]}
