@@ -160,6 +160,9 @@ class Explanation:
                 **straight, "note": ("the model does not describe the path (chi2/dof "
                                      f"{self.final.chi2_per_dof:.0f}): the headline slip is "
                                      f"1 - v_body / v_belt at cruise, {how}")}
+        far = (getattr(self.final, "robust", None) or {}).get("far_from_data")
+        if far is not None:  # no slip read (explain._straight.far_from_data)
+            out["far_from_data"] = far
         nuis = (getattr(self.final, "robust", None) or {}).get("nuisance")
         if nuis is not None:  # a measurement nuisance taken out (explain._nuisance)
             out[nuis[0]] = nuis[1]

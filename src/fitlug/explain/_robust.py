@@ -47,7 +47,7 @@ from ._image_motion import ImageMotion
 from ._marker_shift import MarkerShift
 from ._nuisance import holds, search
 from ._speed import cannot_hold, speed_sensitivity
-from ._straight import straight_runs_slip
+from ._straight import far_from_data, straight_runs_slip
 from ._table import Geometry
 
 WINDOW_S = 0.5  # s, the Hann windows of the in-time sandwich
@@ -170,9 +170,15 @@ def robust_result(res, geo: Geometry, alpha: float = ALPHA):
                         slip_term={"replace": True, "value": straight["slip"],
                                    "std": straight["std"]},
                         uncertainty_method=label), label
+    far = far_from_data(res) if straight is None else None
+    if far:  # no slip where the model misses the markers by a tenth of a pitch
+        from ..fit import Estimate
+
+        out = {k: Estimate(None, None, reason=far) if k in SLIP_LAW + ("slip", "delta_l_mm")
+               else e for k, e in out.items()}
     return _widened(res, out, **sandwich, speed_sensitivity=_public(speed), label=method,
-                    uncertainty_method=f"least squares, {method} errors (unexplained misfit)"
-                    ), method
+                    uncertainty_method=f"least squares, {method} errors (unexplained misfit)",
+                    **({"far_from_data": far} if far else {})), method
 
 
 def straight_headline(res) -> dict | None:

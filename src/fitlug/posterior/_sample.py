@@ -116,10 +116,13 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     # exact marginal of that model (its Gauss-Newton profile 10^6 in chi^2 off its
     # Gaussian limit on an engine recording, 170 s of chain) says nothing more: the
     # Gaussian limit, stretched like the exact one, is sampled without a check
-    check = None if method == "auto" and straight else marg.linearity_check()
+    # a model that misses the markers by a tenth of a pitch (explain._straight
+    # .far_from_data): its slip is not read, its law sampled like the straight runs' case
+    far = bool(robust.get("far_from_data"))
+    check = None if method == "auto" and (straight or far) else marg.linearity_check()
     use = method
     if method == "auto":
-        use = ("gaussian" if straight or check["max_delta_chi2"] <= LINEARITY_TOL
+        use = ("gaussian" if straight or far or check["max_delta_chi2"] <= LINEARITY_TOL
                else "exact")
         if robust.get("method") == "family term":
             # the model extended by a family term (fitlug.explain.families) has no exact
@@ -181,9 +184,10 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     for k, why in unident.items():  # never a number for what the data cannot fix
         if k in estimates:
             estimates[k] = Estimate(None, None, reason=why)
-    if straight:
-        # the slip law's quantities of a model that does not describe the path: left not
-        # identifiable as the explanation said (explain._robust.SLIP_LAW)
+    if straight or far:
+        # the slip law's quantities of a model that does not describe the path (and its
+        # slip, where it misses the markers by a tenth of a pitch): left not identifiable
+        # as the explanation said (explain._robust.SLIP_LAW, explain._straight.far_from_data)
         for k, e in res.quantities.items():
             if k in estimates and e.value is None and e.reason:
                 estimates[k] = e

@@ -103,7 +103,8 @@ def tempered_marginal(res: FitResult, names, batch: int) -> tuple:
     stretched to the robust covariance when the misfit is unexplained (see `tempering`;
     the returned dict without its "cov"). Under a straight-runs headline a singular
     marginal is ridged (`_Marginal`'s singular_ok), not an error."""
-    marg = _Marginal(res, names, batch=batch, singular_ok=reads_straight_runs(res))
+    far = bool((getattr(res, "robust", None) or {}).get("far_from_data"))
+    marg = _Marginal(res, names, batch=batch, singular_ok=reads_straight_runs(res) or far)
     temper = tempering(res, marg)
     if temper.get("cov") is not None:
         marg.widened(temper.pop("cov"))

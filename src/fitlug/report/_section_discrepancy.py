@@ -64,6 +64,8 @@ def handling_sentence(d: dict) -> str:
     st = d.get("straight_runs")
     if st:
         return straight_sentence(st) + not_claimed_clause(d)
+    if d.get("far_from_data"):
+        return "no slip is read: " + d["far_from_data"]
     sens = d.get("speed_sensitivity") or {}
     if sens.get("headline"):
         return ("a free speed profile follows it (a motion of the drive the adaptive profile "
