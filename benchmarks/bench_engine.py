@@ -34,6 +34,10 @@ class _Timeout(Exception):
     pass
 
 
+class _NotRead(Exception):
+    """The explanation reads no slip (its reason in the row)."""
+
+
 def _alarm(signum, frame):
     raise _Timeout()
 
@@ -75,6 +79,10 @@ def one(folder: str, timeout: float) -> dict:
         out["std_base"] = float(res.slip.std)
         ex = explain(res, seed=0)
         fin = ex.final
+        if fin.slip.value is None:  # no slip read (explain._straight.far_from_data)
+            out.update(verdict=ex.verdict, not_read=fin.slip.reason,
+                       chi2_after=float(fin.chi2_per_dof))
+            raise _NotRead()
         out.update(verdict=ex.verdict,
                    named=sorted(ex.effects) + [f"{st.effect} (base: marker on the lug)"
                                                for st in getattr(ex, "base_steps", [])],
@@ -94,6 +102,8 @@ def one(folder: str, timeout: float) -> dict:
                    top_run_disagrees="top_run_disagrees" in st,
                    belt_clock_rejected="belt_clock_rejected" in st)
         out["z"] = (out["slip"] - out["engine_slip"]) / out["std"] if out["std"] > 0 else None
+    except _NotRead:
+        out["error"] = f"no slip read: {out['not_read']}"[:300]
     except _Timeout:
         out["error"] = f"timeout after {timeout:g} s"
     except Exception as exc:  # noqa: BLE001 - a benchmark reports failures

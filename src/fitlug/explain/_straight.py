@@ -288,9 +288,7 @@ def far_from_data(res) -> str | None:
     if not rms > FAR_PITCH * pitch:
         return None
     return (f"the model misses the markers by {rms:.1f} mm rms beyond their noise "
-            f"({rms / pitch:.0%} of a lug pitch): it does not describe this track's motion, "
-            "and the straight runs give no reading (no cruise with the belt's passages or "
-            "top-run visits in view)")
+            f"({rms / pitch:.0%} of a lug pitch) and the straight runs give no reading")
 
 
 def withheld(final, accepted, steps, disc):

@@ -129,7 +129,9 @@ def _verdict_main(fj) -> str:
                 f'{F.sig(d.get("chi2_per_dof_after"), 4)}; the slip above is the extended '
                 "model's, its error carrying the term's uncertainty.</div>")
     sentence = _located_sentence(d)
-    if _widened(fj):  # the error bar carries the mismatch
+    if d.get("far_from_data"):  # no slip read (explain._straight.far_from_data)
+        tail = "."
+    elif _widened(fj):  # the error bar carries the mismatch
         # the method once on the page's top (the headline's note names it): here only
         # where the verdict's own differs from it
         how = d.get("slip_after_uncertainty")
