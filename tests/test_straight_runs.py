@@ -454,9 +454,11 @@ def test_a_long_cruise_reads_the_belt_clock_where_the_top_run_reads_the_links_sl
     markers' speed along x 0.4 % under the chain's travel (its unsupported top run moves
     4 mm up and down): 0.0300 +- 0.0004, 11 of its errors off, and its reading was taken
     over the clock's 0.0344 +- 0.0004 as if the clock had miscounted a belt length, which
-    would put them 0.020 apart. The clock's stands, within 3 of its errors and at 2 % of
-    the slip: issue 41's bar, where the recording is long enough to give it. The top run's
-    reading alone carries 0.5 % of the belt's speed in its error, and holds the truth."""
+    would put them 0.020 apart. The clock's stands, within 3 of its errors and under 4 % of
+    the slip: its error holds the slip's scatter over the window's six contact times
+    (batch means, 0.0010; the engine's own seven contact periods scatter by 0.0016 about
+    their mean), where the window's precision alone was 0.0004. The top run's reading
+    alone carries 0.5 % of the belt's speed in its error, and holds the truth."""
     d = os.path.join(ENGINE, "long_cruise")
     rig = fitlug.read_rig(os.path.join(d, "rig.toml"))
     rec = fitlug.read_trajectories(os.path.join(d, "trajectories.csv"), rig=rig)
@@ -465,7 +467,8 @@ def test_a_long_cruise_reads_the_belt_clock_where_the_top_run_reads_the_links_sl
     res = fitlug.fit(rec, rig)
     st = straight_runs_slip(res)
     assert st["method"] == "belt clock" and st["lugs_on_belt"] == 22
-    assert abs(st["slip"] - s_true) < 3.0 * st["std"] and st["std"] < 0.02 * s_true
+    assert abs(st["slip"] - s_true) < 3.0 * st["std"] and st["std"] < 0.04 * s_true
+    assert st["batches"] >= 5 and st["std"] >= st["batch_std"] > 0.0005
     # the top run's reading (the clock's stands beside it): 0.4 % slow on the belt's
     # speed, 11 of its visits' errors; its error now carries 0.5 % of that speed
     top = st.get("top_run") or st["top_run_disagrees"]
@@ -615,3 +618,18 @@ def test_a_model_that_misses_the_markers_by_a_tenth_of_a_pitch_reads_no_slip():
                 expect, rel=0.1)
         else:
             assert why is None
+
+
+def test_the_belt_clocks_error_holds_the_slow_surge_of_a_fast_run():
+    """The engine's crawler at 400 mm/s over a 2 s cruise (data/engine/v400, MuJoCo: slip
+    0.0416 over its whole contact periods before the cruise's end). The body surges at
+    0.84 Hz and the slip swings between 0.023 and 0.058 from one contact period (0.32 s) to
+    the next; the clock's window, from a contact time after the ramp, holds 1.3 surge
+    periods, whose line takes up most of the swing: 0.0367 +- 0.0011 read 4.7 of its errors
+    low. Its error now holds the scatter of the slip over each contact time of the window
+    (batch means), and the slip holds the engine's within 3 of its errors."""
+    rec, rig, truth = _engine("v400")
+    st = belt_clock_alone(fitlug.fit(rec, rig))
+    assert st["batches"] >= 3 and st["batch_std"] > 2 * st["surge_wander_mm"] / 600.0, st
+    assert abs(st["slip"] - truth["slip"]) < 3.0 * st["std"], (st, truth["slip"])
+    assert st["std"] < 0.25 * truth["slip"]
