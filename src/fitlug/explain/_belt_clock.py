@@ -53,7 +53,7 @@ over the root of their number (batch means): a surge at about 1 Hz swings the sl
 window of one or two of its periods by more than the scatter about that window's own
 line shows (the engine at 400 mm/s, its slip 0.023-0.058 from one contact period to the
 next: 0.0367 +- 0.0011 over 1.56-3.16 s, where its own whole periods before the cruise's
-end read 0.0416; with batch means +- 0.0045).
+end read 0.0416; with batch means +- 0.0043).
 
 Measured on the contact-dynamics engine's recordings end to end (docs/engine.md): the 19
 committed and 24 blind-style variants (session 34) all within 3 of its errors of the

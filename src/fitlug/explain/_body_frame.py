@@ -96,8 +96,8 @@ def body_cruise(ut, tx):
     """(t1, t2, v) of the body's cruise: where its speed (from its markers, seen at the
     frames `ut`) holds a plateau (explain._straight.plateau), its mean taken over
     BODY_MEAN_S, or over twice that where the first gives no cruise of MIN_CRUISE_S (a
-    heavy body on soft lugs surges by +-35 % at 2.4 Hz: half a second's mean still swings
-    by more than the plateau's share, and left 0.9 s of a 2.8-s cruise)."""
+    heavy body on soft lugs surges by +-10 % at about 1 Hz: half a second's mean still
+    swings by more than the plateau's share; a second's cancels it)."""
     if len(ut) < 16:
         return None
     best = None

@@ -263,7 +263,7 @@ def _top_run_slip(res, margin_mm, p, lay, nodes) -> dict | None:
 #: mm) beyond which its slip is not read, as a share of the lug pitch: a model that misses
 #: the markers by a tenth of a pitch does not say where a lug is (the engine's rubber belt
 #: at friction 0.2, its tips at the friction limit in 78 % of contacts, slip 0.59: missed
-#: by 6.5 mm rms, its slip read 0.258 +- 0.0006); engine recordings the model bends to
+#: by 14.6 mm rms, its slip read 0.258 +- 0.0006); engine recordings the model bends to
 #: are missed by 0.1-0.8 mm
 FAR_PITCH = 0.1
 
