@@ -633,3 +633,18 @@ def test_the_belt_clocks_error_holds_the_slow_surge_of_a_fast_run():
     assert st["batches"] >= 3 and st["batch_std"] > 2 * st["surge_wander_mm"] / 600.0, st
     assert abs(st["slip"] - truth["slip"]) < 3.0 * st["std"], (st, truth["slip"])
     assert st["std"] < 0.25 * truth["slip"]
+
+
+def test_one_marked_lug_reads_its_one_visit_of_the_top_run():
+    """The engine's reference run with one marked lug (data/engine/one_marker, MuJoCo: slip
+    0.0319): no passages a belt's turn apart in the cruise, so no clock, and one visit of
+    the top run (before: no reading, and the model's 0.009 +- 0.011 stood). That visit's
+    belt speed, with ONE_VISIT_REL of it and the top run's straightness in its error,
+    holds the engine's slip within 3 of its errors."""
+    rec, rig, truth = _engine("one_marker")
+    res = fitlug.fit(rec, rig)
+    assert belt_clock_alone(res) is None
+    st = straight_runs_slip(res)
+    assert st is not None and st["method"] == "top run" and st["visits"] == 1, st
+    assert abs(st["slip"] - truth["slip"]) < 3.0 * st["std"], (st, truth["slip"])
+    assert st["std"] < 0.5 * truth["slip"]

@@ -61,6 +61,11 @@ PREFER_TOP = 3.0
 #: engine's chains it read 0.3-0.5 % under the chain's travel (six geometries over 7-s
 #: cruises, 7-12 of the visits' own errors; docs/engine.md, session 33)
 TOP_RUN_REL = 0.005
+#: a single visit's belt speed against the cruise's (relative): where nothing else gives a
+#: reading (one marked lug: no passage pairs within a turn, one visit of the top run). The
+#: visits of the engine's chains scatter by 0.02-0.18 % about their mean (four recordings,
+#: 4-12 visits); the top run's straightness (TOP_RUN_REL) comes on top
+ONE_VISIT_REL = 0.002
 #: two-sided 95 % Student t over 1.96, by degrees of freedom (visits - 1)
 _T_OVER_Z = {1: 6.48, 2: 2.19, 3: 1.62, 4: 1.42, 5: 1.31, 6: 1.25, 7: 1.21, 8: 1.18}
 
@@ -123,6 +128,8 @@ def straight_runs_slip(res, margin_mm: float = MARGIN_MM, clock: bool = True) ->
         except (ValueError, np.linalg.LinAlgError):  # no reading: the top run's stands
             found = None
     top = _top_run_slip(res, margin_mm, p, lay, nodes)
+    if found is None and top is None:  # one visit of the top run, where nothing else reads
+        top = _top_run_slip(res, margin_mm, p, lay, nodes, min_visits=1)
     return choose(found, top)
 
 
@@ -178,8 +185,9 @@ def _pitches_apart(clock: dict, top: dict):
     return k, abs(diff - k * unit)
 
 
-def _top_run_slip(res, margin_mm, p, lay, nodes) -> dict | None:
-    """The top run's visits' reading (module docstring); see straight_runs_slip."""
+def _top_run_slip(res, margin_mm, p, lay, nodes, min_visits: int = 2) -> dict | None:
+    """The top run's visits' reading (module docstring); see straight_runs_slip. From
+    `min_visits` visits; one visit's belt speed carries ONE_VISIT_REL of it."""
     from ..model._model import ctx_of, kinematics, positions, sampled_from_nodes
 
     prob = res.problem
@@ -231,13 +239,16 @@ def _top_run_slip(res, margin_mm, p, lay, nodes) -> dict | None:
             slopes.append(np.polyfit(tl[seg], rel[seg], 1)[0])
             spans.append((float(tl[seg][0]), float(tl[seg][-1])))
     n = len(slopes)
-    if n < 2:
+    if n < max(min_visits, 1):
         return None
     w = np.array([b - a for a, b in spans])
     v = np.array(slopes)
     v_belt = float(np.average(v, weights=w))
-    spread = float(np.sqrt(np.average((v - v_belt) ** 2, weights=w) * n / (n - 1)))
-    s_belt = spread / np.sqrt(n) * _T_OVER_Z.get(n - 1, 1.0)
+    if n > 1:
+        spread = float(np.sqrt(np.average((v - v_belt) ** 2, weights=w) * n / (n - 1)))
+        s_belt = spread / np.sqrt(n) * _T_OVER_Z.get(n - 1, 1.0)
+    else:  # one visit (one marked lug): its speed against the cruise's
+        s_belt = ONE_VISIT_REL * abs(v_belt)
     if not (v_belt > 0 and np.isfinite(v_belt)):
         return None
     slip = 1.0 - v_body / v_belt

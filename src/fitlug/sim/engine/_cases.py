@@ -65,4 +65,7 @@ CASES: dict[str, EngineCase] = {c.name: c for c in [
     EngineCase(name="v400", k_N_per_mm=0.25, fps=100.0, v_belt_mm_s=400.0, cruise_s=2.0,
                notes="400 mm/s over a 2 s cruise: the body surges at 0.84 Hz, the slip "
                      "swings between 0.023 and 0.058 from one contact period to the next"),
+    EngineCase(name="one_marker", **_REF, lug_markers=(0,),
+               notes="the reference run with one marked lug: no passages a turn apart in "
+                     "the cruise, one visit of the top run"),
 ]}
