@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..fit._result import reads_straight_runs as reads_straight_runs
+from ..fit._reading import misses_the_data, reads_straight_runs as reads_straight_runs
 from ._plateau import SMOOTH_S, plateau
 
 #: distance kept from each end of the top run (mm): a link turns onto a wheel before its
@@ -239,7 +239,7 @@ def _top_run_slip(res, margin_mm, p, lay, nodes, min_visits: int = 2) -> dict | 
             slopes.append(np.polyfit(tl[seg], rel[seg], 1)[0])
             spans.append((float(tl[seg][0]), float(tl[seg][-1])))
     n = len(slopes)
-    if n < max(min_visits, 1):
+    if n < min_visits:
         return None
     w = np.array([b - a for a, b in spans])
     v = np.array(slopes)
@@ -285,8 +285,7 @@ def far_from_data(res) -> str | None:
     from ..model._model import ctx_of
 
     prob = res.problem
-    w = np.concatenate([np.asarray(prob.obs[k]) for k in ("lug_w", "lug_w", "body_w",
-                                                            "body_w")])
+    w = prob.weights
     r = np.asarray(res.residuals)
     if r.shape != w.shape:
         return None
@@ -318,8 +317,8 @@ def withheld(final, accepted, steps, disc):
 
     from ._explanation import BASE_EFFECTS
 
-    far = (final.robust or {}).get("far_from_data")
-    if not (reads_straight_runs(final) or far):
+    far = (final.robust or {}).get("far_from_data")  # its reason, for the record
+    if not (reads_straight_runs(final) or misses_the_data(final)):
         return final, accepted, steps, disc
     entries = [e for e in accepted if e not in BASE_EFFECTS]
     terms = [t.to_json() for t in (getattr(disc, "terms", None) or [])]

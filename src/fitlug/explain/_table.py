@@ -114,7 +114,7 @@ def geometry(res) -> Geometry:
     kin = {k: np.asarray(v)[:len(tu)] for k, v in kin.items()}
     seg_l = np.asarray(seg_l)[:S_l].astype(int)
     segment = np.r_[seg_l, seg_l, np.full(2 * S_b, 4)]
-    w = np.concatenate([np.asarray(prob.obs[k]) for k in ("lug_w", "lug_w", "body_w", "body_w")])
+    w = prob.weights
     valid = w > 0
 
     v, psi_u = np.asarray(kin["v"]), np.asarray(kin["psi"])

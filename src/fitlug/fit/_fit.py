@@ -180,7 +180,7 @@ def residual_noise(res: FitResult) -> dict:
     4th differences remove any slow misfit, so this measures the noise alone.
     """
     prob = res.problem
-    w = np.concatenate([np.asarray(prob.obs[k]) for k in ("lug_w", "lug_w", "body_w", "body_w")])
+    w = prob.weights
     raw = np.where(w > 0, res.residuals / np.where(w > 0, w, 1.0), np.nan)
     S_l, S_b = len(prob.lug_rows), len(prob.body_rows)
     parts = {"lug": (raw[:S_l], raw[S_l:2 * S_l], np.asarray(prob.lay.lug_i),

@@ -44,6 +44,13 @@ class Problem:
                         + np.sum(np.asarray(self.obs["body_w"]) > 0)))
 
     @property
+    def weights(self) -> np.ndarray:
+        """Each residual's weight 1 / sigma (0: not a valid sample), in the residuals'
+        order: lug x, lug y, body x, body y."""
+        return np.concatenate([np.asarray(self.obs[k])
+                               for k in ("lug_w", "lug_w", "body_w", "body_w")])
+
+    @property
     def effects(self) -> tuple:
         return self.lay.effects
 
