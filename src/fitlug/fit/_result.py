@@ -409,9 +409,3 @@ def not_converged(res: FitResult, steps: int, advice: str) -> FitError:
                        "model cannot bend to (lugs sliding at a high load)" if gross
                        else advice))
 
-
-def reads_straight_runs(res) -> bool:
-    """Whether `res`'s headline slip is read off the straight runs (its `robust`, set by
-    fitlug.explain._robust): its model does not describe the path and its slip law is
-    reported not identifiable. The one test of it (explain and posterior use it)."""
-    return (getattr(res, "robust", None) or {}).get("headline") == "straight runs"

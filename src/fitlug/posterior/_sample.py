@@ -31,6 +31,7 @@ import numpy as np
 from .. import _jaxconfig  # noqa: F401
 from .._errors import FitError
 from ..model._physics import C_RR_MIN, beta_max
+from ..fit._reading import misses_the_data
 from ..fit._result import Estimate, FitResult
 from ._derived import REPORTED, _derived_samples, _estimate
 from ._identify import not_identifiable, read_apart
@@ -118,7 +119,7 @@ def sample_posterior(res: FitResult, *, seed: int = 0, progress: bool = False,
     # Gaussian limit, stretched like the exact one, is sampled without a check
     # a model that misses the markers by a tenth of a pitch (explain._straight
     # .far_from_data): its slip is not read, its law sampled like the straight runs' case
-    far = bool(robust.get("far_from_data"))
+    far = misses_the_data(res)
     check = None if method == "auto" and (straight or far) else marg.linearity_check()
     use = method
     if method == "auto":

@@ -13,7 +13,8 @@ import math
 
 import numpy as np
 
-from ..fit._result import FitResult, reads_straight_runs
+from ..fit._reading import misses_the_data, reads_straight_runs
+from ..fit._result import FitResult
 from ._derived import _derived_gradients
 from ._marginal import _Marginal, slip_law_parameters
 
@@ -103,8 +104,8 @@ def tempered_marginal(res: FitResult, names, batch: int) -> tuple:
     stretched to the robust covariance when the misfit is unexplained (see `tempering`;
     the returned dict without its "cov"). Under a straight-runs headline a singular
     marginal is ridged (`_Marginal`'s singular_ok), not an error."""
-    far = bool((getattr(res, "robust", None) or {}).get("far_from_data"))
-    marg = _Marginal(res, names, batch=batch, singular_ok=reads_straight_runs(res) or far)
+    marg = _Marginal(res, names, batch=batch,
+                     singular_ok=reads_straight_runs(res) or misses_the_data(res))
     temper = tempering(res, marg)
     if temper.get("cov") is not None:
         marg.widened(temper.pop("cov"))
