@@ -112,6 +112,15 @@ def test_independent_recording_straight_runs_hold_the_truth(h):
     assert straight_headline(res) is None  # the model describes it: no straight headline
 
 
+def _engine(name):
+    """A committed engine recording: (Recording, Rig, the engine's truth.json)."""
+    d = os.path.join(ENGINE, name)
+    rig = fitlug.read_rig(os.path.join(d, "rig.toml"))
+    rec = fitlug.read_trajectories(os.path.join(d, "trajectories.csv"), rig=rig)
+    with open(os.path.join(d, "truth.json")) as f:
+        return rec, rig, json.load(f)
+
+
 def belt_clock_alone(res):
     """The clock's own reading of a fit (explain._belt_clock), before the choice."""
     import jax.numpy as jnp
@@ -459,11 +468,8 @@ def test_a_long_cruise_reads_the_belt_clock_where_the_top_run_reads_the_links_sl
     (batch means, 0.0010; the engine's own seven contact periods scatter by 0.0016 about
     their mean), where the window's precision alone was 0.0004. The top run's reading
     alone carries 0.5 % of the belt's speed in its error, and holds the truth."""
-    d = os.path.join(ENGINE, "long_cruise")
-    rig = fitlug.read_rig(os.path.join(d, "rig.toml"))
-    rec = fitlug.read_trajectories(os.path.join(d, "trajectories.csv"), rig=rig)
-    with open(os.path.join(d, "truth.json")) as f:
-        s_true = json.load(f)["slip"]
+    rec, rig, truth = _engine("long_cruise")
+    s_true = truth["slip"]
     res = fitlug.fit(rec, rig)
     st = straight_runs_slip(res)
     assert st["method"] == "belt clock" and st["lugs_on_belt"] == 22
@@ -487,11 +493,8 @@ def test_the_belt_clock_carries_the_belts_speed_into_the_cruise_it_does_not_see(
     The window's belt speed alone read 0.0070 +- 0.0009 (3 of its errors low). Taken to
     follow half the body's change there, +- as much, the slip holds the engine's within
     3 of its errors."""
-    d = os.path.join(ENGINE, "light5")
-    rig = fitlug.read_rig(os.path.join(d, "rig.toml"))
-    rec = fitlug.read_trajectories(os.path.join(d, "trajectories.csv"), rig=rig)
-    with open(os.path.join(d, "truth.json")) as f:
-        s_true = json.load(f)["slip"]
+    rec, rig, truth = _engine("light5")
+    s_true = truth["slip"]
     st = belt_clock_alone(fitlug.fit(rec, rig, effects=["lug_shear"]))
     assert st["unseen_share"] > 0.3, st  # the window is about half the cruise
     assert st["v_body_window_mm_s"] < st["v_body_mm_s"]  # the body faster outside it
@@ -548,13 +551,6 @@ def test_a_body_that_surges_hard_keeps_its_cruise():
     assert 1.3 <= t1 and t2 <= 4.1 and t2 - t1 > 1.5, (t1, t2)
     assert v == pytest.approx(145.0, rel=0.05)
 
-
-def _engine(name):
-    d = os.path.join(ENGINE, name)
-    rig = fitlug.read_rig(os.path.join(d, "rig.toml"))
-    rec = fitlug.read_trajectories(os.path.join(d, "trajectories.csv"), rig=rig)
-    with open(os.path.join(d, "truth.json")) as f:
-        return rec, rig, json.load(f)
 
 
 def test_the_belt_clock_reads_a_robot_that_drives_into_the_picture_at_cruise():
