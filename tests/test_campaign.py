@@ -259,6 +259,10 @@ def test_rig_drawbar_and_ground_round_trip(tmp_path):
     write_rig(tmp_path / "rig.toml", rig)
     back = read_rig(tmp_path / "rig.toml")
     assert (back.drawbar_pull_N, back.ground) == (7.5, "sand")
-    (tmp_path / "bad.toml").write_text("[vehicle]\ndrawbar_pull_N = -1\n")
+    # a push is a negative pull (MODEL.md's F_d is a load the track pulls; a pusher rig
+    # pushes); a value that is not a number is refused, naming the key
+    (tmp_path / "pushed.toml").write_text("[vehicle]\ndrawbar_pull_N = -1\n")
+    assert read_rig(tmp_path / "pushed.toml").drawbar_pull_N == -1.0
+    (tmp_path / "bad.toml").write_text("[vehicle]\ndrawbar_pull_N = \"none\"\n")
     with pytest.raises(InputError, match="drawbar_pull_N"):
         read_rig(tmp_path / "bad.toml")

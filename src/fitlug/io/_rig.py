@@ -58,9 +58,11 @@ def _lug_count(value) -> int:
 
 
 def _pull(value) -> float:
+    # a push from behind (a pusher rig, a trailer running downhill) is a negative pull:
+    # the track's traction m C_rr g + F_d is smaller, and so is its slip
     if isinstance(value, bool) or not isinstance(value, (int, float)) \
-            or not math.isfinite(value) or value < 0:
-        raise _Bad(f"must be a number >= 0 (newtons), got {value!r}")
+            or not math.isfinite(value):
+        raise _Bad(f"must be a number (newtons; negative: pushed), got {value!r}")
     return float(value)
 
 
@@ -105,7 +107,8 @@ class Rig:
         lug_pitch_mm: p, lug pitch, mm (0.1 to 1e4), or None (then fitted).
         mass_kg: mass carried by this track, kg (1e-3 to 1e6), or None (stiffness then
             not identifiable).
-        drawbar_pull_N: F_d, a known horizontal load the track pulls, N (>= 0; default 0).
+        drawbar_pull_N: F_d, a known horizontal load the track pulls, N (default 0;
+            negative where the track is pushed).
         ground: the ground's name ([ground] name), or None; recordings of one campaign on
             one ground share C_rr (and F_max).
         body_markers, lug_markers: marker ids by role, for wide-form trajectory files.
