@@ -50,9 +50,9 @@ speed, and the surge: the 'slip displacement' X - (1 - s) psi wanders about its 
 while the body surges on its lugs, so a slip over one window differs from another's by
 about sqrt(2) times that scatter over the belt's travel; where the window holds
 MIN_BATCHES contact times or more, at least the scatter of the slip over each contact time
-over the root of their number (batch means): a surge at about 1 Hz swings the slip over a
-window of one or two of its periods by more than the scatter about that window's own
-line shows (the engine at 400 mm/s, its slip 0.023-0.058 from one contact period to the
+over the root of their number, times Student's t (batch means): a surge at about 1 Hz
+swings the slip over a window of one or two of its periods by more than the scatter about
+that window's own line shows (the engine at 400 mm/s, its slip 0.023-0.058 from one contact period to the
 next: 0.0367 +- 0.0011 over 1.56-3.16 s, where its own whole periods before the cruise's
 end read 0.0416; with batch means +- 0.0043).
 
@@ -67,6 +67,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._body_frame import body_cruise, body_pose, loop_coordinate, top_run_pitch
+from ._scatter import batch_mean_std
 
 #: level spacing along the clean part of the path, mm
 LEVEL_MM = 1.0
@@ -374,7 +375,7 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
     if n_bat >= MIN_BATCHES:
         edges = np.linspace(ta, tb, n_bat + 1)
         s_bat = 1.0 - np.diff(np.interp(edges, ut, tx)) / np.diff(basis(edges) @ coef)
-        batch = float(np.std(s_bat, ddof=1) / np.sqrt(n_bat))
+        batch = batch_mean_std(s_bat)
     # the belt is driven (its speed changes half as much as the body's over a cruise:
     # 0.4 % against 1.4 % on the engine's chain) and the body carries the slip's changes (a
     # brush settling over its first contact periods: the engine's rubber belt slips 0.059

@@ -38,6 +38,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..fit._reading import misses_the_data, reads_straight_runs as reads_straight_runs
+from ._scatter import t_over_z
 from ._plateau import SMOOTH_S, plateau
 
 #: distance kept from each end of the top run (mm): a link turns onto a wheel before its
@@ -66,8 +67,6 @@ TOP_RUN_REL = 0.005
 #: visits of the engine's chains scatter by 0.02-0.18 % about their mean (four recordings,
 #: 4-12 visits); the top run's straightness (TOP_RUN_REL) comes on top
 ONE_VISIT_REL = 0.002
-#: two-sided 95 % Student t over 1.96, by degrees of freedom (visits - 1)
-_T_OVER_Z = {1: 6.48, 2: 2.19, 3: 1.62, 4: 1.42, 5: 1.31, 6: 1.25, 7: 1.21, 8: 1.18}
 
 
 def _hac_slope(t, y, lag_s):
@@ -246,7 +245,7 @@ def _top_run_slip(res, margin_mm, p, lay, nodes, min_visits: int = 2) -> dict | 
     v_belt = float(np.average(v, weights=w))
     if n > 1:
         spread = float(np.sqrt(np.average((v - v_belt) ** 2, weights=w) * n / (n - 1)))
-        s_belt = spread / np.sqrt(n) * _T_OVER_Z.get(n - 1, 1.0)
+        s_belt = spread / np.sqrt(n) * t_over_z(n - 1)
     else:  # one visit (one marked lug): its speed against the cruise's
         s_belt = ONE_VISIT_REL * abs(v_belt)
     if not (v_belt > 0 and np.isfinite(v_belt)):
