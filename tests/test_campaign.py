@@ -252,6 +252,19 @@ def test_bad_inputs_one_line_errors(tmp_path):
     assert len(lines) == 1 and "differs" in lines[0] and "rig.toml" in lines[0]
 
 
+def test_a_pushed_robot_reads_its_rolling_resistance():
+    """A robot pushed from behind by 3 N (the independent simulator, F = m C_rr g + F_d with
+    F_d = -3 N, m = 8 kg, C_rr = 0.08): with the push in its rig the fit reads C_rr and the
+    slip within 3 of their errors; taken as no push, C_rr would read 0.042."""
+    rec, rig, truth = independent_sim.make(3, m=8.0, F_d=-3.0, **TINY)
+    assert rig.drawbar_pull_N == -3.0
+    from fitlug import fit
+
+    q = fit(rec, rig).quantities
+    assert abs(q["rolling_resistance"].value - 0.08) < 3 * q["rolling_resistance"].std
+    assert abs(q["slip"].value - truth["slip"]) < 3 * q["slip"].std
+
+
 def test_rig_drawbar_and_ground_round_trip(tmp_path):
     from fitlug.io import read_rig
 

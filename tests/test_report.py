@@ -364,6 +364,8 @@ def test_no_rig_given_no_reference_comparison(tmp_path):
     assert "Reference paper" not in _headline(doc, st)
     assert _rig_line(doc, st).startswith("Rig: none given (no rig.toml), the reference "
                                          "robot's values assumed: n = 8")
+    doc["rig"] = dict(doc["rig"], assumed=False, drawbar_pull_N=-8.0)
+    assert "drawbar pull -8 N (a push)" in _rig_line(doc, st)
 
 
 def test_log_axes_label_their_ticks_in_plain_text():

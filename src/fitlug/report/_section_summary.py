@@ -166,7 +166,7 @@ def _rig_line(fj, st) -> str:
     parts.append(f"mass {_given(m)} kg" if m is not None else "mass not given")
     dp = rig.get("drawbar_pull_N")
     if dp is not None:
-        parts.append(f"drawbar pull {_given(dp)} N")
+        parts.append(f"drawbar pull {_given(dp)} N" + (" (a push)" if dp < 0 else ""))
     ground = rig.get("ground")
     g = rig.get("ground_name") or (ground.get("name") if isinstance(ground, dict) else ground)
     if g:
