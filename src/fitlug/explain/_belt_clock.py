@@ -52,9 +52,9 @@ about sqrt(2) times that scatter over the belt's travel; where the window holds
 MIN_BATCHES contact times or more, at least the scatter of the slip over each contact time
 over the root of their number, times Student's t (batch means): a surge at about 1 Hz
 swings the slip over a window of one or two of its periods by more than the scatter about
-that window's own line shows (the engine at 400 mm/s, its slip 0.023-0.058 from one contact period to the
-next: 0.0367 +- 0.0011 over 1.56-3.16 s, where its own whole periods before the cruise's
-end read 0.0416; with batch means +- 0.0043).
+that window's own line shows (the engine at 400 mm/s, its slip 0.023-0.058 from one
+contact period to the next: 0.0367 +- 0.0011 over 1.56-3.16 s, where its own whole
+periods before the cruise's end read 0.0416; with batch means +- 0.0043).
 
 Measured on the contact-dynamics engine's recordings end to end (docs/engine.md): the 19
 committed and 24 blind-style variants (session 34) all within 3 of its errors of the
@@ -329,12 +329,11 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
     et = np.unique(np.r_[rows[keep, 0], rows[keep, 1]])
     # the brush settles one contact time after the speed does (its lugs landed before);
     # where the settled cruise leaves no window (its passages fall in a gap: a heavy body
-    # on soft lugs, the marked lugs on the ground for the cruise's last 0.9 s), the whole
-    # cruise is read
-    # The body is seen throughout: its speed is read over the settled cruise even where
-    # the belt's passages fall before it (a 15 mm wheel's chain: the body 136 mm/s
-    # in the settling swing after the ramp, 143.5 settled; over the whole cruise the slip
-    # read 0.040 for the engine's settled 0.022)
+    # on soft lugs, the marked lugs on the ground for the cruise's last 0.9 s), the belt's
+    # window is read from the cruise's start, but the body's speed (seen over all of its
+    # cruise) still over the settled part: a 15 mm wheel's chain swings to 136 mm/s after
+    # the ramp and settles at 143.5; with the body over the whole cruise the slip read
+    # 0.040 for the engine's settled 0.022
     starts = [t1 + settle_s, t1] if t2 - (t1 + settle_s) >= 0.5 * (t2 - t1) else [t1]
     c1 = starts[0]  # the body's cruise, from its settled start
     for start in starts:

@@ -38,8 +38,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..fit._reading import misses_the_data, reads_straight_runs as reads_straight_runs
-from ._scatter import t_over_z
 from ._plateau import SMOOTH_S, plateau
+from ._scatter import t_over_z
 
 #: distance kept from each end of the top run (mm): a link turns onto a wheel before its
 #: pitch-line point reaches the model's tangent point (a link pitch ~18 mm on the engine)
