@@ -1,21 +1,17 @@
 """Session 36's engine variants (fitlug.sim.engine, MuJoCo; seed 13): twenty-nine settings
 nobody had run, each combining two or three stressors a user could build or film at once
 (the single-knob variants of sessions 34-35 passed one at a time). One more, 16 or 20
-links of 20-24 mm with a lug on every other, tipped over in the engine.
-
-    python make_variants.py OUT [NAME ...]    # simulate into OUT/<name>/ (skips those done)
-    python make_variants.py --list
+links of 20-24 mm with a lug on every other, tipped over in the engine. Run as
+benchmarks/_variants.py says: `python make_variants.py OUT [NAME ...]`.
 """
 import os
 import sys
-import time
 
-from fitlug.sim.engine import simulate_engine
-from fitlug.sim.engine._case import EngineCase
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
+from _variants import RUB, R, main  # noqa: E402 - benchmarks/_variants.py
 
-R = dict(k_N_per_mm=0.25, fps=100.0)
-RUB = dict(n_links=88, link_pitch_mm=4.59, lug_every=4, link_mass_g=2.5,
-           link_radius_mm=1.0, bend_Nm_per_rad=0.1)
+from fitlug.sim.engine._case import EngineCase  # noqa: E402
+
 V = [
     # a camera window with something else
     EngineCase(name="win_links250", k_N_per_mm=0.25, fps=250.0, marker_h=1.0,
@@ -62,20 +58,4 @@ V = [
 ]
 
 if __name__ == "__main__":
-    if sys.argv[1] == "--list":
-        print(" ".join(c.name for c in V))
-        sys.exit(0)
-    out, names = sys.argv[1], sys.argv[2:]
-    for c in V:
-        if names and c.name not in names:
-            continue
-        if os.path.exists(f"{out}/{c.name}/truth.json"):
-            continue
-        t = time.time()
-        try:
-            tr = simulate_engine(c, out_dir=f"{out}/{c.name}", seed=13)
-            print(c.name, round(tr["slip"], 4),
-                  [round(float(x), 4) for x in tr["slip_per_contact_period"]],
-                  f"{time.time() - t:.0f}s", flush=True)
-        except Exception as e:  # noqa: BLE001
-            print(c.name, "FAILED", repr(e)[:300], flush=True)
+    sys.exit(main(V, seed=13))

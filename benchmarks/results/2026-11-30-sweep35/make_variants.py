@@ -6,14 +6,12 @@ forty settings nobody had run, each an adversarial combination a user could buil
 """
 import os
 import sys
-import time
 
-from fitlug.sim.engine import simulate_engine
-from fitlug.sim.engine._case import EngineCase
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
+from _variants import RUB, R, main  # noqa: E402 - benchmarks/_variants.py
 
-R = dict(k_N_per_mm=0.25, fps=100.0)
-RUB = dict(n_links=88, link_pitch_mm=4.59, lug_every=4, link_mass_g=2.5,
-           link_radius_mm=1.0, bend_Nm_per_rad=0.1)
+from fitlug.sim.engine._case import EngineCase  # noqa: E402
+
 V = [
     # rubber belts
     EngineCase(name="rub_wheel30", **R, **RUB, wheel_radius_mm=30.0),
@@ -68,20 +66,4 @@ V = [
 ]
 
 if __name__ == "__main__":
-    if sys.argv[1] == "--list":
-        print(" ".join(c.name for c in V))
-        sys.exit(0)
-    out, names = sys.argv[1], sys.argv[2:]
-    for c in V:
-        if names and c.name not in names:
-            continue
-        if os.path.exists(f"{out}/{c.name}/truth.json"):
-            continue
-        t = time.time()
-        try:
-            tr = simulate_engine(c, out_dir=f"{out}/{c.name}", seed=11)
-            print(c.name, round(tr["slip"], 4),
-                  [round(float(x), 4) for x in tr["slip_per_contact_period"]],
-                  f"{time.time() - t:.0f}s", flush=True)
-        except Exception as e:  # noqa: BLE001
-            print(c.name, "FAILED", repr(e)[:300], flush=True)
+    sys.exit(main(V, seed=11))
