@@ -490,7 +490,8 @@ def test_the_belt_clock_carries_the_belts_speed_into_the_cruise_it_does_not_see(
     the chain's own travel). Four marked lugs visit the clean part of the loop once a
     turn, so the clock's window covers about half the cruise; the belt, driven by its
     wheel's friction, runs 0.6 % faster in the other half, where the body runs 1 % faster.
-    The window's belt speed alone read 0.0070 +- 0.0009 (3 of its errors low). Taken to
+    The window's belt speed alone read 0.0070 +- 0.0009 (3 of its errors low; 2.4 with the
+    body's surge over its cruise in its error, session 37: +- 0.0012). Taken to
     follow half the body's change there, +- as much, the slip holds the engine's within
     3 of its errors."""
     rec, rig, truth = _engine("light5")
@@ -500,10 +501,10 @@ def test_the_belt_clock_carries_the_belts_speed_into_the_cruise_it_does_not_see(
     assert st["v_body_window_mm_s"] < st["v_body_mm_s"]  # the body faster outside it
     assert abs(st["slip"] - s_true) < 3.0 * st["std"], (st, s_true)
     assert st["std"] < 0.5 * s_true
-    # the window's belt speed alone (the clock before): off by more than 3 of its errors
+    # the window's belt speed alone (the clock before): off by more than twice its error
     alone = 1.0 - st["v_body_mm_s"] / st["v_belt_window_mm_s"]
     alone_std = np.sqrt(st["std"] ** 2 - st["belt_follows_err"] ** 2)
-    assert abs(alone - s_true) > 2.5 * alone_std, (alone, alone_std, s_true)
+    assert abs(alone - s_true) > 2.0 * alone_std, (alone, alone_std, s_true)
 
 
 def _cos_ramps(t, v, t_acc, t_dec):
@@ -598,6 +599,24 @@ def test_the_belt_clock_reads_the_body_over_its_settled_cruise():
         (st["v_body_mm_s"], truth["v_chassis_mm_s"])
     assert abs(st["slip"] - truth["slip"]) < 3.0 * st["std"], (st, truth["slip"])
     assert st["std"] < truth["slip"]
+
+
+def test_the_belt_clock_holds_the_surge_of_a_fast_robot_seen_for_two_contact_times():
+    """The engine's 15 kg chassis at 300 mm/s through a 400 mm window (data/engine/
+    fast_window, MuJoCo): the body surges by +-1.2 mm at 1.7 Hz and the slip over the
+    cruise's contact periods is 0.031, 0.058 and 0.041 (0.0433 over the three); the robot
+    leaves the picture after two of them, too few for batch means. Between the lug
+    markers' visits the clock's psi follows the body's travel, so the slip displacement's
+    scatter at the passages shows a third of the surge (0.24 mm); the body's own travel
+    about its line over the cruise shows it (0.73 mm). With that term the slip is within
+    3 of its errors of the engine's (before: 0.048 +- 0.0013, 3.4 of them)."""
+    rec, rig, truth = _engine("fast_window")
+    st = belt_clock_alone(fitlug.fit(rec, rig))
+    assert st is not None, "no reading"
+    assert st["batches"] < 3, st  # the window holds too few contact times for batch means
+    assert st["surge_body_mm"] > 2.0 * st["surge_wander_mm"], st
+    assert abs(st["slip"] - truth["slip"]) < 3.0 * st["std"], (st, truth["slip"])
+    assert st["std"] < 0.15 * truth["slip"]
 
 
 def test_a_model_that_misses_the_markers_by_a_tenth_of_a_pitch_reads_no_slip():

@@ -19,3 +19,13 @@ def batch_mean_std(values) -> float:
     their standard error, times :func:`t_over_z`."""
     v = np.asarray(values, float)
     return float(np.std(v, ddof=1) / np.sqrt(len(v)) * t_over_z(len(v) - 1))
+
+
+def about_line(t, x, ta, tb) -> float:
+    """The scatter (std) of samples x(t) about their straight line over [ta, tb]; 0 with
+    fewer than eight finite samples there."""
+    t, x = np.asarray(t, float), np.asarray(x, float)
+    m = (t >= ta) & (t <= tb) & np.isfinite(x)
+    if np.sum(m) < 8:
+        return 0.0
+    return float(np.std(x[m] - np.polyval(np.polyfit(t[m], x[m], 1), t[m])))
