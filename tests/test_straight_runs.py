@@ -378,6 +378,20 @@ def test_the_clock_sentence_names_the_belts_window_and_the_bodys_cruise():
     s = straight_sentence({**st, "cruise_s": [2.07, 3.13]})
     assert "from 2.07 to 3.13 s)" not in s and "cruise from 2.07 to 3.13 s" in s
     assert "scatter and the body's surge" in s and "top run" not in s
+    # where the reading lists its error's parts, the largest are named, with what would
+    # narrow them
+    parts = {"passages": 0.0001, "body noise": 0.0001, "surge": 0.0037, "pitch": 0.0,
+             "trend": 0.0003, "unseen belt": 0.0001}
+    s = straight_sentence({**st, "slip": 0.0476, "std": 0.0038, "error_terms": parts,
+                           "surge_from": "body", "surge_body_mm": 0.73,
+                           "cruise_s": [1.71, 2.67]})
+    assert "its error (± 0.0038, 8 % of the slip) is mostly the body surging on its lugs " \
+           "(its travel swings by 0.73 mm about its line over the 0.96 s of cruise in " \
+           "view); a longer cruise in view would narrow it" in s
+    s = straight_sentence({**st, "slip": 0.03, "std": 0.0015, "error_terms": {
+        **parts, "passages": 0.001, "surge": 0.001, "unseen belt": 0.0}})
+    assert "is the passages' scatter and the body surging on its lugs" in s
+    assert "mostly" not in s and "narrow" not in s
     # the top run's reading that the clock's stands against is named with its figures
     s = straight_sentence({**st, "top_run_disagrees": {"slip": 0.0301, "std": 0.0004,
                                                        "apart_in_errors": 7.4,
@@ -615,6 +629,7 @@ def test_the_belt_clock_holds_the_surge_of_a_fast_robot_seen_for_two_contact_tim
     assert st is not None, "no reading"
     assert st["batches"] < 3, st  # the window holds too few contact times for batch means
     assert st["surge_body_mm"] > 2.0 * st["surge_wander_mm"], st
+    assert st["surge_from"] == "body" and st["error_terms"]["surge"] > 0.9 * st["std"]
     assert abs(st["slip"] - truth["slip"]) < 3.0 * st["std"], (st, truth["slip"])
     assert st["std"] < 0.15 * truth["slip"]
 

@@ -175,14 +175,10 @@ def _solve(A, target, use, prior, anchor):
 
 def _end(et, t, inward):
     """A window's end near `t` where psi is read at a passage (`et`, sorted): the nearest
-    passage inside the window (`inward` +1: after t, -1: before), else t itself.
-
-    Never a passage outside: the window is the body's cruise, and an end moved 0.27 s into
-    the ramp down (the passage nearest outside, a rule of the first version) read the
-    slip of a decelerating track, 3.3 of its errors low (the engine's heavy20). Never
-    psi read from the spline inside a gap of the passages: across a gap the spline holds
-    psi by its acceleration prior, and an engine view whose top run was hidden for the
-    cruise's last 0.8 s read its belt 4 % fast there, 2.3 of its errors."""
+    passage inside the window (`inward` +1: after t, -1: before), else t itself. Never one
+    outside (an end 0.27 s into the ramp down read the engine's heavy20 3.3 of its errors
+    low), never psi from the spline inside a gap of the passages (held there by its prior:
+    a top run hidden for the cruise's last 0.8 s read the belt 4 % fast, 2.3 errors)."""
     d = (et - t) * inward
     inside = d[d >= 0]
     return float(t + inward * inside.min()) if len(inside) else float(t)
@@ -209,7 +205,8 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
     passage pairs, or less than half the cruise between the first and last passages. Else
     a dict: slip, std, v_body_mm_s, v_belt_mm_s (and stds) over window_s, visits (lug
     markers that passed), passages, pairs (rows kept), pair_rms_mm (their scatter),
-    surge_wander_mm (at the passages), surge_body_mm (the body's), window_shift (the
+    surge_wander_mm (at the passages), surge_body_mm (the body's), error_terms (std's
+    parts; surge_from: which surge term is the largest), window_shift (the
     slip's error for the body's speed taken over cruise_s, the belt's over window_s),
     lugs_on_belt (N as the passages one belt length apart count it, or None), pitch_mm
     (the rig's, else the top run's), pitch_top_run_mm (the spacing of markers seen on the
@@ -395,14 +392,16 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
     follow = 1.0 + BELT_FOLLOWS * body_rel
     slip = 1.0 - v_body * dt / (dpsi * follow)
     follow_err = (1.0 - slip) * BELT_FOLLOWS * abs(body_rel)
-    # the surge: the largest of the passages' scatter over the window's travel (scaled to
-    # the cruise, 2 of 14 engine readings fell beyond 3 sigma: docs/engine.md, session
-    # 31), the batch means and the body's own scatter over its cruise (module docstring)
+    # the surge: the largest of the passages' scatter over the window's travel (not the
+    # cruise's: docs/engine.md, session 31), the batch means and the body's own (docstring)
     surge_body = about_line(ut, tx, c1, t2)
-    std = float(np.sqrt(var_psi * (v_body * dt / dpsi ** 2) ** 2 + var_X / dpsi ** 2
-                        + max(2.0 * (wander / dpsi) ** 2, batch ** 2,
-                              2.0 * (surge_body / (X2 - X1)) ** 2)
-                        + ((1.0 - slip) * pitch_rel) ** 2 + shift ** 2 + follow_err ** 2))
+    surges = {"passages": np.sqrt(2.0) * wander / dpsi, "contact times": batch,
+              "body": np.sqrt(2.0) * surge_body / (X2 - X1)}
+    surge_of = max(surges, key=surges.get)
+    terms = {"passages": np.sqrt(var_psi) * v_body * dt / dpsi ** 2,
+             "body noise": np.sqrt(var_X) / dpsi, "surge": surges[surge_of],
+             "pitch": (1.0 - slip) * pitch_rel, "trend": shift, "unseen belt": follow_err}
+    std = float(np.sqrt(sum(v ** 2 for v in terms.values())))
     return {"slip": float(slip), "std": std, "v_body_mm_s": v_body,
             "v_body_std": float(np.sqrt(var_X) / (t2 - c1)), "v_belt_mm_s": dpsi / dt * follow,
             "v_belt_window_mm_s": dpsi / dt, "v_body_window_mm_s": float(dX / dt),
@@ -413,7 +412,8 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
             "pairs": int(np.sum(keep)),
             "pair_rms_mm": sig_c, "surge_wander_mm": wander, "surge_body_mm": surge_body,
             "window_shift": float(shift),
-            "batches": n_bat, "batch_std": batch,
+            "batches": n_bat, "batch_std": batch, "surge_from": surge_of,
+            "error_terms": {k: float(v) for k, v in terms.items()},
             "cruise_s": [c1, t2],
             "margin_mm": 0.0, "pitch_mm": pitch, "pitch_top_run_mm": seen_pitch, "R_mm": R,
             "method": "belt clock",

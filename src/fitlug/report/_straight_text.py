@@ -20,9 +20,8 @@ def straight_sentence(st: dict) -> str:
                 + "apart, give the belt's travel ("
                 + (f"{st['v_belt_mm_s']:.2f} mm/s" if same else _window_clause(st, w))
                 + f") against the body's ({st['v_body_mm_s']:.2f} mm/s) over the cruise "
-                f"from {c[0]:.2f} to {c[1]:.2f} s; its error carries the passages' scatter"
-                + ("" if same else ", the belt speed's trend and that change")
-                + " and the body's surge" + _top_run_clause(st))
+                f"from {c[0]:.2f} to {c[1]:.2f} s; " + _error_clause(st, same)
+                + _top_run_clause(st))
     return ("the model does not describe the path, so the slip is read off the straight "
             f"runs: the body's mean speed at cruise ({st['v_body_mm_s']:.2f} mm/s) "
             f"against the belt's on the top run ({st['v_belt_mm_s']:.2f} mm/s, "
@@ -32,6 +31,45 @@ def straight_sentence(st: dict) -> str:
             + (f" and {100 * st['straightness_rel']:.1g} % of the belt's speed (the markers' "
                "speed along x is the belt's only where the top run is straight and steady)"
                if st.get("straightness_rel") else ""))
+
+
+def _error_clause(st: dict, same: bool) -> str:
+    """What the clock's error is made of: its largest parts (explain._belt_clock's
+    error_terms) in words, and what would narrow it; the parts it carries where the
+    reading does not list them (a fit.json of an earlier version)."""
+    terms = st.get("error_terms")
+    if not terms or not st.get("std") or not st.get("slip"):
+        return ("its error carries the passages' scatter"
+                + ("" if same else ", the belt speed's trend and that change")
+                + " and the body's surge")
+    c = st.get("cruise_s") or [0.0, 0.0]
+    words = {
+        "passages": "the passages' scatter",
+        "body noise": "the body markers' noise",
+        "pitch": "the lug pitch read off the top run (the rig gives none)",
+        "trend": "the belt speed's trend carried from its window to the cruise",
+        "unseen belt": "the belt's speed where no passage is seen "
+                       f"({100 * st.get('unseen_share', 0.0):.0f} % of the cruise)",
+        "surge": {
+            "body": f"the body surging on its lugs (its travel swings by "
+                    f"{st.get('surge_body_mm', 0.0):.2f} mm about its line over the "
+                    f"{c[1] - c[0]:.2f} s of cruise in view)",
+            "contact times": f"the slip's swing between the {st.get('batches', 0)} contact "
+                             "times in view (the body surging on its lugs)",
+            "passages": f"the slip's wander at the passages "
+                        f"({st.get('surge_wander_mm', 0.0):.2f} mm: the body surging on "
+                        "its lugs)"}.get(st.get("surge_from"), "the body surging on its lugs"),
+    }
+    var = {k: float(v) ** 2 for k, v in terms.items() if k in words}
+    order = sorted(var, key=var.get, reverse=True)
+    total = sum(var.values()) or 1.0
+    share = var[order[0]] / total
+    what = words[order[0]] if share >= 0.5 or len(order) < 2 else \
+        f"{words[order[0]]} and {words[order[1]]}"
+    hint = ("; a longer cruise in view would narrow it"
+            if order[0] in ("surge", "unseen belt") else "")
+    return (f"its error (± {st['std']:.4f}, {100 * st['std'] / abs(st['slip']):.0f} % of the "
+            f"slip) is {'mostly ' if share >= 0.5 else ''}{what}{hint}")
 
 
 def _window_clause(st: dict, w) -> str:
