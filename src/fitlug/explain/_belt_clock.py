@@ -59,10 +59,8 @@ sqrt(2) times the body's own travel's scatter about its line over its cruise, ov
 travel: between the visits psi = kappa X + spline follows X, so the scatter at the
 passages shows little of a surge slower than the visits (the engine at 300 mm/s under
 15 kg, seen for two contact times: 0.24 mm at the passages, 0.73 mm of the body, which
-surges by +-1.2 mm at 1.7 Hz; 0.048 +- 0.0013 for the engine's 0.0433, +- 0.0038 with it).
-
-Measured on the engine's recordings end to end (docs/engine.md, session 37): 98 of 98
-readings within 3 of its errors of the engine's slip, z rms 0.77, errors median 10 %.
+surges by +-1.2 mm at 1.7 Hz; 0.048 +- 0.0013 for the engine's 0.0433, +- 0.0038 with it;
+measured on the engine's recordings: docs/engine.md).
 """
 
 from __future__ import annotations
@@ -86,11 +84,11 @@ CLIP = 5.0
 #: the pitch grid are not paired with others (only with themselves, a belt length later)
 GRID_TOL = 0.25
 #: the slip displacement X - (1 - s) psi may wander about its line by this share of a
-#: pitch at most (the body's surge: 0.1-0.8 mm on the engine's recordings). A belt length
-#: miscounted across a gap steps it by a pitch, but where the passages fall in two
-#: clusters the line takes the step up; the top run's reading catches that
-#: (explain._straight.choose)
+#: pitch at most (a belt length miscounted across a gap steps it by a pitch; where the
+#: line takes a step up, the top run's reading catches it: explain._straight.choose) ...
 WANDER_MAX = 0.125
+#: ... and this many times the body's own scatter about its line (its surge: 2.5 mm, 20 kg)
+STEP_OVER_SURGE = 1.5
 #: the least window (s) where the cruise's end falls in a gap of the passages
 MIN_WINDOW_S = 0.5
 #: relative error of a lug pitch read off the top run (used only where the rig gives none)
@@ -102,7 +100,8 @@ TOP_PITCH_REL = 0.002
 #: sprocket would not change at all
 BELT_FOLLOWS = 0.5
 #: the surge's slow part is also read from the slip of each contact time of the window
-#: (batch means) where the window holds at least this many
+#: (batch means, with Student's t) where the window holds at least this many (two: half
+#: their difference)
 MIN_BATCHES = 3
 
 
@@ -361,20 +360,22 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
     # body noise at the ends: the frame's translation from its markers
     sb = float(prob.noise.get("body", 0.005)) if isinstance(prob.noise, dict) else 0.005
     var_X = 2.0 * sb ** 2
-    # the surge: the slip displacement's scatter about its line over the cruise
     te = et[(et >= ta) & (et <= tb)]
-    wander = 0.0
+    wander = 0.0  # the slip displacement's scatter about its line at the passages
     if len(te) >= 8:
         Yd = np.interp(te, ut, tx) - (1.0 - s_window) * (basis(te) @ coef)
         wander = float(np.std(Yd - np.polyval(np.polyfit(te, Yd, 1), te)))
-    if wander > WANDER_MAX * pitch:  # it steps: the belt lengths were miscounted
-        return None
+    surge_body = about_line(ut, tx, c1, t2)  # the body's own (module docstring)
+    if wander > WANDER_MAX * pitch and wander > STEP_OVER_SURGE * surge_body:
+        return None  # it steps, and the body does not surge so: belt lengths miscounted
     # the surge's slow part: the slip of each contact time of the window (batch means)
-    batch, n_bat = 0.0, int((tb - ta) / settle_s)
-    if n_bat >= MIN_BATCHES:
+    batch, n_bat = 0.0, int((tb - ta) / settle_s + 0.25)  # batches of 0.9 of it or more
+    if n_bat >= 2:
         edges = np.linspace(ta, tb, n_bat + 1)
         s_bat = 1.0 - np.diff(np.interp(edges, ut, tx)) / np.diff(basis(edges) @ coef)
-        batch = batch_mean_std(s_bat)
+        # two: half their difference (without t: 6.5 times; the body's surge beside it)
+        batch = batch_mean_std(s_bat) if n_bat >= MIN_BATCHES else \
+            float(abs(s_bat[1] - s_bat[0]) / 2.0)
     # the belt is driven (its speed changes half as much as the body's over a cruise) and
     # the body carries the slip's changes (a brush settling over its first contact
     # periods), so the body's speed over the cruise against the belt's over the window.
@@ -394,7 +395,6 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
     follow_err = (1.0 - slip) * BELT_FOLLOWS * abs(body_rel)
     # the surge: the largest of the passages' scatter over the window's travel (not the
     # cruise's: docs/engine.md, session 31), the batch means and the body's own (docstring)
-    surge_body = about_line(ut, tx, c1, t2)
     surges = {"passages": np.sqrt(2.0) * wander / dpsi, "contact times": batch,
               "body": np.sqrt(2.0) * surge_body / (X2 - X1)}
     surge_of = max(surges, key=surges.get)

@@ -80,4 +80,16 @@ CASES: dict[str, EngineCase] = {c.name: c for c in [
                      "surges by +-1.2 mm at 1.7 Hz, its slip 0.031, 0.058 and 0.041 over "
                      "the cruise's contact periods; the robot leaves the picture after two "
                      "of them"),
+    EngineCase(name="heavy_surge_window", k_N_per_mm=0.15, fps=100.0, v_belt_mm_s=250.0,
+               cruise_s=2.0, chassis_mass_kg=20.0, camera_window_mm=(100.0, 500.0),
+               notes="20 kg on 0.15 N/mm lugs at 250 mm/s through a 400 mm window: the "
+                     "body surges by 2.5 mm about its line, its slip 0.020 and 0.031 over "
+                     "the cruise's two contact periods"),
+    EngineCase(name="rubber_fast_window", k_N_per_mm=0.25, fps=100.0, n_links=88,
+               link_pitch_mm=4.59, lug_every=4, link_mass_g=2.5, link_radius_mm=1.0,
+               bend_Nm_per_rad=0.1, v_belt_mm_s=300.0, cruise_s=2.0,
+               camera_window_mm=(100.0, 500.0),
+               notes="a rubber belt at 300 mm/s through a 400 mm window: its slip 0.053, "
+                     "0.076 and 0.031 over the cruise's contact periods; the robot leaves "
+                     "the picture after two of them"),
 ]}
