@@ -644,8 +644,8 @@ def test_two_contact_times_in_view_put_their_swing_in_the_clocks_error():
     and 0.031 to the cruise's end; 0.053 over the three), and the robot leaves the picture
     after the first two. The clock's slip over the two contact times it sees swings as
     the engine's does, more than the body's surge about its line shows (0.69 mm: +-
-    0.0038, and 3.0 of those errors off). With two contact times in view (batches of 0.9
-    of one or more: the window here holds 1.99), half their difference is a floor under
+    0.0038, and 3.0 of those errors off). With two contact times in view (n where the
+    window holds n - 0.25 or more: here 1.99), half their difference is a floor under
     the error: it holds half the swing of the engine's own contact periods, and the
     engine's slip within 3 of it."""
     rec, rig, truth = _engine("rubber_fast_window")

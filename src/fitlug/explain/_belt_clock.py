@@ -99,10 +99,10 @@ TOP_PITCH_REL = 0.002
 #: the body's change between a clock's window and the rest of its cruise); a belt on a
 #: sprocket would not change at all
 BELT_FOLLOWS = 0.5
-#: the surge's slow part is also read from the slip of each contact time of the window
-#: (batch means, with Student's t) where the window holds at least this many (two: half
-#: their difference)
+#: the surge's slow part from each contact time's slip (batch means, Student's t) where the
+#: window holds this many (two: half their difference); n where it holds n - BATCH_SHORT
 MIN_BATCHES = 3
+BATCH_SHORT = 0.25
 
 
 def _passages(t, i, u, lo, hi, levels):
@@ -363,13 +363,13 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
     te = et[(et >= ta) & (et <= tb)]
     wander = 0.0  # the slip displacement's scatter about its line at the passages
     if len(te) >= 8:
-        Yd = np.interp(te, ut, tx) - (1.0 - s_window) * (basis(te) @ coef)
-        wander = float(np.std(Yd - np.polyval(np.polyfit(te, Yd, 1), te)))
+        wander = about_line(te, np.interp(te, ut, tx) - (1.0 - s_window) * (basis(te) @ coef),
+                            ta, tb)
     surge_body = about_line(ut, tx, c1, t2)  # the body's own (module docstring)
     if wander > WANDER_MAX * pitch and wander > STEP_OVER_SURGE * surge_body:
         return None  # it steps, and the body does not surge so: belt lengths miscounted
     # the surge's slow part: the slip of each contact time of the window (batch means)
-    batch, n_bat = 0.0, int((tb - ta) / settle_s + 0.25)  # batches of 0.9 of it or more
+    batch, n_bat = 0.0, int((tb - ta) / settle_s + BATCH_SHORT)
     if n_bat >= 2:
         edges = np.linspace(ta, tb, n_bat + 1)
         s_bat = 1.0 - np.diff(np.interp(edges, ut, tx)) / np.diff(basis(edges) @ coef)
