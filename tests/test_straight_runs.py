@@ -203,6 +203,34 @@ def test_belt_clock_ends_its_window_before_a_gap_that_the_cruise_ends_in():
     assert st["std"] < 0.01 * truth["slip"]
 
 
+def test_the_clock_says_why_it_gives_no_reading():
+    """Every lug marker hidden over the cruise (1.6-6.4 s of the independent simulator's
+    run) but its first 0.1 s and last 0.1 s: the marked lugs pass the belt's free part
+    only in the ramps, and the clock gives no reading and says so with the times a user
+    can compare with the cruise; where the model then misses the markers by a tenth of a
+    pitch, the reason why no slip is read carries it."""
+    import dataclasses
+
+    from fitlug.explain._straight import far_from_data
+
+    rec, rig, _ = isim.make(11, duration=8.0, t_dec=(6.4, 7.6))
+    lug = np.array([rec.roles[m] == "lug" for m in rec.marker_index])
+    hide = lug & (rec.t > 1.5) & (rec.t < 6.5)
+    rec = dataclasses.replace(rec, x=np.where(hide, np.nan, rec.x),
+                              y=np.where(hide, np.nan, rec.y))
+    res = fitlug.fit(rec, rig)
+    why: list = []
+    assert straight_runs_slip(res, why=why) is None
+    assert why == ["the marked lugs pass the belt's free part only at 1.2-1.5 and 6.5-7.3 s, "
+                   "not over the body's cruise (1.6-6.4 s)"]
+    wob = 8.0 * np.sin(2 * np.pi * 3.0 * rec.t + np.asarray(rec.marker_index) * np.pi / 2)
+    far = fitlug.fit(dataclasses.replace(rec, x=rec.x + np.where(lug, wob, 0.0)), rig)
+    said = far_from_data(far, ["the reason"])
+    assert said.startswith("the model misses the markers by ")
+    assert said.endswith("and the straight runs give no reading: the reason")
+    assert far_from_data(far).endswith("give no reading")
+
+
 def test_no_reading_without_a_cruise_in_view():
     """A recording too short for a cruise with two top-run visits gives no reading."""
     rec, rig, _ = isim.make(2, duration=1.0, t_acc=(0.1, 0.6), t_dec=(0.9, 1.0), n_lug=2)

@@ -60,7 +60,11 @@ travel: between the visits psi = kappa X + spline follows X, so the scatter at t
 passages shows little of a surge slower than the visits (the engine at 300 mm/s under
 15 kg, seen for two contact times: 0.24 mm at the passages, 0.73 mm of the body, which
 surges by +-1.2 mm at 1.7 Hz; 0.048 +- 0.0013 for the engine's 0.0433, +- 0.0038 with it;
-measured on the engine's recordings: docs/engine.md).
+measured on the engine's recordings: docs/engine.md). Where it gives no reading, it says why
+(`why`), in words a user can act on.
+
+Longer than 400 lines because the reading, its window, its error budget and the reasons it
+gives none are one computation over the same passages and their dozen shared locals.
 """
 
 from __future__ import annotations
@@ -193,7 +197,30 @@ def _unseen(t1, t2, ta, tb, v_cruise, v_window):
     return float(outside / (t2 - t1)), float((v_cruise - v_window) / v_window)
 
 
-def belt_clock_slip(res, p: dict, nodes) -> dict | None:
+#: why no reading (`why` of :func:`belt_clock_slip`)
+FEW_PASSAGES = ("the marked lugs pass the belt's free part (the rear wheel's upper arc, the "
+                "top run) fewer than 8 times")
+UNCOUNTED = ("the passages do not count the belt's travel in whole lug pitches (the base "
+             "model's belt is too far from the markers')")
+MISCOUNTED = "the passages step by a pitch where the body does not surge (belt lengths miscounted)"
+
+
+def _no(why: list | None, reason: str) -> None:
+    """None, with `reason` appended to `why` (when a list is given)."""
+    if why is not None:
+        why.append(reason)
+    return None
+
+
+def _spans(t, gap: float = 0.25) -> str:
+    """'2.0-2.5 and 4.8-5.2': the spans of times `t` (s) split where they leave a gap."""
+    t = np.unique(np.asarray(t, float))
+    parts = np.split(t, np.flatnonzero(np.diff(t) > gap) + 1)
+    out = [f"{a[0]:.1f}-{a[-1]:.1f}" for a in parts if len(a)]
+    return out[0] if len(out) == 1 else ", ".join(out[:-1]) + " and " + out[-1]
+
+
+def belt_clock_slip(res, p: dict, nodes, why: list | None = None) -> dict | None:
     """The slip over the cruise from the belt's clock (module docstring).
 
     `res`: a least-squares fit (its geometry to place the levels, the markers' places on
@@ -201,7 +228,8 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
     arrays and `nodes` their integration (model._model.integrate), which the caller has
     already (the body markers' frame is fitted about the model's X(t)). None where the
     recording does not allow the reading: no body in view, no cruise, fewer than eight
-    passage pairs, or less than half the cruise between the first and last passages. Else
+    passage pairs, or less than half the cruise between the first and last passages (a
+    list `why` gets the reason, in words a user can act on). Else
     a dict: slip, std, v_body_mm_s, v_belt_mm_s (and stds) over window_s, visits (lug
     markers that passed), passages, pairs (rows kept), pair_rms_mm (their scatter),
     surge_wander_mm (at the passages), surge_body_mm (the body's), error_terms (std's
@@ -220,11 +248,11 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
     pitch = float(prob.rig.lug_pitch_mm or float(ctx.P) / int(lay.n_belt))
     pose = body_pose(prob, p, lambda t: kinematics(p, lay, np.asarray(t), nodes)["X"])
     if pose is None:
-        return None
+        return _no(why, "no body marker is in view")
     ut, tx, ty, th = pose
     cr = body_cruise(ut, tx)
     if cr is None:
-        return None
+        return _no(why, "the body holds no steady speed (no cruise)")
     t1, t2, v_body0 = cr
     settle_s = D / max(v_body0, 1e-9)
     obs = prob.obs
@@ -237,7 +265,7 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
     dt_frame = float(np.median(np.diff(ut))) if len(ut) > 1 else 1.0
     ok &= np.abs(ut[f] - tl) < 0.5 * dt_frame
     if np.sum(ok) < 8:
-        return None
+        return _no(why, "fewer than 8 lug-marker samples fall where the body is seen")
     dx = np.asarray(obs["lug_x"]) - tx[f]
     dy = np.asarray(obs["lug_y"]) - ty[f]
     c, s = np.cos(th[f]), np.sin(th[f])
@@ -256,7 +284,7 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
     levels = np.arange(lo + 0.5 * LEVEL_MM, hi, LEVEL_MM)
     ev = _passages(tl, li, u, lo, hi, levels)
     if len(ev) < 8:
-        return None
+        return _no(why, FEW_PASSAGES)
     # the markers' places on the belt (base fit) on the pitch grid
     sig = np.asarray(p["sigma0"], float)
     ph = np.angle(np.mean(np.exp(2j * np.pi * sig / pitch))) / (2 * np.pi)
@@ -268,7 +296,7 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
         e = e[np.argsort(e[:, 1], kind="stable")]
         rows += [(a[1], b[1], a[2], b[2]) for a, b in zip(e[:-1], e[1:])]
     if len(rows) < 8:
-        return None
+        return _no(why, FEW_PASSAGES)
     rows = np.array(rows)
     ia, ib = rows[:, 2].astype(int), rows[:, 3].astype(int)
     psi_m = np.asarray(kinematics(p, lay, rows[:, :2].ravel(), nodes)["psi"]).reshape(-1, 2)
@@ -295,7 +323,7 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
     anchor = np.r_[0.0, bspline([T0], T0, T1, n_int)[0]][None, :]
     fitted = _solve(A, target, short, D2 / ACC_PRIOR, anchor)
     if fitted is None:
-        return None
+        return _no(why, "the passages do not fix the belt's travel")
     coef, keep, sig_c, W = fitted
     long_ = ~short
     n_belt = None
@@ -322,7 +350,7 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
             use[np.flatnonzero(long_)[okl]] = True
             fitted = _solve(A, target, use, D2 / ACC_PRIOR, anchor)
             if fitted is None:
-                return None
+                return _no(why, "the passages do not fix the belt's travel")
             coef, keep, sig_c, W = fitted
     cov = np.linalg.pinv(W.T @ W)
     et = np.unique(np.r_[rows[keep, 0], rows[keep, 1]])
@@ -345,7 +373,8 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
         if T0 <= ta < tb <= T1 and tb - ta >= min(0.5 * (t2 - start), MIN_WINDOW_S):
             break
     else:
-        return None
+        return _no(why, f"the marked lugs pass the belt's free part only at {_spans(et)} s, "
+                        f"not over the body's cruise ({t1:.1f}-{t2:.1f} s)")
     tm = 0.5 * (ta + tb)
     B3 = basis([ta, tm, tb])  # the window's ends and its middle (the trend, below)
     pa, pm, pb = B3 @ coef
@@ -355,7 +384,7 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
     Xa, Xb = (float(np.interp(tq, ut, tx)) for tq in (ta, tb))
     dX = Xb - Xa
     if not (dpsi > 0 and np.isfinite(dpsi)):
-        return None
+        return _no(why, UNCOUNTED)
     s_window = 1.0 - dX / dpsi  # the slip over the window itself (the surge's line)
     # body noise at the ends: the frame's translation from its markers
     sb = float(prob.noise.get("body", 0.005)) if isinstance(prob.noise, dict) else 0.005
@@ -367,7 +396,7 @@ def belt_clock_slip(res, p: dict, nodes) -> dict | None:
                             ta, tb)
     surge_body = about_line(ut, tx, c1, t2)  # the body's own (module docstring)
     if wander > WANDER_MAX * pitch and wander > STEP_OVER_SURGE * surge_body:
-        return None  # it steps, and the body does not surge so: belt lengths miscounted
+        return _no(why, MISCOUNTED)  # it steps, and the body does not surge so
     # the surge's slow part: the slip of each contact time of the window (batch means)
     batch, n_bat = 0.0, int((tb - ta) / settle_s + BATCH_SHORT)
     if n_bat >= 2:

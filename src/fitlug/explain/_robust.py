@@ -142,7 +142,8 @@ def robust_result(res, geo: Geometry, alpha: float = ALPHA):
         done = taken_out(res, geo, found) if found is not None else None
         if done is not None:
             return done
-    straight = straight_headline(res)
+    why: list = []  # the straight runs' reason for giving no reading
+    straight = straight_headline(res, why)
     # where the slip is read off the straight runs and no speed profile can hold the misfit
     # (the body's own y floors it), the free-speed refit would only widen the geometry's
     # errors: not made (15 s of an engine recording's 60)
@@ -170,7 +171,7 @@ def robust_result(res, geo: Geometry, alpha: float = ALPHA):
                         slip_term={"replace": True, "value": straight["slip"],
                                    "std": straight["std"]},
                         uncertainty_method=label), label
-    far = far_from_data(res) if straight is None else None
+    far = far_from_data(res, why) if straight is None else None
     if far:  # no slip where the model misses the markers by a tenth of a pitch
         from ..fit import Estimate
 
@@ -181,12 +182,13 @@ def robust_result(res, geo: Geometry, alpha: float = ALPHA):
                     **({"far_from_data": far} if far else {})), method
 
 
-def straight_headline(res) -> dict | None:
-    """The straight runs' slip (explain._straight) when `res` misfits grossly, else None."""
+def straight_headline(res, why: list | None = None) -> dict | None:
+    """The straight runs' slip (explain._straight) when `res` misfits grossly, else None
+    (`why`: a list that gets the reason where they give no reading)."""
     if not (res.chi2_per_dof > GROSS_CHI2):
         return None
     try:
-        return straight_runs_slip(res)
+        return straight_runs_slip(res, why=why)
     except Exception:  # noqa: BLE001 - no reading: the model's robust errors stand
         return None
 

@@ -94,7 +94,8 @@ def _cruise(p, lay, nodes):
     return plateau(tg, vt, PLATEAU, SMOOTH_S)
 
 
-def straight_runs_slip(res, margin_mm: float = MARGIN_MM, clock: bool = True) -> dict | None:
+def straight_runs_slip(res, margin_mm: float = MARGIN_MM, clock: bool = True,
+                       why: list | None = None) -> dict | None:
     """The slip at cruise from the belt's and the body's travel (module docstring).
 
     The belt's own clock (explain._belt_clock: the lug markers' passages, whole pitches
@@ -108,7 +109,8 @@ def straight_runs_slip(res, margin_mm: float = MARGIN_MM, clock: bool = True) ->
     marker to the top run during it. Else a dict: slip, std, v_body_mm_s (and its std),
     v_belt_mm_s (and its std), window_s, visits, window_shift (the slip's change with
     the body's speed over the visits' span), margin_mm, method 'top run' (the clock's
-    reading: explain._belt_clock.belt_clock_slip).
+    reading: explain._belt_clock.belt_clock_slip). A list `why` gets the clock's reason
+    where it gives no reading.
     """
     import jax.numpy as jnp
 
@@ -123,7 +125,7 @@ def straight_runs_slip(res, margin_mm: float = MARGIN_MM, clock: bool = True) ->
     found = None
     if clock:
         try:
-            found = belt_clock_slip(res, p, nodes)
+            found = belt_clock_slip(res, p, nodes, why)
         except (ValueError, np.linalg.LinAlgError):  # no reading: the top run's stands
             found = None
     top = _top_run_slip(res, margin_mm, p, lay, nodes)
@@ -278,9 +280,10 @@ def _top_run_slip(res, margin_mm, p, lay, nodes, min_visits: int = 2) -> dict | 
 FAR_PITCH = 0.1
 
 
-def far_from_data(res) -> str | None:
+def far_from_data(res, why: list | None = None) -> str | None:
     """Why `res`'s slip is not read (its model misses the markers by more than FAR_PITCH
-    of a lug pitch, rms beyond their noise), or None."""
+    of a lug pitch, rms beyond their noise), or None; `why`: the straight runs' reasons for
+    giving no reading (:func:`straight_runs_slip`), the first of them said after it."""
     from ..model._model import ctx_of
 
     prob = res.problem
@@ -297,7 +300,8 @@ def far_from_data(res) -> str | None:
     if not rms > FAR_PITCH * pitch:
         return None
     return (f"the model misses the markers by {rms:.1f} mm rms beyond their noise "
-            f"({rms / pitch:.0%} of a lug pitch) and the straight runs give no reading")
+            f"({rms / pitch:.0%} of a lug pitch) and the straight runs give no reading"
+            + (f": {why[0]}" if why else ""))
 
 
 def withheld(final, accepted, steps, disc):
