@@ -92,4 +92,10 @@ CASES: dict[str, EngineCase] = {c.name: c for c in [
                notes="a rubber belt at 300 mm/s through a 400 mm window: its slip 0.053, "
                      "0.076 and 0.031 over the cruise's contact periods; the robot leaves "
                      "the picture after two of them"),
+    EngineCase(name="abrupt_window", **_REF, ramp_s=0.15, rest_s=0.1, cruise_s=3.0,
+               camera_window_mm=(100.0, 500.0),
+               notes="started in 0.15 s and seen through a 400 mm window: the body surges "
+                     "by 3.7 mm peak to peak after the start, its slip 0.051 and 0.025 over "
+                     "the cruise's two contact periods; the robot leaves the picture "
+                     "before the cruise ends"),
 ]}
