@@ -200,6 +200,9 @@ def _unseen(t1, t2, ta, tb, v_cruise, v_window):
 #: why no reading (`why` of :func:`belt_clock_slip`)
 FEW_PASSAGES = ("the marked lugs pass the belt's free part (the rear wheel's upper arc, the "
                 "top run) fewer than 8 times")
+FEW_PAIRS = ("the marked lugs' passages of the belt's free part give fewer than 8 pairs (two "
+             "passages of the same place)")
+UNFIXED = "the passages do not fix the belt's travel"
 UNCOUNTED = ("the passages do not count the belt's travel in whole lug pitches (the base "
              "model's belt is too far from the markers')")
 MISCOUNTED = "the passages step by a pitch where the body does not surge (belt lengths miscounted)"
@@ -296,7 +299,7 @@ def belt_clock_slip(res, p: dict, nodes, why: list | None = None) -> dict | None
         e = e[np.argsort(e[:, 1], kind="stable")]
         rows += [(a[1], b[1], a[2], b[2]) for a, b in zip(e[:-1], e[1:])]
     if len(rows) < 8:
-        return _no(why, FEW_PASSAGES)
+        return _no(why, FEW_PAIRS)
     rows = np.array(rows)
     ia, ib = rows[:, 2].astype(int), rows[:, 3].astype(int)
     psi_m = np.asarray(kinematics(p, lay, rows[:, :2].ravel(), nodes)["psi"]).reshape(-1, 2)
@@ -323,7 +326,7 @@ def belt_clock_slip(res, p: dict, nodes, why: list | None = None) -> dict | None
     anchor = np.r_[0.0, bspline([T0], T0, T1, n_int)[0]][None, :]
     fitted = _solve(A, target, short, D2 / ACC_PRIOR, anchor)
     if fitted is None:
-        return _no(why, "the passages do not fix the belt's travel")
+        return _no(why, UNFIXED)
     coef, keep, sig_c, W = fitted
     long_ = ~short
     n_belt = None
@@ -350,7 +353,7 @@ def belt_clock_slip(res, p: dict, nodes, why: list | None = None) -> dict | None
             use[np.flatnonzero(long_)[okl]] = True
             fitted = _solve(A, target, use, D2 / ACC_PRIOR, anchor)
             if fitted is None:
-                return _no(why, "the passages do not fix the belt's travel")
+                return _no(why, UNFIXED)
             coef, keep, sig_c, W = fitted
     cov = np.linalg.pinv(W.T @ W)
     et = np.unique(np.r_[rows[keep, 0], rows[keep, 1]])
