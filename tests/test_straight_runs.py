@@ -222,7 +222,7 @@ def test_the_clock_says_why_it_gives_no_reading():
     why: list = []
     assert straight_runs_slip(res, why=why) is None
     assert why == ["the marked lugs pass the belt's free part only at 1.2-1.5 and 6.5-7.3 s, "
-                   "not over the body's cruise (1.6-6.4 s)"]
+                   "too little of the body's cruise (1.6-6.4 s) to read"]
     wob = 8.0 * np.sin(2 * np.pi * 3.0 * rec.t + np.asarray(rec.marker_index) * np.pi / 2)
     far = fitlug.fit(dataclasses.replace(rec, x=rec.x + np.where(lug, wob, 0.0)), rig)
     said = far_from_data(far, ["the reason"])

@@ -377,7 +377,7 @@ def belt_clock_slip(res, p: dict, nodes, why: list | None = None) -> dict | None
             break
     else:
         return _no(why, f"the marked lugs pass the belt's free part only at {_spans(et)} s, "
-                        f"not over the body's cruise ({t1:.1f}-{t2:.1f} s)")
+                        f"too little of the body's cruise ({t1:.1f}-{t2:.1f} s) to read")
     tm = 0.5 * (ta + tb)
     B3 = basis([ta, tm, tb])  # the window's ends and its middle (the trend, below)
     pa, pm, pb = B3 @ coef
