@@ -477,6 +477,40 @@ def test_a_frequencys_reading_is_said_once():
     assert "(the same)" not in s
 
 
+def test_a_reason_for_no_reading_is_given_once_and_no_slip_is_drawn(folder, tmp_path):
+    """A run where no slip is read (a spinning track's) gave the same two-line reason for
+    all five quantities, five times in the headline box and five in the estimates, and
+    'The slip drawn' plotted the compromise fit's s(t) (-300 to +50) as if it were a slip.
+    Each box and table gives a shared reason once and names it after; the slip's plots
+    give way to a sentence; a quantity with its own reason keeps it."""
+    import re
+    import shutil
+
+    why = ("the model misses the markers by 14.6 mm rms beyond their noise and the straight "
+           "runs give no reading: the marked lugs pass the belt's free part only at 1.7-3.1 s")
+    doc = json.load(open(folder / "fit.json", encoding="utf-8"))
+    for k in ("slip", "delta_l_mm", "stiffness_N_per_mm", "rolling_resistance",
+              "k_over_m_N_per_mm_kg"):
+        doc[k] = None
+    doc["not_identifiable"] = {"slip": why, "delta_l_mm": why, "stiffness_N_per_mm": why,
+                               "rolling_resistance": "its own reason",
+                               "k_over_m_N_per_mm_kg": why}
+    out = tmp_path / "fit"
+    shutil.copytree(folder, out)
+    (out / "fit.json").write_text(json.dumps(doc), encoding="utf-8")
+    page = open(write_report(out), encoding="utf-8").read()
+    body = re.sub(r"<[^>]+>", "", page)
+    # once in the headline box, once in the estimates (the mismatch box is not given it)
+    assert body.count("14.6 mm rms") == 2
+    assert body.count("not identifiable: as the slippage s₀") == 2  # Δl′ and k
+    assert body.count("not identifiable: as the steady slippage s₀") == 3  # Δl′, k, k/m
+    assert body.count("not identifiable: its own reason") == 2
+    assert "No slip is read from this recording" in body
+    assert "steady slip s(t) over the recording" not in page  # the figure's alt text
+    assert "Stall of" in page or "horizontal stall of one lug marker" in page
+    assert "s₀·D = – mm" not in body
+
+
 def test_a_long_glitch_list_is_folded_after_its_first_rows():
     """An engine recording's misfit flags 100-140 samples of its structure (long_cruise:
     142): the table shows the first GLITCH_ROWS in time order and folds the rest into a

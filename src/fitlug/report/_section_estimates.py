@@ -16,11 +16,12 @@ def _estimates(fj, st) -> str:
     # come from, whatever samples them after
     runs = (fj.get("discrepancy") or {}).get("straight_runs") or {}
     rows = []
+    said: dict = {}  # reasons given in this table (_not_identifiable)
     for key, label, unit in _QUANTITIES:
         e = fj.get(key)
         ls = lsq.get(_LSQ_NAME.get(key, key)) or {}
         if e is None or e.get("value") is None:
-            rows.append([label, unit, _not_identifiable(fj, key), "", "",
+            rows.append([label, unit, _not_identifiable(fj, key, said, f"the {label}"), "", "",
                          _pm(ls) if ls.get("value") is not None and key in fj else ""])
             continue
         ci = e.get("ci95") or [None, None]

@@ -13,6 +13,34 @@ from ._section_summary import _sliding
 
 def _slip_section(fj, st) -> str:
     out = []
+    if (fj.get("slip") or {}).get("value") is None:
+        # no slip is read (the headline says why): the model's s(t) and its law would draw
+        # a compromise fit's slip (-300 to +50 on a spinning track's run) as if it were one
+        out.append("<p>No slip is read from this recording (the headline says why), so "
+                   "neither the slip over time nor its law against the traction load is "
+                   "drawn. The lug marker's stall below shows the data against the model "
+                   "that could not describe them.</p>")
+    else:
+        out += _slip_figures(fj, st)
+    fig, ax = _fig(FIG_W, 4.4)
+    creep = plot_stall(st, ax=ax[0, 0], slip=(fj.get("slip") or {}).get("value"),
+                       D_mm=(fj.get("geometry") or {}).get("D_mm"))
+    cap = ("One lug marker's stall on the ground, enlarged: data (dots, coloured by time) "
+           "and model (line). Without slip the marker would stand still on the ground while "
+           "its lug is loaded (the dashed vertical no-slip path); with slip it creeps "
+           "rearward by s·D over the contact.")
+    if creep:
+        cap += f" Measured creep {F.sig(creep['measured_mm'], 3)} mm" + (
+            "." if not np.isfinite(creep.get("expected_mm", np.nan))
+            else f"; s₀·D = {F.sig(creep['expected_mm'], 3)} mm.")
+    out.append(figure_html(fig, "horizontal stall of one lug marker with creep length and "
+                                "no-slip path", cap))
+    return "".join(out)
+
+
+def _slip_figures(fj, st) -> list[str]:
+    """The slip s(t) with its band and the slip against the traction load."""
+    out = []
     fig, ax = _fig(FIG_W, 3.4)
     plot_slip_time(st, fj, ax=ax[0, 0])
     _, _, lo, hi = slip_band(st)
@@ -39,19 +67,7 @@ def _slip_section(fj, st) -> str:
         "rearward creep relative to the body, binned, ±1 σ of each bin), coloured by phase "
         "(accelerating, cruising, braking); the line is the fitted law. Look for the "
         "points following the line; a bend away from it at high load means the lugs slide."))
-    fig, ax = _fig(FIG_W, 4.4)
-    creep = plot_stall(st, ax=ax[0, 0], slip=(fj.get("slip") or {}).get("value"),
-                       D_mm=(fj.get("geometry") or {}).get("D_mm"))
-    cap = ("One lug marker's stall on the ground, enlarged: data (dots, coloured by time) "
-           "and model (line). Without slip the marker would stand still on the ground while "
-           "its lug is loaded (the dashed vertical no-slip path); with slip it creeps "
-           "rearward by s·D over the contact.")
-    if creep:
-        cap += (f" Measured creep {F.sig(creep['measured_mm'], 3)} mm; "
-                f"s₀·D = {F.sig(creep['expected_mm'], 3)} mm.")
-    out.append(figure_html(fig, "horizontal stall of one lug marker with creep length and "
-                                "no-slip path", cap))
-    return "".join(out)
+    return out
 
 
 def stall_window(st: dict):

@@ -31,8 +31,14 @@ _QUANTITIES = (("slip", "steady slippage s₀", ""), ("delta_l_mm", "lug deflect
 _LSQ_NAME = {"k_over_m_N_per_mm_kg": "k_over_m"}
 
 
-def _not_identifiable(fj, key) -> str:
+def _not_identifiable(fj, key, said: dict | None = None, label: str = "") -> str:
+    """'not identifiable: <the reason>' for quantity `key`. With `said` (reason -> the
+    label of the quantity it was first given for, filled here), a reason already given in
+    the same box or table is named, not repeated: a run where no slip is read gives the
+    same two-line reason for all five quantities."""
     why = (fj.get("not_identifiable") or {}).get(key)
+    if why and said is not None and said.setdefault(why, label) != label:
+        return f"not identifiable: as {said[why]}"
     if why:
         return f"not identifiable: {_e(why)}"
     if key.startswith("stiff"):
@@ -180,6 +186,7 @@ def _rig_line(fj, st) -> str:
 def _headline(fj, st) -> str:
     s = fj.get("slip") or {}
     rows = []
+    said: dict = {}  # reasons given in this box (_not_identifiable)
     cmp_value, cmp_std, cmp_what = s.get("value"), s.get("std"), "this fit is"
     if _sliding(fj):
         dl = fj.get("delta_l_mm") or {}
@@ -200,13 +207,13 @@ def _headline(fj, st) -> str:
         else:
             rows.append(["slippage s₀", f'<span class="big">{_pm(s)}</span>', ""])
     elif s.get("value") is None:
-        rows.append(["slippage s₀", _not_identifiable(fj, "slip"), ""])
+        rows.append(["slippage s₀", _not_identifiable(fj, "slip", said, "the slippage s₀"), ""])
     else:
         rows.append(["slippage s₀", f'<span class="big">{_pm(s)}</span>', ""])
     for key, label, unit in _QUANTITIES[1:4]:
         e = fj.get(key)
         if e is None or e.get("value") is None:
-            rows.append([label, _not_identifiable(fj, key), ""])
+            rows.append([label, _not_identifiable(fj, key, said, f"the {label}"), ""])
         else:
             rows.append([label, _pm(e, unit), ""])
     if not fj.get("stiffness_N_per_mm") and fj.get("k_over_m_N_per_mm_kg"):
