@@ -29,3 +29,16 @@ def about_line(t, x, ta, tb) -> float:
     if np.sum(m) < 8:
         return 0.0
     return float(np.std(x[m] - np.polyval(np.polyfit(t[m], x[m], 1), t[m])))
+
+
+def line_slope(t, x, ta, tb) -> float | None:
+    """The slope of the least-squares line through samples x(t) over [ta, tb] (x's units
+    per second), or None with fewer than eight finite samples there. Where x surges about
+    its line, the slope moves far less with the span's ends than the travel between them
+    does: the ends weigh as much as the middle in a difference, a surge's swing at either
+    end entering whole."""
+    t, x = np.asarray(t, float), np.asarray(x, float)
+    m = (t >= ta) & (t <= tb) & np.isfinite(x)
+    if np.sum(m) < 8:
+        return None
+    return float(np.polyfit(t[m], x[m], 1)[0])
