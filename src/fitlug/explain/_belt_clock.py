@@ -426,7 +426,8 @@ def belt_clock_slip(res, p: dict, nodes, why: list | None = None) -> dict | None
     # the body's speed: the slope of its travel's line over the settled cruise (its ends'
     # swings enter a difference whole: module docstring); over the window as the belt's
     # is read there, between its ends
-    v_body = line_slope(ut, tx, c1, t2) or (X2 - X1) / (t2 - c1)
+    v_body = line_slope(ut, tx, c1, t2)
+    v_body = (X2 - X1) / (t2 - c1) if v_body is None else v_body  # < 8 frames of cruise
     v_body_window = dX / dt
     trend = ((pb - pm) - (pm - pa)) / (0.5 * dt) ** 2  # mm/s^2
     drift = abs(trend * (0.5 * (c1 + t2) - tm))  # mm/s
