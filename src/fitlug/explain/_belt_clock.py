@@ -45,9 +45,9 @@ a tracker's view put the cruise's start 0.22 s earlier than the clean view, the 
 between the ends moved by 1.4 %, and the slip read 0.017 +- 0.006 for the engine's
 0.038; the line's slope moved by 0.02 %, and the slip reads 0.023 +- 0.010, its error
 mostly the belt's unseen change: the body's speed between the window's ends, as the
-belt's is read, stands 1.6 % above its cruise's line). Where the window is not the cruise (four marked
-lugs on consecutive links visit the clean part once a turn: a window of about half a
-2-s cruise), the belt's speed over the cruise is taken to differ from the window's by
+belt's is read, stands 1.6 % above its cruise's line). Where the window is not the
+cruise (four marked lugs on consecutive links visit the clean part once a turn: a window
+of about half a 2-s cruise), the belt's speed over the cruise is taken to differ from the window's by
 BELT_FOLLOWS of the body's difference between them, +- as much: a belt driven by its
 wheel's friction runs faster where the body does (a light robot on the engine: the belt
 0.6 % faster outside the window, the body 1 %; read at the window's speed alone its slip

@@ -21,14 +21,24 @@ def batch_mean_std(values) -> float:
     return float(np.std(v, ddof=1) / np.sqrt(len(v)) * t_over_z(len(v) - 1))
 
 
-def about_line(t, x, ta, tb) -> float:
-    """The scatter (std) of samples x(t) about their straight line over [ta, tb]; 0 with
-    fewer than eight finite samples there."""
+def _line(t, x, ta, tb):
+    """(t, x, [slope, intercept]) of the finite samples x(t) over [ta, tb] and their
+    least-squares line, or None with fewer than eight of them."""
     t, x = np.asarray(t, float), np.asarray(x, float)
     m = (t >= ta) & (t <= tb) & np.isfinite(x)
     if np.sum(m) < 8:
+        return None
+    return t[m], x[m], np.polyfit(t[m], x[m], 1)
+
+
+def about_line(t, x, ta, tb) -> float:
+    """The scatter (std) of samples x(t) about their straight line over [ta, tb]; 0 with
+    fewer than eight finite samples there."""
+    fit = _line(t, x, ta, tb)
+    if fit is None:
         return 0.0
-    return float(np.std(x[m] - np.polyval(np.polyfit(t[m], x[m], 1), t[m])))
+    tm, xm, coef = fit
+    return float(np.std(xm - np.polyval(coef, tm)))
 
 
 def line_slope(t, x, ta, tb) -> float | None:
@@ -37,8 +47,5 @@ def line_slope(t, x, ta, tb) -> float | None:
     its line, the slope moves far less with the span's ends than the travel between them
     does: the ends weigh as much as the middle in a difference, a surge's swing at either
     end entering whole."""
-    t, x = np.asarray(t, float), np.asarray(x, float)
-    m = (t >= ta) & (t <= tb) & np.isfinite(x)
-    if np.sum(m) < 8:
-        return None
-    return float(np.polyfit(t[m], x[m], 1)[0])
+    fit = _line(t, x, ta, tb)
+    return None if fit is None else float(fit[2][0])

@@ -13,7 +13,8 @@ from ._section_summary import _sliding
 
 def _slip_section(fj, st) -> str:
     out = []
-    if (fj.get("slip") or {}).get("value") is None:
+    slip = (fj.get("slip") or {}).get("value")
+    if slip is None:
         # no slip is read (the headline says why): the model's s(t) and its law would draw
         # a compromise fit's slip (-300 to +50 on a spinning track's run) as if it were one
         out.append("<p>No slip is read from this recording (the headline says why), so "
@@ -23,8 +24,7 @@ def _slip_section(fj, st) -> str:
     else:
         out += _slip_figures(fj, st)
     fig, ax = _fig(FIG_W, 4.4)
-    creep = plot_stall(st, ax=ax[0, 0], slip=(fj.get("slip") or {}).get("value"),
-                       D_mm=(fj.get("geometry") or {}).get("D_mm"))
+    creep = plot_stall(st, ax=ax[0, 0], slip=slip, D_mm=(fj.get("geometry") or {}).get("D_mm"))
     cap = ("One lug marker's stall on the ground, enlarged: data (dots, coloured by time) "
            "and model (line). Without slip the marker would stand still on the ground while "
            "its lug is loaded (the dashed vertical no-slip path); with slip it creeps "
