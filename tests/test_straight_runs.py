@@ -223,12 +223,31 @@ def test_the_clock_says_why_it_gives_no_reading():
     assert straight_runs_slip(res, why=why) is None
     assert why == ["the marked lugs pass the belt's free part only at 1.2-1.5 and 6.5-7.3 s, "
                    "too little of the body's cruise (1.6-6.4 s) to read"]
-    wob = 8.0 * np.sin(2 * np.pi * 3.0 * rec.t + np.asarray(rec.marker_index) * np.pi / 2)
-    far = fitlug.fit(dataclasses.replace(rec, x=rec.x + np.where(lug, wob, 0.0)), rig)
+    # a model that misses: the same fit's residuals with a known systematic added to the
+    # lug markers' x (model - data: the data moved by `wob`), so the sentence's rms is
+    # checked against what was put in (a refit of such data walked for 48 s CPU to the
+    # same kind of misfit)
+    prob = res.problem
+    rows = np.asarray(prob.lug_rows)
+    w = prob.weights
+    S = len(rows)
+
+    def missing_by(amp):
+        wob = amp * np.sin(2 * np.pi * 3.0 * rec.t + np.asarray(rec.marker_index) * np.pi / 2)
+        add = np.zeros_like(w)
+        add[:S] = -w[:S] * wob[rows]
+        far = dataclasses.replace(res, residuals=np.asarray(res.residuals) + add)
+        # rms beyond the noise: the systematic's mean square over every valid coordinate
+        return far, float(np.sqrt(np.sum(wob[rows][w[:S] > 0] ** 2) / np.sum(w > 0)))
+
+    far, rms = missing_by(8.0)  # 3.1 mm rms, 17 % of the 18.4 mm pitch
     said = far_from_data(far, ["the reason"])
-    assert said.startswith("the model misses the markers by ")
-    assert said.endswith("and the straight runs give no reading: the reason")
+    assert said == (f"the model misses the markers by {rms:.1f} mm rms beyond their noise "
+                    f"({rms / rig.lug_pitch_mm:.0%} of a lug pitch) and the straight runs "
+                    "give no reading: the reason")
     assert far_from_data(far).endswith("give no reading")
+    near, rms = missing_by(2.0)  # 0.8 mm rms: under a tenth of a pitch, nothing said
+    assert rms < 0.1 * rig.lug_pitch_mm and far_from_data(near) is None
 
 
 def test_no_reading_without_a_cruise_in_view():

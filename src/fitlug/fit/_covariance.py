@@ -75,7 +75,8 @@ def gauss_newton_polish(out: LsqOutput, lay, obs, *, tol: float, max_iter: int =
 def covariance(J: np.ndarray, rcond: float = 1e-12) -> np.ndarray:
     """(J^T J)^-1 with a pseudo-inverse for directions the data do not constrain."""
     s = inverse_norms(np.sqrt(np.sum(J * J, 0)))
-    A = (J * s).T @ (J * s)
+    Js = J * s
+    A = Js.T @ Js  # one operand twice: BLAS's syrk (two copies went through gemm, ~20x)
     w, V = np.linalg.eigh(A)
     inv = np.where(w > rcond * w.max(), 1.0 / np.where(w > 0, w, 1.0), 0.0)
     return (V * inv) @ V.T * np.outer(s, s)
