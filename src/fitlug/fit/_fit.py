@@ -15,7 +15,7 @@ from ..model import param_names
 from ..model.effects import CATALOG
 from ._covariance import covariance, covariance_normal, gauss_newton_polish
 from ._lsq import least_squares
-from ._on_bound import held_on_bound
+from ._on_bound import held_on_bound, on_lower_bound, refit_on_bound
 from . import _glitches
 from ._noise import fourth_differences, noise_from_differences
 from ._boundary import check_effects, check_free, check_noise
@@ -68,8 +68,13 @@ def _misfit_scale(out, prob: Problem) -> float:
 
 
 def fit_problem(prob: Problem, p_start: dict | None = None, *, free=None, max_steps: int = 300,
-                require_convergence: bool = True, params=None) -> FitResult:
+                require_convergence: bool = True, params=None,
+                refit: bool = False) -> FitResult:
     """Fit `prob` from `p_start` (default: the data-derived start) by Levenberg-Marquardt.
+
+    `refit`: `p_start` is a fit of the same recording (:func:`fit`'s own refits); where its
+    slip slope beta sat on its lower bound the refit starts there
+    (:func:`fitlug.fit._on_bound.refit_on_bound`).
 
     `params`: a :class:`fitlug.Parameters` whose held elements, bounds and priors the fit
     honours (:mod:`fitlug.fit._constrained`, one compiled solver for every choice).
@@ -101,7 +106,12 @@ def fit_problem(prob: Problem, p_start: dict | None = None, *, free=None, max_st
         if np.all(np.isfinite(held.r)):
             p0 = {**p0, **held.params}
             held_steps = held.steps
-    out = _solve(p0, free, prob, max_steps)
+    out = None
+    if refit and p_start is not None and on_lower_bound(p0, free) \
+            and not _long(prob, p0, free):
+        out = refit_on_bound(p0, free, prob.lay, prob.obs, max_steps=max_steps)
+    if out is None:
+        out = _solve(p0, free, prob, max_steps)
     out = _finish(out._replace(steps=out.steps + held_steps), prob, free, max_steps)
     if require_convergence and EXTRA_STEPS and not out.converged \
             and np.all(np.isfinite(out.r)) and _misfit_scale(out, prob) > GROSS_MISFIT:
@@ -319,7 +329,8 @@ def remove_glitches(res: FitResult, *, renoise: bool = True, **kw) -> FitResult:
             new = residual_noise(dataclasses.replace(res, problem=prob))
             if all(np.isfinite(v) and v > 0 for v in new.values()):
                 prob = reweighted(prob, new)
-        new_res = fit_problem(prob, p_start=res.params, **{**kw, "require_convergence": False})
+        new_res = fit_problem(prob, p_start=res.params, refit=True,
+                              **{**kw, "require_convergence": False})
         if res.converged and not new_res.converged:
             # the flags' refit crawled to its step limit (a misfit in the thousands whose
             # structure the finder took for glitches: an engine's drive-through, 3 of 17):
@@ -355,7 +366,7 @@ def _check_lug_count(res: FitResult, **kw) -> FitResult:
     prob2 = Problem(**{**prob.__dict__, "lay": lay,
                        "init_info": {**prob.init_info, "n_belt": N}})
     kw.pop("p_start", None)
-    return fit_problem(prob2, p_start=res.params, **kw)
+    return fit_problem(prob2, p_start=res.params, refit=True, **kw)
 
 
 def refit_noise(res: FitResult, **kw) -> FitResult:
@@ -364,4 +375,4 @@ def refit_noise(res: FitResult, **kw) -> FitResult:
     if not all(np.isfinite(v) and v > 0 for v in new.values()):
         return res
     kw.pop("p_start", None)
-    return fit_problem(reweighted(res.problem, new), p_start=res.params, **kw)
+    return fit_problem(reweighted(res.problem, new), p_start=res.params, refit=True, **kw)
