@@ -3,9 +3,10 @@
 fitlug.fit refits a recording after its first fit (the lug count, the glitch rounds, the
 noise from the residuals). Where the first fit's beta sat on its bound (beta = 0, k
 infinite), each refit walked the free solver back below the bound (up to 300 steps at a
-gross misfit) and then refitted with beta held there (fitlug.fit._on_bound). The refits
-now start held and keep the held fit where the data still pull beta below the bound
-(the bound's Karush-Kuhn-Tucker condition). Checked on a recording made by a contact-
+gross misfit) and then refitted with beta held there (fitlug.fit._on_bound), and so did
+the first fit after its stage with beta held. The refits now start held, and the first
+fit keeps its held stage, where the data still pull beta below the bound (the bound's
+Karush-Kuhn-Tucker condition). Checked on a recording made by a contact-
 dynamics engine (MuJoCo; nothing of fitlug's model), against the old route and against
 finite differences of chi^2.
 """
@@ -40,8 +41,9 @@ def _chi2(res, **change):
 
 def test_refits_from_the_bound_reach_the_free_solvers_minimum_in_fewer_steps(monkeypatch):
     """The engine's robot driving through a 400 mm window (data/engine/drive_through: a
-    gross misfit, chi^2/dof ~3 000, the data pulling beta below 0): the refits started on
-    the bound end where the old route (free walk, then the held refit) ended: the same
+    gross misfit, chi^2/dof ~3 000, the data pulling beta below 0): the first fit's stage
+    with beta held is its answer, and the refits started on the bound end there too, where
+    the old route (free walks, each followed by a held refit) ended: the same
     chi^2 and slip, in fewer solver steps; and at the reported point no step of beta into
     its range lowers chi^2 (finite differences, the other parameters where they are)."""
     rec, rig = _recording("drive_through")
@@ -53,10 +55,21 @@ def test_refits_from_the_bound_reach_the_free_solvers_minimum_in_fewer_steps(mon
         calls.append(out is not None)
         return out
 
+    first = []
+    real_holds = fit_mod.bound_holds
+
+    def holds(held):
+        out = real_holds(held)
+        first.append(out)
+        return out
+
     monkeypatch.setattr(fit_mod, "refit_on_bound", counting)
+    monkeypatch.setattr(fit_mod, "bound_holds", holds)
     new = fitlug.fit(rec, rig)
+    assert first == [True]  # the first fit's held stage is its answer
     assert calls and all(calls), calls  # every refit started on the bound and stayed
     monkeypatch.setattr(fit_mod, "refit_on_bound", lambda *a, **k: None)
+    monkeypatch.setattr(fit_mod, "bound_holds", lambda held: False)
     old = fitlug.fit(rec, rig)
 
     for res in (new, old):

@@ -15,7 +15,7 @@ from ..model import param_names
 from ..model.effects import CATALOG
 from ._covariance import covariance, covariance_normal, gauss_newton_polish
 from ._lsq import least_squares
-from ._on_bound import held_on_bound, on_lower_bound, refit_on_bound
+from ._on_bound import bound_holds, held_on_bound, on_lower_bound, refit_on_bound
 from . import _glitches
 from ._noise import fourth_differences, noise_from_differences
 from ._boundary import check_effects, check_free, check_noise
@@ -91,7 +91,7 @@ def fit_problem(prob: Problem, p_start: dict | None = None, *, free=None, max_st
                                require_convergence=require_convergence,
                                hold_beta_first=HOLD_BETA_FIRST)
     free = free_parameters(prob.lay) if free is None else list(free)
-    held_steps = 0
+    held_steps, out = 0, None
     if p_start is None and "beta" in free and len(free) > 1 and HOLD_BETA_FIRST \
             and not _long(prob, p0, free):
         # from the data-derived start, first with the slip slope beta held at 0: where the
@@ -101,13 +101,18 @@ def fit_problem(prob: Problem, p_start: dict | None = None, *, free=None, max_st
         # against spurious accelerations and stopped at chi2/dof 1e4..1e7 (issue 26); with
         # beta held the geometry, phases and speed converge in a few steps, and beta then
         # moves from a point where the accelerations are the data's own
+        # (and where the data pull beta below its bound at the held optimum, that optimum
+        # is the fit: the free solver would walk below the bound and be refitted held,
+        # to the same point on each of the 6 of 29 engine recordings that end there)
+        at_bound = on_lower_bound(p0, free)
         held = least_squares(p0, free, prob.lay, prob.obs, max_steps=max_steps,
                              hold=("beta",))
         if np.all(np.isfinite(held.r)):
             p0 = {**p0, **held.params}
             held_steps = held.steps
-    out = None
-    if refit and p_start is not None and on_lower_bound(p0, free) \
+            if at_bound and bound_holds(held):
+                out, held_steps = held, 0
+    if out is None and refit and p_start is not None and on_lower_bound(p0, free) \
             and not _long(prob, p0, free):
         out = refit_on_bound(p0, free, prob.lay, prob.obs, max_steps=max_steps)
     if out is None:

@@ -18,7 +18,9 @@ glitch rounds and noise refit) starts where the fit ended: :func:`refit_on_bound
 beta held at 0 and keeps that fit where the data still pull beta below its bound there
 (the Karush-Kuhn-Tucker condition of the bound), instead of walking the free solver to the
 same place again (an engine chain round 15 mm wheels: three walks of 300 steps, 3.7 s
-each, every one thrown away for the held refit that followed it).
+each, every one thrown away for the held refit that followed it). The first fit, whose
+first stage holds beta at 0 from the data-derived start (fitlug.fit._fit), keeps that stage
+where the same condition holds (:func:`bound_holds`).
 """
 
 from __future__ import annotations
@@ -68,13 +70,17 @@ def refit_on_bound(p0: dict, free, lay, obs, *, max_steps: int) -> LsqOutput | N
     output has beta in its packing (a free parameter on its bound). Otherwise None: the
     caller fits with beta free."""
     held = least_squares(p0, free, lay, obs, max_steps=max_steps, hold=("beta",))
-    if not (held.converged and np.all(np.isfinite(held.r))):
-        return None
+    return held._replace(beta_solver=0.0) if bound_holds(held) else None
+
+
+def bound_holds(held: LsqOutput) -> bool:
+    """Whether `held` (a fit with beta held at 0 in its packing) converged to a point where
+    d chi^2 / d beta >= 0: the constrained minimum on the bound (see :func:`refit_on_bound`)."""
+    if not (held.converged and held.J is not None and np.all(np.isfinite(held.r))):
+        return False
     j = held.packing.slices()["beta"].start
     grad = 2.0 * float(np.asarray(held.J)[:, j] @ np.asarray(held.r))
-    if not grad >= 0.0:
-        return None
-    return held._replace(beta_solver=0.0)
+    return grad >= 0.0
 
 
 def _in_packing(held: LsqOutput, out: LsqOutput, lay, obs) -> LsqOutput:
