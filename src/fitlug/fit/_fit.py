@@ -15,7 +15,7 @@ from ..model import param_names
 from ..model.effects import CATALOG
 from ._covariance import covariance, covariance_normal, gauss_newton_polish
 from ._lsq import least_squares
-from ._on_bound import bound_holds, held_on_bound, on_lower_bound, refit_on_bound
+from ._on_bound import held_on_bound
 from . import _glitches
 from ._noise import fourth_differences, noise_from_differences
 from ._boundary import check_effects, check_free, check_noise
@@ -68,13 +68,8 @@ def _misfit_scale(out, prob: Problem) -> float:
 
 
 def fit_problem(prob: Problem, p_start: dict | None = None, *, free=None, max_steps: int = 300,
-                require_convergence: bool = True, params=None,
-                refit: bool = False) -> FitResult:
+                require_convergence: bool = True, params=None) -> FitResult:
     """Fit `prob` from `p_start` (default: the data-derived start) by Levenberg-Marquardt.
-
-    `refit`: `p_start` is a fit of the same recording (:func:`fit`'s own refits); where its
-    slip slope beta sat on its lower bound the refit starts there
-    (:func:`fitlug.fit._on_bound.refit_on_bound`).
 
     `params`: a :class:`fitlug.Parameters` whose held elements, bounds and priors the fit
     honours (:mod:`fitlug.fit._constrained`, one compiled solver for every choice).
@@ -91,7 +86,7 @@ def fit_problem(prob: Problem, p_start: dict | None = None, *, free=None, max_st
                                require_convergence=require_convergence,
                                hold_beta_first=HOLD_BETA_FIRST)
     free = free_parameters(prob.lay) if free is None else list(free)
-    held_steps, out = 0, None
+    held_steps = 0
     if p_start is None and "beta" in free and len(free) > 1 and HOLD_BETA_FIRST \
             and not _long(prob, p0, free):
         # from the data-derived start, first with the slip slope beta held at 0: where the
@@ -101,22 +96,12 @@ def fit_problem(prob: Problem, p_start: dict | None = None, *, free=None, max_st
         # against spurious accelerations and stopped at chi2/dof 1e4..1e7 (issue 26); with
         # beta held the geometry, phases and speed converge in a few steps, and beta then
         # moves from a point where the accelerations are the data's own
-        # (and where the data pull beta below its bound at the held optimum, that optimum
-        # is the fit: the free solver would walk below the bound and be refitted held,
-        # to the same point on each of the 6 of 29 engine recordings that end there)
-        at_bound = on_lower_bound(p0, free)
         held = least_squares(p0, free, prob.lay, prob.obs, max_steps=max_steps,
                              hold=("beta",))
         if np.all(np.isfinite(held.r)):
             p0 = {**p0, **held.params}
             held_steps = held.steps
-            if at_bound and bound_holds(held):
-                out, held_steps = held, 0
-    if out is None and refit and p_start is not None and on_lower_bound(p0, free) \
-            and not _long(prob, p0, free):
-        out = refit_on_bound(p0, free, prob.lay, prob.obs, max_steps=max_steps)
-    if out is None:
-        out = _solve(p0, free, prob, max_steps)
+    out = _solve(p0, free, prob, max_steps)
     out = _finish(out._replace(steps=out.steps + held_steps), prob, free, max_steps)
     if require_convergence and EXTRA_STEPS and not out.converged \
             and np.all(np.isfinite(out.r)) and _misfit_scale(out, prob) > GROSS_MISFIT:
@@ -334,8 +319,7 @@ def remove_glitches(res: FitResult, *, renoise: bool = True, **kw) -> FitResult:
             new = residual_noise(dataclasses.replace(res, problem=prob))
             if all(np.isfinite(v) and v > 0 for v in new.values()):
                 prob = reweighted(prob, new)
-        new_res = fit_problem(prob, p_start=res.params, refit=True,
-                              **{**kw, "require_convergence": False})
+        new_res = fit_problem(prob, p_start=res.params, **{**kw, "require_convergence": False})
         if res.converged and not new_res.converged:
             # the flags' refit crawled to its step limit (a misfit in the thousands whose
             # structure the finder took for glitches: an engine's drive-through, 3 of 17):
@@ -371,7 +355,7 @@ def _check_lug_count(res: FitResult, **kw) -> FitResult:
     prob2 = Problem(**{**prob.__dict__, "lay": lay,
                        "init_info": {**prob.init_info, "n_belt": N}})
     kw.pop("p_start", None)
-    return fit_problem(prob2, p_start=res.params, refit=True, **kw)
+    return fit_problem(prob2, p_start=res.params, **kw)
 
 
 def refit_noise(res: FitResult, **kw) -> FitResult:
@@ -380,4 +364,4 @@ def refit_noise(res: FitResult, **kw) -> FitResult:
     if not all(np.isfinite(v) and v > 0 for v in new.values()):
         return res
     kw.pop("p_start", None)
-    return fit_problem(reweighted(res.problem, new), p_start=res.params, refit=True, **kw)
+    return fit_problem(reweighted(res.problem, new), p_start=res.params, **kw)

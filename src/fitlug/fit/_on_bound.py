@@ -12,15 +12,6 @@ the fit said. There the fit is taken again with beta held at 0, the other parame
 the constrained minimum, and the output keeps beta in its packing (a free parameter on its
 bound: the covariance and the posterior see it as before) with the residuals and Jacobian
 of the point it reports.
-
-A refit of the same recording from such a fit (:func:`fitlug.fit.fit`'s lug-count check,
-glitch rounds and noise refit) starts where the fit ended: :func:`refit_on_bound` fits with
-beta held at 0 and keeps that fit where the data still pull beta below its bound there
-(the Karush-Kuhn-Tucker condition of the bound), instead of walking the free solver to the
-same place again (an engine chain round 15 mm wheels: three walks of 300 steps, 3.7 s
-each, every one thrown away for the held refit that followed it). The first fit, whose
-first stage holds beta at 0 from the data-derived start (fitlug.fit._fit), keeps that stage
-where the same condition holds (:func:`bound_holds`).
 """
 
 from __future__ import annotations
@@ -52,35 +43,6 @@ def held_on_bound(out: LsqOutput, lay, obs, free, *, max_steps: int, tol: float,
     if not np.all(np.isfinite(held.r)):
         return out
     return _in_packing(held, out, lay, obs)
-
-
-def on_lower_bound(params: dict, free) -> bool:
-    """Whether `params` (a fit's) hold the slip slope beta on its lower bound, 0, with the
-    slip law fitted (s0 and beta among `free`)."""
-    return ("beta" in free and "s0" in free and "beta" in params
-            and bool(np.all(np.ravel(np.asarray(params["beta"], float)) == 0.0)))
-
-
-def refit_on_bound(p0: dict, free, lay, obs, *, max_steps: int) -> LsqOutput | None:
-    """The fit from `p0` (beta on its lower bound, :func:`on_lower_bound`) with beta held
-    there, where it converges and the data pull beta below the bound at its optimum:
-    d chi^2 / d beta >= 0 (from its own residuals and Jacobian; the bound's penalty is zero
-    and flat at beta = 0), so that no step into the range lowers chi^2 and the held point
-    is the constrained minimum the free solver and :func:`held_on_bound` would reach. The
-    output has beta in its packing (a free parameter on its bound). Otherwise None: the
-    caller fits with beta free."""
-    held = least_squares(p0, free, lay, obs, max_steps=max_steps, hold=("beta",))
-    return held._replace(beta_solver=0.0) if bound_holds(held) else None
-
-
-def bound_holds(held: LsqOutput) -> bool:
-    """Whether `held` (a fit with beta held at 0 in its packing) converged to a point where
-    d chi^2 / d beta >= 0: the constrained minimum on the bound (see :func:`refit_on_bound`)."""
-    if not (held.converged and held.J is not None and np.all(np.isfinite(held.r))):
-        return False
-    j = held.packing.slices()["beta"].start
-    grad = 2.0 * float(np.asarray(held.J)[:, j] @ np.asarray(held.r))
-    return grad >= 0.0
 
 
 def _in_packing(held: LsqOutput, out: LsqOutput, lay, obs) -> LsqOutput:
