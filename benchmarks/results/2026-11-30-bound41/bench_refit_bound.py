@@ -1,15 +1,20 @@
 """fitlug.fit's refits from a fit whose slip slope beta sat on its lower bound, side by side.
 
+A record of a change tried and not kept (README.md beside it): it needs
+`fitlug.fit._fit.refit_on_bound`, which exists at commit 774d833 only (reverted in
+90bdc4f). Run it with that commit's source first on the path, e.g.
+`git worktree add /tmp/b41 774d833 && PYTHONPATH=/tmp/b41/src python3 bench_refit_bound.py`.
+
 fit() refits a recording after its first fit (the lug count, the glitch rounds, the noise
 from the residuals). Where the first fit ended with beta held on its bound
-(fitlug.fit._on_bound), each refit used to walk the free solver below the bound again and
-then refit with beta held; now it starts held (`refit_on_bound`, the bound's KKT
-condition). The first fit walks either way. Per recording (data/engine by default: MuJoCo's crawlers, gross misfits) this
+(fitlug.fit._on_bound), each refit walks the free solver below the bound again and then
+refits with beta held; at 774d833 it started held instead (`refit_on_bound`, the bound's
+KKT condition). The first fit walks either way. Per recording (data/engine by default: MuJoCo's crawlers, gross misfits) this
 runs fit() with the new route ("on") and the old ("off") in one process, after one warm-up
 fit, and prints wall and CPU seconds, chi^2/dof, solver steps and the slip s0 of each.
 Recordings whose beta is inside its range take neither route and are listed once.
 
-    python benchmarks/bench_refit_bound.py [FOLDER] [CASE ...]
+    python bench_refit_bound.py [FOLDER] [CASE ...]
 """
 
 from __future__ import annotations
@@ -21,7 +26,6 @@ import time
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(HERE, "..", "src"))
 
 import fitlug  # noqa: E402
 from fitlug.fit import _fit  # noqa: E402
@@ -41,7 +45,7 @@ def run(rec, rig, mode):
 
 
 def main(argv):
-    root = argv[0] if argv else os.path.join(HERE, "..", "data", "engine")
+    root = argv[0] if argv else os.path.join(HERE, "..", "..", "..", "data", "engine")
     cases = argv[1:] or sorted(os.listdir(root))
     for case in cases:
         d = os.path.join(root, case)
