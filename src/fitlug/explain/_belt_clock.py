@@ -249,7 +249,8 @@ def belt_clock_slip(res, p: dict, nodes, why: list | None = None) -> dict | None
     lugs_on_belt (N as the passages one belt length apart count it, or None), pitch_mm
     (the rig's, else the top run's), pitch_top_run_mm (the spacing of markers seen on the
     top run together, or None), R_mm, method 'belt clock'."""
-    from ..model._model import ctx_of, kinematics
+    from ..model._host import kinematics_host
+    from ..model._model import ctx_of
     from .families._base import bspline
 
     prob = res.problem
@@ -257,7 +258,7 @@ def belt_clock_slip(res, p: dict, nodes, why: list | None = None) -> dict | None
     ctx = ctx_of(p, lay)
     D, R = float(ctx.D), float(ctx.R)
     pitch = float(prob.rig.lug_pitch_mm or float(ctx.P) / int(lay.n_belt))
-    pose = body_pose(prob, p, lambda t: kinematics(p, lay, np.asarray(t), nodes)["X"])
+    pose = body_pose(prob, p, lambda t: kinematics_host(p, lay, t, nodes)["X"])
     if pose is None:
         return _no(why, "no body marker is in view")
     ut, tx, ty, th = pose
@@ -310,7 +311,7 @@ def belt_clock_slip(res, p: dict, nodes, why: list | None = None) -> dict | None
         return _no(why, FEW_PAIRS)
     rows = np.array(rows)
     ia, ib = rows[:, 2].astype(int), rows[:, 3].astype(int)
-    psi_m = np.asarray(kinematics(p, lay, rows[:, :2].ravel(), nodes)["psi"]).reshape(-1, 2)
+    psi_m = kinematics_host(p, lay, rows[:, :2].ravel(), nodes)["psi"].reshape(-1, 2)
     dmod = np.diff(psi_m, axis=1)[:, 0]
     # psi(t) on a cubic spline; rows in the passages' units, the acceleration prior
     T0, T1 = float(ev[:, 1].min()) - 1e-3, float(ev[:, 1].max()) + 1e-3

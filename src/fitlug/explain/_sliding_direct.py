@@ -91,7 +91,7 @@ def direct_sliding(res, eng, theta) -> np.ndarray | None:
 
     from .._errors import FitlugError
     from ..fit import fit_problem, free_parameters
-    from ..model._model import speed_basis_values
+    from ..model._host import speed_values_host
 
     if "lug_sliding" in res.effects or "slide_mu" not in eng.slices \
             or eng.chunked or eng.n_res > MAX_RESIDUALS:
@@ -102,7 +102,7 @@ def direct_sliding(res, eng, theta) -> np.ndarray | None:
         return None
     prob_f, p = prob.with_effects(tuple(res.effects) + ("lug_sliding",), res.params)
     v0 = np.asarray(prob_f.p0["v"])
-    _, a_n, _, a_m = speed_basis_values(prob_f.lay, jnp.asarray(v0))
+    _, a_n, _, a_m = speed_values_host(prob_f.lay, jnp.asarray(v0))
     a_max = float(max(np.max(np.asarray(a_n)), np.max(np.asarray(a_m))))
     if not a_max > 0:
         return None

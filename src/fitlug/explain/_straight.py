@@ -87,10 +87,11 @@ def _hac_slope(t, y, lag_s):
 def _cruise(p, lay, nodes):
     """(t1, t2, v_plateau): the longest span where the fit's belt speed (parameters `p`,
     integrated `nodes`) holds a plateau (within PLATEAU of the value it holds longest)."""
-    from ..model._model import kinematics
+    from ..model._host import kinematics_host
 
-    tg = np.linspace(float(lay.grid[0]), float(lay.grid[-1]), 2000)
-    vt = np.asarray(kinematics(p, lay, tg, nodes)["v_t"])
+    grid = np.asarray(lay.grid)
+    tg = np.linspace(float(grid[0]), float(grid[-1]), 2000)
+    vt = kinematics_host(p, lay, tg, nodes)["v_t"]
     return plateau(tg, vt, PLATEAU, SMOOTH_S)
 
 
@@ -114,14 +115,14 @@ def straight_runs_slip(res, margin_mm: float = MARGIN_MM, clock: bool = True,
     """
     import jax.numpy as jnp
 
-    from ..model._model import integrate
+    from ..model._host import integrate_host
 
     from ._belt_clock import belt_clock_slip
 
     prob = res.problem
     lay = prob.lay
     p = {k: jnp.asarray(v) for k, v in res.params.items()}
-    nodes = integrate(p, lay)  # once: the cruise, the samples and the body's X read it
+    nodes = integrate_host(p, lay)  # once: the cruise, the samples and the body's X read it
     found = None
     if clock:
         try:
@@ -189,7 +190,8 @@ def _pitches_apart(clock: dict, top: dict):
 def _top_run_slip(res, margin_mm, p, lay, nodes, min_visits: int = 2) -> dict | None:
     """The top run's visits' reading (module docstring); see straight_runs_slip. From
     `min_visits` visits; one visit's belt speed carries ONE_VISIT_REL of it."""
-    from ..model._model import ctx_of, kinematics, positions, sampled_from_nodes
+    from ..model._host import kinematics_host, positions_host, sampled_host
+    from ..model._model import ctx_of
 
     prob = res.problem
     cr = _cruise(p, lay, nodes)
@@ -199,10 +201,10 @@ def _top_run_slip(res, margin_mm, p, lay, nodes, min_visits: int = 2) -> dict | 
     ctx = ctx_of(p, lay)
     D, R, P = float(ctx.D), float(ctx.R), float(ctx.P)
     obs = {k: np.asarray(v) for k, v in prob.obs.items()}
-    sampled = sampled_from_nodes(p, lay, nodes)
+    sampled = sampled_host(p, lay, nodes)
     u = np.mod(np.asarray(p["sigma0"])[np.asarray(lay.lug_i)] + np.asarray(sampled[1]), P)
     top = (u > D + np.pi * R + margin_mm) & (u < 2.0 * D + np.pi * R - margin_mm)
-    bx = np.asarray(positions(p, lay, *sampled)[2])
+    bx = np.asarray(positions_host(p, lay, *sampled)[2])
     # the body's position where it is seen: the model's X plus the body markers' mean
     # residual at that frame (the model carries each marker's offset on the body)
     tb = np.asarray(lay.body_t)
@@ -216,7 +218,7 @@ def _top_run_slip(res, margin_mm, p, lay, nodes, min_visits: int = 2) -> dict | 
     jb = np.asarray(lay.body_j)[wb]
     for j in np.unique(jb):
         rb[jb == j] -= np.median(rb[jb == j])
-    X = (np.asarray(kinematics(p, lay, ut, nodes)["X"])
+    X = (kinematics_host(p, lay, ut, nodes)["X"]
          + np.bincount(inv, rb) / np.bincount(inv))
     in_cruise = (ut >= t1) & (ut <= t2)
     if np.sum(in_cruise) < MIN_SAMPLES or np.ptp(ut[in_cruise]) < MIN_CRUISE_S:

@@ -24,6 +24,15 @@ def residuals(p: dict, lay, obs: dict):
     return _weighted(predict(p, lay), obs)
 
 
+_residuals_jit = jax.jit(residuals)
+
+
+def residuals_host(p: dict, lay, obs: dict) -> np.ndarray:
+    """:func:`residuals` as one compiled program, numpy out (for host code: called eagerly,
+    each of the model's operations is a program of its own, compiled once per shape)."""
+    return np.asarray(_residuals_jit(p, lay, obs))
+
+
 def _weighted(pos, obs):
     lx, ly, bx, by = pos
     return jnp.concatenate([(lx - obs["lug_x"]) * obs["lug_w"], (ly - obs["lug_y"]) * obs["lug_w"],
@@ -129,6 +138,14 @@ class Packing(NamedTuple):
     def unpack(self, flat, fixed: dict) -> dict:
         out = dict(fixed)
         i = 0
+        if isinstance(flat, jax.Array) and not isinstance(flat, jax.core.Tracer):
+            # concrete values: sliced in numpy (a jnp slice compiles a program for each
+            # offset and length, per new recording), the same values, on the device
+            a = np.asarray(flat)
+            for k, shape, n in zip(self.names, self.shapes, self.sizes):
+                out[k] = jax.device_put(a[i:i + n].reshape(shape))
+                i += n
+            return out
         for k, shape, n in zip(self.names, self.shapes, self.sizes):
             out[k] = flat[i:i + n].reshape(shape)
             i += n

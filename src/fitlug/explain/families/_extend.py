@@ -13,7 +13,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from ...fit import FitResult, residuals
+from ...fit import FitResult
+from ...fit._residuals import residuals_host
 from ...fit._result import compute_quantities
 
 
@@ -34,8 +35,8 @@ def extended(res, ctx, proj, B: np.ndarray, c: np.ndarray, C: np.ndarray,
     fixed = {k: jnp.asarray(v, float) for k, v in res.params.items() if k not in packing.names}
     p = params_at(res, flat)
     if r is None:
-        r = np.asarray(residuals({k: jnp.asarray(v) for k, v in p.items()}, prob.lay,
-                                 prob.obs)) + B @ c
+        r = residuals_host({k: jnp.asarray(v) for k, v in p.items()}, prob.lay,
+                           prob.obs) + B @ c
     chi2 = float(r @ r)
     fixed_np = {k: np.asarray(v) for k, v in fixed.items()}
     q = compute_quantities(p, packing, flat, cov, prob.lay, prob.rig.mass_kg, fixed_np,

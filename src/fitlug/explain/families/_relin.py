@@ -19,7 +19,7 @@ import dataclasses
 import jax.numpy as jnp
 import numpy as np
 
-from ...fit import residuals
+from ...fit._residuals import residuals_host
 from ._context import context
 from ._extend import extended, params_at
 from ._solve import Projector
@@ -32,8 +32,8 @@ MIN_GAIN = 0.5
 def moved(res, flat):
     """FitResult `res` with its parameters at `flat` and its own model's residuals there."""
     p = params_at(res, flat)
-    r = np.asarray(residuals({k: jnp.asarray(v) for k, v in p.items()}, res.problem.lay,
-                             res.problem.obs))
+    r = residuals_host({k: jnp.asarray(v) for k, v in p.items()}, res.problem.lay,
+                       res.problem.obs)
     return dataclasses.replace(res, params=p, flat=np.asarray(flat, float), residuals=r,
                                chi2=float(r @ r))
 
