@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..model import _spline
-from ..model._model import band_dot
+from ..model._host import speed_values_host
 
 SPACING_S = 0.03  # resolves a motion up to ~8 Hz (4 breakpoints a period)
 MAX_COEF = 600  # a longer recording gets wider spacing (cost of the dense refit)
@@ -36,7 +36,8 @@ MAX_COEF = 600  # a longer recording gets wider spacing (cost of the dense refit
 
 def free_speed_breaks(lay) -> np.ndarray:
     """Uniform breakpoints over the layout's grid, SPACING_S apart (at most MAX_COEF)."""
-    t0, t1 = float(lay.grid[0]), float(lay.grid[-1])
+    grid = np.asarray(lay.grid)
+    t0, t1 = float(grid[0]), float(grid[-1])
     n = int(np.ceil((t1 - t0) / SPACING_S))
     n = max(2, min(n, MAX_COEF - _spline.DEGREE))
     return np.linspace(t0, t1, n + 1)
@@ -80,7 +81,7 @@ def speed_sensitivity(res) -> dict | None:
     if len(br) - 1 + _spline.DEGREE <= lay.n_coef:  # not freer than the base layout
         return None
     # the base speed profile, projected on the free basis: the refit starts at the base fit
-    speed = np.asarray(band_dot(lay.Bn, lay.jn, jnp.asarray(res.params["v"], float)))
+    speed = np.asarray(speed_values_host(lay, jnp.asarray(res.params["v"], float))[0])
     p = {k: np.asarray(v, float) for k, v in res.params.items()}
     p["v"] = _spline.fit_banded(np.asarray(lay.grid), speed, br)
     prob2 = dataclasses.replace(prob, lay=lay.with_breaks(br))

@@ -197,7 +197,7 @@ def tracker_systematics(res, geo, alpha: float) -> dict | None:
     def slip_of(fl):
         return derived(res.packing.unpack(fl, fixed_np), prob.lay, prob.rig.mass_kg)["slip"]
 
-    g = np.asarray(jax.grad(slip_of)(jnp.asarray(res.flat)))
+    g = np.asarray(jax.jit(jax.grad(slip_of))(jnp.asarray(res.flat)))  # one program
     d_slip = float(g @ delta[:n_p])
     s_std = float(res.slip.std or 0.0)
     effect = abs(d_slip) / s_std if s_std > 0 else np.inf
