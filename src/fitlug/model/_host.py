@@ -1,5 +1,5 @@
-"""The model evaluated from host code (the explanation's readings, the report): one compiled
-program per call site and shape, numpy out (issue 43).
+"""The model evaluated from host code (the explanation's readings): one compiled program per
+call site and shape, numpy out (issue 43).
 
 Called eagerly, a JAX function dispatches each of its operations as a program of its own,
 compiled (or read from the persistent cache) once per shape: the straight runs' reading of
@@ -8,8 +8,8 @@ for 0.2 s of arithmetic. Here each evaluation is one jit-compiled program; times
 padded to bucketed lengths (:func:`fitlug.model._buckets.bucket`, the padding repeats the
 first time and is cut off), so that a reading at another number of times reuses it.
 
-The values are the eager functions' to rounding (XLA fuses the operations; the same
-IEEE operations in the same order, tests/test_host.py).
+The values are the eager functions' to rounding: XLA fuses the operations and may round
+them in another order (~1e-15 relative; tests/test_host.py holds them to 1e-12).
 """
 
 from __future__ import annotations
