@@ -10,7 +10,7 @@ import numpy as np
 
 from fitlug.fit import build_problem
 from fitlug.fit._residuals import residuals, residuals_host
-from fitlug.model import integrate, kinematics, positions
+from fitlug.model import integrate, kinematics, positions, predict
 from fitlug.model import _host
 from fitlug.model._model import sampled_from_nodes, speed_basis_values
 from fitlug.sim import Scenario, rig_of, simulate
@@ -51,6 +51,8 @@ def test_host_evaluations_equal_the_eager_model():
     for a, b in zip(sam_h, sam):
         _close(a, b)
     for a, b in zip(_host.positions_host(p, lay, *sam_h), positions(p, lay, *sam)):
+        _close(a, b)
+    for a, b in zip(_host.predict_host(p, lay), predict(p, lay)):
         _close(a, b)
     for a, b in zip(_host.speed_values_host(lay, p["v"]), speed_basis_values(lay, p["v"])):
         _close(a, b)

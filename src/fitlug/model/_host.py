@@ -1,5 +1,5 @@
-"""The model evaluated from host code (the explanation's readings): one compiled program per
-call site and shape, numpy out (issue 43).
+"""The model evaluated from host code (the explanation's readings, the simulator, the
+report's positions): one compiled program per function and shape (issue 43).
 
 Called eagerly, a JAX function dispatches each of its operations as a program of its own,
 compiled (or read from the persistent cache) once per shape: the straight runs' reading of
@@ -18,13 +18,15 @@ import jax
 import numpy as np
 
 from ._buckets import bucket
-from ._model import integrate, kinematics, positions, sampled_from_nodes, speed_basis_values
+from ._model import (integrate, kinematics, positions, predict, sampled_from_nodes,
+                     speed_basis_values)
 
 _integrate = jax.jit(integrate)
 _kinematics = jax.jit(kinematics)
 _sampled = jax.jit(sampled_from_nodes)
 _positions = jax.jit(positions)
 _speed_values = jax.jit(speed_basis_values)
+_predict = jax.jit(predict)
 
 
 def _padded(t):
@@ -60,6 +62,12 @@ def sampled_host(p: dict, lay, nodes):
 def positions_host(p: dict, lay, Xl, psil, Xb, psib):
     """:func:`fitlug.model.positions` as one compiled program."""
     return _positions(p, lay, Xl, psil, Xb, psib)
+
+
+def predict_host(p: dict, lay):
+    """:func:`fitlug.model.predict` as one compiled program (the simulator's truth, the
+    report's model positions): (lug_x, lug_y, body_x, body_y)."""
+    return _predict(p, lay)
 
 
 def speed_values_host(lay, c):

@@ -45,11 +45,12 @@ def _raw_residuals(prob, p, model=None):
         from .. import _exported
 
         from ..fit._buckets import pad_model
+        from ..model._host import predict_host
 
         # through a module exported to disk: a new process skips its tracing; on bucketed
         # shapes (a recording of a new length compiles nothing new), cut back
         pm = pad_model(p, prob.lay)
-        model = _exported.call("report_predict", _predict_jit(), (), *(pm or (p, prob.lay)))
+        model = _exported.call("report_predict", predict_host, (), *(pm or (p, prob.lay)))
         Sl, Sb = prob.lay.lug_t.shape[0], prob.lay.body_t.shape[0]
         model = tuple(np.asarray(v)[:n] for v, n in zip(model, (Sl, Sl, Sb, Sb)))
     lx, ly, bx, by = (np.asarray(a) for a in model)
@@ -64,17 +65,6 @@ def _raw_residuals(prob, p, model=None):
 
 
 _JITTED = {}
-
-
-def _predict_jit():
-    """:func:`fitlug.model.predict`, compiled (op by op it costs seconds on every run)."""
-    if "predict" not in _JITTED:
-        import equinox as eqx
-
-        from ..model import predict
-
-        _JITTED["predict"] = eqx.filter_jit(predict)
-    return _JITTED["predict"]
 
 
 def _model_state(p, lay, fine, lay_c):

@@ -8,7 +8,8 @@ import os
 import numpy as np
 
 from ..io import Recording, Rig, write_json, write_rig, write_trajectories
-from ..model import CATALOG, make_layout, predict, steady_slip
+from ..model import CATALOG, make_layout, steady_slip
+from ..model._host import predict_host
 from ..model._physics import delta_l
 from ._profile import speed_profile
 from ._scenario import Scenario
@@ -50,19 +51,6 @@ def truth_params(sc: Scenario, lay, breaks) -> dict:
     return {k: jnp.asarray(v, float) for k, v in p.items()}
 
 
-def _predict_jit():
-    """The model's predict as one compiled program (called eagerly, each of its operations
-    is a program of its own: ~130 of them, 3 s warm, per new recording shape)."""
-    import jax
-
-    if not _PREDICT:
-        _PREDICT.append(jax.jit(predict))
-    return _PREDICT[0]
-
-
-_PREDICT: list = []
-
-
 def simulate(sc: Scenario, seed: int = 0) -> tuple[Recording, dict]:
     """Draw one recording of `sc` (noise seeded by `seed`); returns (recording, truth)."""
     sc.check()
@@ -74,7 +62,7 @@ def simulate(sc: Scenario, seed: int = 0) -> tuple[Recording, dict]:
     t_body, j_body = np.repeat(t, nb), np.tile(np.arange(nb), len(t))
     lay, breaks = _truth_layout(sc, t_lug, i_lug, t_body, j_body)
     p = truth_params(sc, lay, breaks)
-    lx, ly, bx, by = (np.asarray(a) for a in _predict_jit()(p, lay))
+    lx, ly, bx, by = (np.asarray(a) for a in predict_host(p, lay))
     lx = lx + rng.normal(0, sc.noise_lug_mm, lx.shape)
     ly = ly + rng.normal(0, sc.noise_lug_mm, ly.shape)
     bx = bx + rng.normal(0, sc.noise_body_mm, bx.shape)
