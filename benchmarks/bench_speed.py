@@ -50,7 +50,10 @@ def _worker(csv: str, out: str) -> None:
     import fitlug.cli as cli
 
     # start as the `fit-lug` executable starts (fitlug.cli.entry), where the code has it
-    getattr(cli, "_without_dask", lambda: None)()
+    if hasattr(cli, "executable_setup"):
+        cli.executable_setup([csv])
+    else:
+        getattr(cli, "_without_dask", lambda: None)()
     import fitlug.cli._fit as fitmod
 
     orig = fitmod.stage

@@ -197,6 +197,38 @@ def test_the_report_section_shows_before_and_after(frame_drop_explained):
     assert discrepancy_section({}, None) == ""
 
 
+def test_the_reports_early_parts_do_not_read_the_posterior(frame_drop_explained, tmp_path):
+    """fitlug.report._aside draws the page's EARLY parts (the discrepancy's figures among
+    them) from fit.json and state.npz made before the posterior: they must be the same
+    HTML as drawn from the final files, which carry the posterior's estimates."""
+    from fitlug.io import read_json, write_json
+    from fitlug.posterior import sample_posterior
+    from fitlug.report import fit_json, load_state
+    from fitlug.report._page import EARLY, early_parts
+    from fitlug.report._state import state_arrays, write_state
+
+    ex, _ = frame_drop_explained
+    disc = ex.to_json()
+    post = sample_posterior(ex.final, seed=0)
+    docs = {"before": fit_json(ex.final, discrepancy=disc),
+            "after": fit_json(ex.final, discrepancy=disc, posterior=post.estimates,
+                              not_identifiable=post.not_identifiable,
+                              uncertainty_method=post.uncertainty_method,
+                              mcmc=post.mcmc_json())}
+    assert docs["before"]["slip"] != docs["after"]["slip"]  # the posterior moved them
+    parts = {}
+    for key, posterior in (("before", None), ("after", post)):
+        d = tmp_path / key
+        d.mkdir()
+        write_json(d / "fit.json", docs[key])
+        write_state(d, *state_arrays(ex.final, posterior, ex))
+        parts[key] = early_parts(read_json(d / "fit.json"), load_state(d))
+    assert set(parts["before"]) == set(EARLY)
+    assert parts["before"] == parts["after"]
+    # residuals before/after, maps, breakdown, spectra
+    assert parts["before"]["discrepancy-plots"].count("data:image/png;base64,") == 4
+
+
 def test_engine_keeps_analytic_columns_only_where_every_effect_is_at_identity():
     """The search's first-round Jacobian keeps the starting model's analytic columns of the
     coupled scalars (s0, beta, R, ...): valid because with every catalog effect at its

@@ -126,12 +126,24 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def entry() -> None:
-    """The `fit-lug` executable (and ``python -m fitlug.cli``): :func:`main`, then the
-    process ends without the interpreter's teardown (see :func:`exit_now`). Every
-    sub-command but campaign runs without dask (:func:`_without_dask`)."""
-    if sys.argv[1:2] != ["campaign"]:
-        _without_dask()
+    """The `fit-lug` executable (and ``python -m fitlug.cli``): :func:`executable_setup`,
+    :func:`main`, then the process ends without the interpreter's teardown (see
+    :func:`exit_now`)."""
+    executable_setup(sys.argv[1:2])
     exit_now(main())
+
+
+def executable_setup(first_args: list) -> None:
+    """What the `fit-lug` executable does before :func:`main` and main() called in-process
+    does not: every sub-command but campaign runs without dask (:func:`_without_dask`);
+    a fit's report is drawn by a process of its own that imports the report's modules
+    while the fit runs (:mod:`fitlug.report._aside`). (first_args: the command line's
+    first argument, in a list.)"""
+    if list(first_args[:1]) != ["campaign"]:
+        _without_dask()
+    from . import _fit
+
+    _fit.REPORT_PROCESS = True
 
 
 def _without_dask() -> None:

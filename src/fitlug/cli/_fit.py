@@ -12,6 +12,11 @@ from ._common import (check_out_folder, positive_seconds, progress_enabled, prog
 
 
 GUARD_S = 900.0  # fitlug.posterior._mcmc.GUARD_S (not imported: the command starts cheap)
+#: draw the report in a process of its own (fitlug.report._aside), which imports the
+#: report's modules while the fit runs: set by the `fit-lug` executable
+#: (fitlug.cli.entry); main() called in-process (tests, library callers) draws it in a
+#: thread-preloaded process of its own modules, as before
+REPORT_PROCESS = False
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -71,19 +76,31 @@ def _size_note(path: str) -> str:
 
 
 def _run(args, rec, rig, out, run_id, t_start) -> int:
-    from .._errors import FitError
-    from ..io import write_json
-
     prog = progress_enabled(args)
 
     stage(args, "fitting", f"{len(rec.markers)} markers, {_frames(rec)} frames")
-    from ..fit import fit
+    aside = None
+    preload = not args.no_report
+    if preload and REPORT_PROCESS:
+        from ..report._aside import ReportProcess
 
-    preload = not (args.no_report and args.no_mcmc)  # posterior.nc or the report follows
-    if preload:
+        aside = ReportProcess()  # imports the report's modules on the other core meanwhile
+        preload = False
+    elif preload:
         from ..report import _preload
 
-        _preload.start()  # the report's imports, while the fit runs
+        _preload.start()  # the report's imports, in a thread while the fit runs
+    try:
+        return _fit_and_write(args, rec, rig, out, run_id, t_start, prog, preload, aside)
+    finally:
+        if aside is not None:
+            aside.close()
+
+
+def _fit_and_write(args, rec, rig, out, run_id, t_start, prog, preload, aside) -> int:
+    from .._errors import FitError
+    from ..fit import fit
+    from ..io import write_json
 
     res = fit(rec, rig)
     final, expl = res, None
@@ -94,6 +111,10 @@ def _run(args, rec, rig, out, run_id, t_start) -> int:
 
         expl = explain(res, seed=args.seed, progress=prog)
         final = expl.final
+    disc = None if expl is None else expl.to_json()
+    state = None  # (arrays, meta) of the report's state without the posterior
+    if aside is not None:
+        state = _draw_early(aside, final, expl, disc, args)
     post, no_chain = None, None  # no_chain: why no posterior could be formed
     if not args.no_mcmc:
         stage(args, "sampling", "posterior (emcee), until the effective samples suffice")
@@ -128,7 +149,7 @@ def _run(args, rec, rig, out, run_id, t_start) -> int:
                    not_identifiable=unident,
                    uncertainty_method=None if post is None else post.uncertainty_method,
                    mcmc=None if post is None else post.mcmc_json(),
-                   discrepancy=None if expl is None else expl.to_json())
+                   discrepancy=disc)
     if post is None:
         doc["mcmc"] = None
         why = "--no-mcmc" if args.no_mcmc and not no_chain else no_chain
@@ -142,6 +163,8 @@ def _run(args, rec, rig, out, run_id, t_start) -> int:
     write_json(os.path.join(out, "fit.json"), doc)
     report = None
     if preload:
+        from ..report import _preload
+
         _preload.wait()
     if post is not None:
         post.save(os.path.join(out, "posterior.nc"), run_id=run_id)
@@ -149,10 +172,37 @@ def _run(args, rec, rig, out, run_id, t_start) -> int:
         stage(args, "report", os.path.join(out, "report.html"))
         from ..report import save_state, write_report
 
-        save_state(out, final, posterior=post, explanation=expl, run_id=run_id)
-        report = write_report(out)
+        if state is None:
+            save_state(out, final, posterior=post, explanation=expl, run_id=run_id)
+        else:  # the arrays drawn early, with the posterior's added: save_state's file
+            from ..report._state import add_posterior, write_state
+
+            arrays, meta = state
+            if post is not None:
+                add_posterior(arrays, meta, post)
+            write_state(out, arrays, meta, run_id)
+        report = write_report(out) if aside is None else aside.render(out)
     _summary(args, doc, out, report, time.perf_counter() - t_start)
     return 0
+
+
+def _draw_early(aside, final, expl, disc, args):
+    """Hand the report's process the parts of the page that the posterior does not change
+    (fitlug.report._page.EARLY), to draw while the posterior is sampled; returns the
+    state's (arrays, meta) without the posterior, or None where they could not be made
+    (the report is then drawn whole at the end, as without the early parts)."""
+    import logging
+
+    from ..report import fit_json
+    from ..report._state import state_arrays
+
+    try:
+        arrays, meta = state_arrays(final, None, expl)
+        aside.draw_early(fit_json(final, input_path=args.csv, discrepancy=disc), arrays, meta)
+    except Exception as exc:  # noqa: BLE001 - an accelerator only: the end draws it all
+        logging.getLogger("fitlug.report").debug("early report parts not drawn: %s", exc)
+        return None
+    return arrays, meta
 
 
 def _command_line(args) -> str:

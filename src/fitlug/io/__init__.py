@@ -14,6 +14,7 @@ from ._formats import detect_format as detect_format
 from ._formats import read_any as read_any
 from ._formats import read_tracks as read_tracks
 from ._imported import Tracks as Tracks
+from ._netcdf import write_samples_netcdf as write_samples_netcdf
 from ._recording import Recording as Recording
 from ._recording import check_enough_samples as check_enough_samples
 from ._recording import tracks_to_recording as tracks_to_recording
@@ -28,6 +29,6 @@ __all__ = [
     "Recording", "read_trajectories", "write_trajectories", "check_enough_samples",
     "Rig", "read_rig", "write_rig", "find_rig",
     "write_json", "read_json",
-    "atomic_path", "write_text_atomic", "write_bytes_atomic",
+    "atomic_path", "write_text_atomic", "write_bytes_atomic", "write_samples_netcdf",
     "FORMATS", "detect_format", "read_tracks", "read_any", "Tracks", "tracks_to_recording",
 ]

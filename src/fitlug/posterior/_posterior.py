@@ -111,6 +111,21 @@ class Posterior:
             "seconds_by_stage": {k: _num(v) for k, v in self.timings.items()},
         }
 
+    def _groups(self, run_id=None) -> tuple[dict, dict]:
+        """({group: {name: (walker, draw) array}}, root attrs) of :meth:`to_inference_data`
+        and :meth:`save`."""
+        import json
+
+        c = self.chain
+        shape = c.samples.shape[:2]  # (draws, walkers)
+        post = {k: np.asarray(v).reshape(shape).T for k, v in self.samples.items()}
+        attrs = {"inference_library": "emcee", "fitlug_method": self.method,
+                 "converged": int(c.converged), "burn_in": int(c.discard),
+                 "seed": int(self.seed), "sampled": ",".join(c.names),
+                 "not_identifiable": json.dumps(self.not_identifiable),
+                 **({"run_id": str(run_id)} if run_id is not None else {})}
+        return {"posterior": post, "sample_stats": {"lp": np.asarray(c.log_prob).T}}, attrs
+
     def to_inference_data(self, run_id=None):
         """The samples as an ArviZ InferenceData, in memory.
 
@@ -123,35 +138,23 @@ class Posterior:
             ``not_identifiable``: name -> reason; their draws are kept, but their
             percentiles only echo the prior).
         """
-        import json
-
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             import arviz as az
 
-            c = self.chain
-            shape = c.samples.shape[:2]  # (draws, walkers)
-            post = {k: np.asarray(v).reshape(shape).T for k, v in self.samples.items()}
-            return az.from_dict(
-                posterior=post, sample_stats={"lp": c.log_prob.T},
-                attrs={"inference_library": "emcee", "fitlug_method": self.method,
-                       "converged": int(c.converged), "burn_in": int(c.discard),
-                       "seed": int(self.seed), "sampled": ",".join(c.names),
-                       "not_identifiable": json.dumps(self.not_identifiable),
-                       **({"run_id": str(run_id)} if run_id is not None else {})})
+            groups, attrs = self._groups(run_id)
+            return az.from_dict(**groups, attrs=attrs)
 
     def save(self, path, run_id=None) -> None:
-        """Write :meth:`to_inference_data` as a netCDF file (atomically); `run_id` (the
-        fit-lug run that writes the folder) goes into its attrs. Read back with
-        arviz.from_netcdf(path).
+        """Write the samples as a netCDF file (atomically), in the layout ArviZ writes
+        :meth:`to_inference_data` in (:func:`fitlug.io.write_samples_netcdf`, without
+        importing ArviZ); `run_id` (the fit-lug run that writes the folder) goes into its
+        attrs. Read back with arviz.from_netcdf(path).
         """
-        from ..io import atomic_path
+        from ..io import write_samples_netcdf
 
-        idata = self.to_inference_data(run_id)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            with atomic_path(path, suffix=".nc") as tmp:
-                idata.to_netcdf(tmp, engine="h5netcdf")
+        groups, attrs = self._groups(run_id)
+        write_samples_netcdf(path, groups, attrs)
 
 
 def _num(x):

@@ -59,16 +59,42 @@ def _meta_line(fj) -> str:
     return '<p class="meta">' + " · ".join(parts) + "</p>"
 
 
-def _discrepancy_section(fit_json: dict, state: dict) -> str:
+def _discrepancy_section(fit_json: dict, state: dict, plots: str | None = None) -> str:
     """The "What the model left out" section (a whole <section>), or ""."""
     from ._section_discrepancy import discrepancy_section
 
-    return discrepancy_section(fit_json, state)
+    return discrepancy_section(fit_json, state, plots)
 
 
-def write_report(out_dir) -> str:
+#: the parts of the page drawn from the fit and its explanation alone, never from the
+#: posterior (fit.json's estimates, uncertainty method, mcmc block; state.npz's post_*):
+#: :mod:`fitlug.report._aside` draws them while the posterior is sampled
+EARLY = ("trajectories", "kinematics", "residuals", "least-squares", "discrepancy-plots")
+
+
+def _early_makers(fj, st) -> dict:
+    from ._section_discrepancy import discrepancy_plots
+
+    return {"trajectories": lambda: _trajectories(st), "kinematics": lambda: _kinematics(st),
+            "residuals": lambda: _residuals(st, fj),
+            "least-squares": lambda: _least_squares(fj, st),
+            "discrepancy-plots": lambda: discrepancy_plots(fj, st)}
+
+
+def early_parts(fj: dict, st: dict) -> dict:
+    """The :data:`EARLY` parts of the page (HTML with their figures), drawn from a fit.json
+    dict and state arrays made before the posterior (fitlug.report.fit_json and
+    fitlug.report._state.state_arrays without it): the same HTML as the final files give.
+    """
+    with _encoded_aside() as aside:
+        parts = {k: make() for k, make in _early_makers(fj, st).items()}
+        return {k: aside.fill(v) for k, v in parts.items()}
+
+
+def write_report(out_dir, early: dict | None = None) -> str:
     """Render DIR/report.html from DIR/fit.json and DIR/state.npz; returns its path.
 
+    early: :func:`early_parts` drawn already (fitlug.report._aside), used in their place.
     Raises InputError when either file is missing or unreadable.
     """
     from .._errors import InputError
@@ -91,30 +117,36 @@ def write_report(out_dir) -> str:
     title = f"{name}: slip {F.pm(s.get('value'), s.get('std'))}" + (
         f" ({verdict})" if verdict and verdict != "none" else "") + " · fitlug"
     with _encoded_aside() as aside:
-        page = _page(fj, st, out_dir, name, title)
+        page = _page(fj, st, out_dir, name, title, early or {})
         page = aside.fill(page)
     path = os.path.join(out_dir, "report.html")
     write_text_atomic(path, page)
     return path
 
 
-def _page(fj, st, out_dir, name, title) -> str:
-    """The whole page (figures as placeholders when encoded aside)."""
+def _page(fj, st, out_dir, name, title, early: dict) -> str:
+    """The whole page (figures as placeholders when encoded aside); `early`: parts drawn
+    already (:func:`early_parts`)."""
+    makers = _early_makers(fj, st)
+
+    def part(key):
+        return early[key] if key in early else makers[key]()
+
     sections = [
         ("estimates", "Estimates", _estimates(fj, st)),
         ("slip", "The slip drawn", _slip_section(fj, st)),
         ("discrepancy", "What the model left out", None),
-        ("trajectories", "Lug-marker trajectories", _trajectories(st)),
-        ("kinematics", "Body displacement and velocity", _kinematics(st)),
-        ("residuals", "Residuals", _residuals(st, fj)),
-        ("least-squares", "Least-squares statistics", _least_squares(fj, st)),
+        ("trajectories", "Lug-marker trajectories", part("trajectories")),
+        ("kinematics", "Body displacement and velocity", part("kinematics")),
+        ("residuals", "Residuals", part("residuals")),
+        ("least-squares", "Least-squares statistics", part("least-squares")),
         ("posterior", "Posterior", _posterior(st, fj)),
         ("convergence", "Convergence diagnostics", _convergence(st, fj, out_dir)),
     ]
     body, toc = [], []
     for sid, h, content in sections:
         if content is None:
-            disc = _discrepancy_section(fj, st)
+            disc = _discrepancy_section(fj, st, early.get("discrepancy-plots"))
             if disc:
                 body.append(disc)
                 toc.append((sid, h))

@@ -272,8 +272,11 @@ def _located(d) -> str:
     return "".join(out)
 
 
-def discrepancy_section(fit_json: dict, state=None) -> str:
-    """HTML of "What the model left out" from a fit.json dict (empty string if absent)."""
+def discrepancy_section(fit_json: dict, state=None, plots: str | None = None) -> str:
+    """HTML of "What the model left out" from a fit.json dict (empty string if absent).
+
+    plots: :func:`discrepancy_plots` of the same fit.json's discrepancy block and state,
+    drawn already (fitlug.report._aside draws them while the posterior is sampled)."""
     fj = fit_json or {}
     d = fj.get("discrepancy")
     head = '<section id="discrepancy"><h2>What the model left out</h2>'
@@ -365,6 +368,20 @@ def discrepancy_section(fit_json: dict, state=None) -> str:
         out.append(discovered_html(d))
     out.append(_whiteness(d))
     out.append(_located(d))
+    plots = discrepancy_plots(fj, state) if plots is None else plots
+    if plots:
+        out.append(plots)
+    out.append(_candidates(d))
+    out.append("</section>")
+    return "\n".join(out)
+
+
+def discrepancy_plots(fit_json: dict, state=None) -> str:
+    """The discrepancy section's figures (residuals before and after, the binned maps, the
+    misfit breakdown, the spectra) as HTML, or "": drawn from fit.json's discrepancy block
+    and the state's arrays only (not from the posterior's estimates)."""
+    d = (fit_json or {}).get("discrepancy") or {}
+    effects = d.get("effects") or []
     plots = []
     try:
         st = state or {}
@@ -406,8 +423,4 @@ def discrepancy_section(fit_json: dict, state=None) -> str:
                                       "No peak stands 8 times above the median.")))
     except Exception as exc:  # noqa: BLE001 - a plot must never sink the report
         plots.append(f"<p>(plots unavailable: {_e(exc)})</p>")
-    if plots:
-        out.append("<h3>Residuals before and after</h3>" + "".join(plots))
-    out.append(_candidates(d))
-    out.append("</section>")
-    return "\n".join(out)
+    return "<h3>Residuals before and after</h3>" + "".join(plots) if plots else ""

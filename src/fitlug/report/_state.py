@@ -26,8 +26,6 @@ import os
 
 import numpy as np
 
-from .. import _jaxconfig  # noqa: F401
-
 STATE_FILE = "state.npz"
 FINE_POINTS = 2000
 CURVE_OVERSAMPLE = 4
@@ -127,6 +125,9 @@ def state_arrays(res, posterior=None, explanation=None) -> tuple[dict, dict]:
     """(arrays, meta) of a fit, its posterior and explanation (see the module docstring)."""
     import jax
 
+    from .. import _jaxconfig  # noqa: F401 - float64 before any array (load_state and the
+    # report's rendering need no JAX: fitlug.report._aside renders in a process without it)
+
     prob, lay = res.problem, res.problem.lay
     p = {k: jax.device_put(np.asarray(v)) for k, v in res.params.items()}  # no compile
     o = {k: np.asarray(v) for k, v in prob.obs.items()}
@@ -177,16 +178,6 @@ def state_arrays(res, posterior=None, explanation=None) -> tuple[dict, dict]:
     if corr is not None:
         meta["corr_names"], a["lsq_corr"] = corr
 
-    if posterior is not None:
-        names = [k for k in posterior.samples]
-        S = np.column_stack([np.asarray(posterior.samples[k], float) for k in names])
-        if len(S) > MAX_SAMPLES:  # thin evenly: the report needs shapes, not every draw
-            S = S[np.linspace(0, len(S) - 1, MAX_SAMPLES).astype(int)]
-        a["post_samples"] = S
-        a["post_chain"] = np.asarray(posterior.chain.samples[..., 0])
-        meta["post_names"] = names
-        meta["post_parameters"] = list(posterior.parameters)
-
     if explanation is not None and getattr(explanation, "base", None) is not None:
         base = explanation.base
         if len(np.asarray(base.problem.lay.lug_t)) == len(a["lug_t"]):
@@ -196,7 +187,22 @@ def state_arrays(res, posterior=None, explanation=None) -> tuple[dict, dict]:
                                                    "body_res_y")})
             meta["base_effects"] = list(base.effects)
             meta["base_chi2_per_dof"] = float(base.chi2_per_dof)
+    if posterior is not None:
+        add_posterior(a, meta, posterior)
     return a, meta
+
+
+def add_posterior(arrays: dict, meta: dict, posterior) -> None:
+    """Put a posterior's arrays (post_samples, post_chain) and names into the (arrays,
+    meta) of :func:`state_arrays` made without it."""
+    names = [k for k in posterior.samples]
+    S = np.column_stack([np.asarray(posterior.samples[k], float) for k in names])
+    if len(S) > MAX_SAMPLES:  # thin evenly: the report needs shapes, not every draw
+        S = S[np.linspace(0, len(S) - 1, MAX_SAMPLES).astype(int)]
+    arrays["post_samples"] = S
+    arrays["post_chain"] = np.asarray(posterior.chain.samples[..., 0])
+    meta["post_names"] = names
+    meta["post_parameters"] = list(posterior.parameters)
 
 
 def _scalar_correlation(res):
@@ -225,13 +231,21 @@ def save_state(out_dir, res, posterior=None, explanation=None, run_id=None) -> s
     res: the final FitResult; posterior: a fitlug.posterior.Posterior or None; explanation: an
     object with `.base` (the FitResult before any effects) or None.
     """
+    arrays, meta = state_arrays(res, posterior, explanation)
+    return write_state(out_dir, arrays, meta, run_id)
+
+
+def write_state(out_dir, arrays: dict, meta: dict, run_id=None, compressed: bool = True) -> str:
+    """Write (arrays, meta) of :func:`state_arrays` as DIR/state.npz (atomically); returns
+    its path. `meta` gains the run id. compressed=False: a scratch copy, fast to write."""
     from ..io import write_bytes_atomic
 
-    arrays, meta = state_arrays(res, posterior, explanation)
+    meta = dict(meta)
     if run_id is not None:
         meta["run_id"] = str(run_id)
     buf = io.BytesIO()
-    np.savez_compressed(buf, meta=np.array(json.dumps(meta)), **arrays)
+    (np.savez_compressed if compressed else np.savez)(buf, meta=np.array(json.dumps(meta)),
+                                                      **arrays)
     path = os.path.join(os.fspath(out_dir), STATE_FILE)
     write_bytes_atomic(path, buf.getvalue())
     return path

@@ -8,7 +8,6 @@ from dataclasses import dataclass, field
 from typing import Callable, ClassVar
 
 import numpy as np
-from scipy.interpolate import BSpline
 
 from ._solve import Fitted
 
@@ -130,6 +129,8 @@ def bspline_on(x, breaks) -> np.ndarray:
     lo, hi = float(breaks[0]), float(breaks[-1])
     knots = np.r_[[lo] * 3, breaks, [hi] * 3]
     xc = np.clip(np.asarray(x, float), lo, hi)
+    from scipy.interpolate import BSpline  # ~0.15 s to import: only where a family is fit
+
     return BSpline.design_matrix(xc, knots, 3).toarray()
 
 

@@ -1,0 +1,90 @@
+"""The report drawn by a process of its own (fitlug.report._aside, the `fit-lug`
+executable's way): the same page as drawn in the fitting process, its early parts (drawn
+while the posterior is sampled) the same as drawn from the final files, a failing child
+replaced by the calling process, and nothing left behind."""
+
+from __future__ import annotations
+
+import os
+import shutil
+
+import pytest
+
+from fitlug import InputError
+from fitlug.cli import _fit as cli_fit
+from fitlug.cli import main
+from fitlug.report import write_report
+from fitlug.report._aside import ReportProcess
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+REFERENCE = os.path.join(ROOT, "fits", "reference")
+
+
+def _scratch_folders():
+    import tempfile
+
+    return {n for n in os.listdir(tempfile.gettempdir()) if n.startswith("fitlug-report-")}
+
+
+def _read(path):
+    with open(path, "rb") as fh:
+        return fh.read()
+
+
+def test_child_draws_the_page_the_caller_would(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    shutil.copytree(REFERENCE, a)
+    shutil.copytree(REFERENCE, b)
+    os.remove(a / "report.html")
+    rp = ReportProcess()
+    child = rp.proc
+    assert rp.render(a) == str(a / "report.html")
+    assert rp.answer == {"path": str(a / "report.html"), "early": "none"}
+    assert child.poll() is not None and rp.proc is None  # the child is gone
+    write_report(b)
+    assert _read(a / "report.html") == _read(b / "report.html")
+
+
+def test_a_failing_child_is_replaced_by_the_caller(tmp_path):
+    """A folder without state.npz: the child fails, the caller draws the page and raises
+    the rendering's own one-line error; a child that was never used is stopped."""
+    shutil.copytree(REFERENCE, tmp_path / "f")
+    os.remove(tmp_path / "f" / "state.npz")
+    rp = ReportProcess()
+    with pytest.raises(InputError, match="state.npz"):
+        rp.render(tmp_path / "f")
+    assert "error" in rp.answer and "InputError" in rp.answer["error"]
+    rp = ReportProcess()
+    child = rp.proc
+    rp.close()
+    assert child.poll() is not None
+
+
+def test_executable_run_draws_early_parts_and_the_same_page(tmp_path, monkeypatch, capsys):
+    """The whole default run as the executable makes it (REPORT_PROCESS): the early parts
+    were used (the final files agree with their inputs), and the page equals the one the
+    fitting process draws from the final files alone, byte for byte."""
+    answers = []
+    render = ReportProcess.render
+
+    def spy(self, out_dir):
+        path = render(self, out_dir)
+        answers.append(self.answer)
+        return path
+
+    monkeypatch.setattr(ReportProcess, "render", spy)
+    monkeypatch.setattr(cli_fit, "REPORT_PROCESS", True)
+    before = _scratch_folders()
+    out = tmp_path / "out"
+    assert main([os.path.join(ROOT, "data", "reference", "trajectories.csv"), "--out",
+                 str(out), "-q"]) == 0
+    assert answers and answers[0]["early"] == "used", answers
+    assert sorted(os.listdir(out)) == ["fit.json", "posterior.nc", "report.html", "state.npz"]
+    assert _scratch_folders() == before  # the early parts' scratch folder removed
+    again = tmp_path / "again"
+    shutil.copytree(out, again)
+    os.remove(again / "report.html")
+    write_report(again)
+    page = _read(out / "report.html")
+    assert page == _read(again / "report.html")
+    assert page.count(b"<img ") >= 12  # the early sections' and the discrepancy's figures
