@@ -14,7 +14,9 @@ and wall time are reported:
              EFFECT_SAG_MM) simulated in the process: the explanation's search over the
              catalog, its fits and the final fit at scale (time of explain alone)
   posterior  the posterior of the base fit (time of `sample_posterior` alone)
-  whole      the default run `fit-lug fit CSV` (fit, explanation, posterior, report)
+  whole      the default run `fit-lug fit CSV` (fit, explanation, posterior, report) as
+             the executable makes it (fitlug.cli.executable_setup: the report drawn by a
+             process of its own up to 200 000 samples, whose peak is added to the run's)
 
 A stage's memory is the peak of its whole process (so explain's includes its fit). Then:
 the log-log slope of time against frames per stage (least squares over the sizes >= 2 000;
@@ -243,8 +245,11 @@ def _worker(stage: str, folder: str, frames: int, budget: float, seed: int = 0) 
                             "fit": round(t1 - t_sim, 2),
                             **{k: round(v, 2) for k, v in ex.timing_s.items()}}}
     elif stage == "whole":
+        from fitlug import cli
         from fitlug.cli import main
 
+        if hasattr(cli, "executable_setup"):  # as the `fit-lug` executable runs it
+            cli.executable_setup(["fit"])
         rc = main(["fit", csv, "--rig", rig_path, "--out", os.path.join(folder, "out"), "-q",
                    "--mcmc-budget", str(budget)])
         assert rc == 0, rc
@@ -272,6 +277,9 @@ def _worker(stage: str, folder: str, frames: int, budget: float, seed: int = 0) 
         stage_s = time.perf_counter() - t1 if stage != "lsq" else None
     total = time.perf_counter() - t0
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024.0  # Linux: KiB
+    # the whole run's report process (fitlug.report._aside), if any: its peak added, an
+    # upper bound of the two processes' memory at one time
+    peak += resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024.0
     if trace is not None:
         trace.write()
     if stage == "whole":

@@ -17,6 +17,18 @@ GUARD_S = 900.0  # fitlug.posterior._mcmc.GUARD_S (not imported: the command sta
 #: (fitlug.cli.entry); main() called in-process (tests, library callers) draws it in a
 #: thread-preloaded process of its own modules, as before
 REPORT_PROCESS = False
+#: samples (marker x frame) above which the report is drawn in the fitting process all the
+#: same: a second process holds its own imports (~220 MB) and copies of the state's
+#: arrays, where a long recording's run lasts minutes and a second saved is nothing
+REPORT_PROCESS_MAX_SAMPLES = 200_000
+
+
+def _report_process(rec) -> bool:
+    """Whether the report is drawn by a process of its own (fitlug.report._aside): in the
+    executable, for a recording of at most REPORT_PROCESS_MAX_SAMPLES samples, unless
+    FITLUG_REPORT_PROCESS=0 (a machine short of memory: ~100 MB more at the peak)."""
+    return (REPORT_PROCESS and os.environ.get("FITLUG_REPORT_PROCESS") != "0"
+            and len(rec.t) <= REPORT_PROCESS_MAX_SAMPLES)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -81,7 +93,7 @@ def _run(args, rec, rig, out, run_id, t_start) -> int:
     stage(args, "fitting", f"{len(rec.markers)} markers, {_frames(rec)} frames")
     aside = None
     preload = not args.no_report
-    if preload and REPORT_PROCESS:
+    if preload and _report_process(rec):
         from ..report._aside import ReportProcess
 
         aside = ReportProcess()  # imports the report's modules on the other core meanwhile

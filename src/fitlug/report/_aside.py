@@ -50,7 +50,8 @@ class ReportProcess:
             self.proc = subprocess.Popen(
                 [sys.executable, "-m", "fitlug.report._aside"], stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=env, text=True)
-        except OSError as exc:  # no interpreter to start: the report is drawn here
+        except (OSError, ValueError, TypeError) as exc:  # no interpreter (sys.executable
+            # empty in an embedded Python): the report is drawn here
             log.debug("report process not started: %s", exc)
             self.proc = None
 
