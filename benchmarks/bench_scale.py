@@ -217,6 +217,7 @@ def _worker(stage: str, folder: str, frames: int, budget: float, seed: int = 0) 
     sys.path.insert(0, SRC)
     trace = (RssTrace(f"{os.environ['FITLUG_BENCH_RSS_TRACE']}.{stage}.{frames}.txt")
              if os.environ.get("FITLUG_BENCH_RSS_TRACE") else None)
+    child_peak: list = []  # the report process's peak, bytes (the whole stage)
     t0 = time.perf_counter()
     extra = {}
     csv = os.path.join(folder, "trajectories.csv")
@@ -250,6 +251,16 @@ def _worker(stage: str, folder: str, frames: int, budget: float, seed: int = 0) 
 
         if hasattr(cli, "executable_setup"):  # as the `fit-lug` executable runs it
             cli.executable_setup(["fit"])
+            from fitlug.report import _aside
+
+            render = _aside.ReportProcess.render
+
+            def spy(self, out_dir):  # the report process's own peak (its answer)
+                path = render(self, out_dir)
+                child_peak.append((self.answer or {}).get("peak_rss_bytes") or 0)
+                return path
+
+            _aside.ReportProcess.render = spy
         rc = main(["fit", csv, "--rig", rig_path, "--out", os.path.join(folder, "out"), "-q",
                    "--mcmc-budget", str(budget)])
         assert rc == 0, rc
@@ -277,9 +288,10 @@ def _worker(stage: str, folder: str, frames: int, budget: float, seed: int = 0) 
         stage_s = time.perf_counter() - t1 if stage != "lsq" else None
     total = time.perf_counter() - t0
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024.0  # Linux: KiB
-    # the whole run's report process (fitlug.report._aside), if any: its peak added, an
-    # upper bound of the two processes' memory at one time
-    peak += resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024.0
+    # the whole run's report process (fitlug.report._aside), if any: its own peak (VmHWM;
+    # RUSAGE_CHILDREN's ru_maxrss would be this process's size when it started the child)
+    # added, an upper bound of the two processes' memory at one time
+    peak += float(sum(child_peak))
     if trace is not None:
         trace.write()
     if stage == "whole":

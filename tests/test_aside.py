@@ -39,7 +39,8 @@ def test_child_draws_the_page_the_caller_would(tmp_path):
     rp = ReportProcess()
     child = rp.proc
     assert rp.render(a) == str(a / "report.html")
-    assert rp.answer == {"path": str(a / "report.html"), "early": "none"}
+    assert {k: rp.answer[k] for k in ("path", "early")} == {"path": str(a / "report.html"),
+                                                            "early": "none"}
     assert child.poll() is not None and rp.proc is None  # the child is gone
     write_report(b)
     assert _read(a / "report.html") == _read(b / "report.html")
@@ -88,3 +89,23 @@ def test_executable_run_draws_early_parts_and_the_same_page(tmp_path, monkeypatc
     page = _read(out / "report.html")
     assert page == _read(again / "report.html")
     assert page.count(b"<img ") >= 12  # the early sections' and the discrepancy's figures
+
+
+def test_when_the_report_gets_a_process_of_its_own(monkeypatch):
+    """Only in the executable, for a recording of at most 200 000 samples, and not with
+    FITLUG_REPORT_PROCESS=0."""
+    import numpy as np
+
+    from fitlug.io import Recording
+
+    def rec(n):
+        return Recording(markers=("1",), roles=("lug",), t=np.arange(n) / 100.0,
+                         marker_index=np.zeros(n, int), x=np.zeros(n), y=np.zeros(n))
+
+    small, big = rec(1000), rec(cli_fit.REPORT_PROCESS_MAX_SAMPLES + 1)
+    monkeypatch.delenv("FITLUG_REPORT_PROCESS", raising=False)
+    assert not cli_fit._report_process(small)  # main() called in-process
+    monkeypatch.setattr(cli_fit, "REPORT_PROCESS", True)
+    assert cli_fit._report_process(small) and not cli_fit._report_process(big)
+    monkeypatch.setenv("FITLUG_REPORT_PROCESS", "0")
+    assert not cli_fit._report_process(small)

@@ -173,10 +173,24 @@ def _child() -> int:
                      ("discarded" if early is not None else "none")}
         except BaseException as exc:  # noqa: BLE001 - the caller draws it again and raises it
             reply = {"error": f"{type(exc).__name__}: {exc}"}
+        reply["peak_rss_bytes"] = _peak_rss()
         sys.stdout.write(json.dumps(reply) + "\n")
         sys.stdout.flush()
         return 0
     return 0  # end of input: the run ended before its report
+
+
+def _peak_rss():
+    """This process's peak resident memory in bytes (Linux's VmHWM, which an exec resets,
+    where getrusage's ru_maxrss keeps the forking parent's), or None elsewhere."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
 
 
 def _early(folder: str):
