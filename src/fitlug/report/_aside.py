@@ -168,6 +168,7 @@ def _child() -> int:
             from ._page import write_report
 
             used = early is not None and _same_inputs(inputs, msg["out"])
+            inputs = None  # the early parts' inputs, no longer needed (memory)
             path = write_report(msg["out"], early if used else None)
             reply = {"path": path, "early": "used" if used else
                      ("discarded" if early is not None else "none")}

@@ -1,13 +1,17 @@
 """The plots of the report's "What the model left out" section
 (:mod:`fitlug.report._section_discrepancy`): residuals before and after the named effects,
-the binned residual maps, the misfit breakdown and the spectrum with its peaks named."""
+the binned residual maps, the misfit breakdown and the spectrum with its peaks named, and
+:func:`discrepancy_plots`, the section's figures as HTML (one of the page's early parts,
+:data:`fitlug.report._page.EARLY`)."""
 
 from __future__ import annotations
+
+import html
 
 import numpy as np
 
 from . import _format as F
-from ._figure import log_axis
+from ._figure import figure_html, log_axis
 
 SHARED_SCALE_MAX_RATIO = 30.0  # before/after maps share a colour scale below this ratio
 
@@ -165,3 +169,53 @@ def plot_before_after(st: dict):
         for j in range(2):
             axes[row, j].set_ylim(lo, hi)
     return fig
+
+
+def discrepancy_plots(fit_json: dict, state=None) -> str:
+    """The discrepancy section's figures (residuals before and after, the binned maps, the
+    misfit breakdown, the spectra) as HTML, or "": drawn from fit.json's discrepancy block
+    and the state's arrays only (not from the posterior's estimates)."""
+    d = (fit_json or {}).get("discrepancy") or {}
+    effects = d.get("effects") or []
+    plots = []
+    try:
+        st = state or {}
+        if effects and "base_lug_res_x" in st:
+            cap = ("Residuals before (left: base model) and after (right: with "
+                   + ", ".join(html.escape(str(e["id"])) for e in effects)
+                   + ") over time and along the belt coordinate u (position on the belt "
+                   "loop: sag shows on the top run, sinkage on the bottom run); each row has "
+                   "one y scale for both.")
+            if len(effects) > 1:
+                cap += " With several effects, 'before' is the base model, 'after' all of them."
+            plots.append(figure_html(plot_before_after(st),
+                                   "residuals before the effects were added and after",
+                                   cap))
+        if d.get("maps"):
+            fig, shared = plot_maps(d["maps"])
+            note = ("Both maps share one colour scale." if shared else
+                    "The two maps have different colour scales (the after map is far weaker "
+                    "and would be invisible on the before scale): read the numbers on "
+                    "each colour bar.")
+            plots.append(figure_html(fig, "binned residual maps before and after",
+                                   "Mean residual (σ) per marker-axis series and 0.1 s bin. "
+                                   "White is no bias; coloured stripes are structure. " + note))
+        mb, ma = d.get("misfit_before") or {}, d.get("misfit_after") or {}
+        if mb.get("breakdown"):
+            after = ma.get("breakdown") if effects else None  # nothing added: no repeat
+            plots.append(figure_html(plot_breakdown(mb["breakdown"], after),
+                                   "structured misfit by segment, phase, axis and role",
+                                   "Structured misfit (χ² of lag-1 products) per path "
+                                   "segment, motion phase, axis and role, before and after, on "
+                                   "a log scale (values at or below 1, i.e. noise, drawn at 1)."))
+        if d.get("spectra"):
+            fig, peaks = plot_spectra(d["spectra"])
+            names = "; ".join(f"{k}: {fpk:.2f} Hz ({name})" for k, fpk, _, name in peaks)
+            plots.append(figure_html(fig, "residual power spectrum before and after",
+                                   "Power spectrum of the residuals (σ², log) before and after, "
+                                   "with the lug-passing and wheel-revolution frequencies. "
+                                   + (f"Peaks: {names}." if names else
+                                      "No peak stands 8 times above the median.")))
+    except Exception as exc:  # noqa: BLE001 - a plot must never sink the report
+        plots.append(f"<p>(plots unavailable: {html.escape(str(exc))})</p>")
+    return "<h3>Residuals before and after</h3>" + "".join(plots) if plots else ""

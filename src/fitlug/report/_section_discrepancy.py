@@ -16,7 +16,7 @@ import html
 import math
 
 from . import _format as F
-from ._discrepancy_plots import plot_before_after, plot_breakdown, plot_maps, plot_spectra
+from ._discrepancy_plots import discrepancy_plots
 from ._straight_text import not_claimed_clause, straight_sentence
 
 MAX_FITS_PER_ROUND = 4  # fitlug.explain._explain.MAX_FITS_PER_ROUND (read at run time)
@@ -32,12 +32,6 @@ def _num(x, digits=4) -> str:
     if isinstance(x, (int, float)):
         return F.sig(x, digits)
     return _e(x)
-
-
-def _fig_html(fig, alt, caption):
-    from ._figure import figure_html
-
-    return figure_html(fig, alt, caption)
 
 
 def modelled(d: dict) -> bool:
@@ -375,52 +369,3 @@ def discrepancy_section(fit_json: dict, state=None, plots: str | None = None) ->
     out.append("</section>")
     return "\n".join(out)
 
-
-def discrepancy_plots(fit_json: dict, state=None) -> str:
-    """The discrepancy section's figures (residuals before and after, the binned maps, the
-    misfit breakdown, the spectra) as HTML, or "": drawn from fit.json's discrepancy block
-    and the state's arrays only (not from the posterior's estimates)."""
-    d = (fit_json or {}).get("discrepancy") or {}
-    effects = d.get("effects") or []
-    plots = []
-    try:
-        st = state or {}
-        if effects and "base_lug_res_x" in st:
-            cap = ("Residuals before (left: base model) and after (right: with "
-                   + ", ".join(_e(e["id"]) for e in effects)
-                   + ") over time and along the belt coordinate u (position on the belt "
-                   "loop: sag shows on the top run, sinkage on the bottom run); each row has "
-                   "one y scale for both.")
-            if len(effects) > 1:
-                cap += " With several effects, 'before' is the base model, 'after' all of them."
-            plots.append(_fig_html(plot_before_after(st),
-                                   "residuals before the effects were added and after",
-                                   cap))
-        if d.get("maps"):
-            fig, shared = plot_maps(d["maps"])
-            note = ("Both maps share one colour scale." if shared else
-                    "The two maps have different colour scales (the after map is far weaker "
-                    "and would be invisible on the before scale): read the numbers on "
-                    "each colour bar.")
-            plots.append(_fig_html(fig, "binned residual maps before and after",
-                                   "Mean residual (σ) per marker-axis series and 0.1 s bin. "
-                                   "White is no bias; coloured stripes are structure. " + note))
-        mb, ma = d.get("misfit_before") or {}, d.get("misfit_after") or {}
-        if mb.get("breakdown"):
-            after = ma.get("breakdown") if effects else None  # nothing added: no repeat
-            plots.append(_fig_html(plot_breakdown(mb["breakdown"], after),
-                                   "structured misfit by segment, phase, axis and role",
-                                   "Structured misfit (χ² of lag-1 products) per path "
-                                   "segment, motion phase, axis and role, before and after, on "
-                                   "a log scale (values at or below 1, i.e. noise, drawn at 1)."))
-        if d.get("spectra"):
-            fig, peaks = plot_spectra(d["spectra"])
-            names = "; ".join(f"{k}: {fpk:.2f} Hz ({name})" for k, fpk, _, name in peaks)
-            plots.append(_fig_html(fig, "residual power spectrum before and after",
-                                   "Power spectrum of the residuals (σ², log) before and after, "
-                                   "with the lug-passing and wheel-revolution frequencies. "
-                                   + (f"Peaks: {names}." if names else
-                                      "No peak stands 8 times above the median.")))
-    except Exception as exc:  # noqa: BLE001 - a plot must never sink the report
-        plots.append(f"<p>(plots unavailable: {_e(exc)})</p>")
-    return "<h3>Residuals before and after</h3>" + "".join(plots) if plots else ""
