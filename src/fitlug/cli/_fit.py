@@ -14,8 +14,8 @@ from ._common import (check_out_folder, positive_seconds, progress_enabled, prog
 GUARD_S = 900.0  # fitlug.posterior._mcmc.GUARD_S (not imported: the command starts cheap)
 #: draw the report in a process of its own (fitlug.report._aside), which imports the
 #: report's modules while the fit runs: set by the `fit-lug` executable
-#: (fitlug.cli.entry); main() called in-process (tests, library callers) draws it in a
-#: thread-preloaded process of its own modules, as before
+#: (fitlug.cli.executable_setup); main() called in-process (tests, library callers) draws
+#: it in the calling process, its modules imported in a thread meanwhile, as before
 REPORT_PROCESS = False
 #: samples (marker x frame) above which the report is drawn in the fitting process all the
 #: same: a second process holds its own imports (~220 MB) and copies of the state's

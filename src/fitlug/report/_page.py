@@ -73,7 +73,7 @@ EARLY = ("trajectories", "kinematics", "residuals", "least-squares", "discrepanc
 
 
 def _early_makers(fj, st) -> dict:
-    from ._section_discrepancy import discrepancy_plots
+    from ._discrepancy_plots import discrepancy_plots
 
     return {"trajectories": lambda: _trajectories(st), "kinematics": lambda: _kinematics(st),
             "residuals": lambda: _residuals(st, fj),

@@ -123,10 +123,11 @@ def _model_state_call(p, lay, fine, lay_c) -> dict:
 
 def state_arrays(res, posterior=None, explanation=None) -> tuple[dict, dict]:
     """(arrays, meta) of a fit, its posterior and explanation (see the module docstring)."""
-    import jax
+    # float64 before any array; imported here, not at the top: load_state and the report's
+    # rendering need no JAX (fitlug.report._aside renders in a process without it)
+    from .. import _jaxconfig  # noqa: F401
 
-    from .. import _jaxconfig  # noqa: F401 - float64 before any array (load_state and the
-    # report's rendering need no JAX: fitlug.report._aside renders in a process without it)
+    import jax
 
     prob, lay = res.problem, res.problem.lay
     p = {k: jax.device_put(np.asarray(v)) for k, v in res.params.items()}  # no compile
