@@ -31,7 +31,7 @@ def _read(path):
         return fh.read()
 
 
-def test_child_draws_the_page_the_caller_would(tmp_path):
+def test_child_draws_the_page_the_caller_would(tmp_path, monkeypatch):
     a, b = tmp_path / "a", tmp_path / "b"
     shutil.copytree(REFERENCE, a)
     shutil.copytree(REFERENCE, b)
@@ -41,6 +41,9 @@ def test_child_draws_the_page_the_caller_would(tmp_path):
     assert rp.render(a) == str(a / "report.html")
     assert {k: rp.answer[k] for k in ("path", "early")} == {"path": str(a / "report.html"),
                                                             "early": "none"}
+    rp = ReportProcess()  # a relative folder: the path comes back as the caller gave it
+    monkeypatch.chdir(tmp_path)
+    assert rp.render("a") == os.path.join("a", "report.html")
     assert child.poll() is not None and rp.proc is None  # the child is gone
     write_report(b)
     assert _read(a / "report.html") == _read(b / "report.html")

@@ -82,12 +82,14 @@ class ReportProcess:
             log.debug("report process gone: %s", exc)
 
     def render(self, out_dir) -> str:
-        """Write DIR/report.html (see :func:`fitlug.report.write_report`); returns its path."""
-        out_dir = os.path.abspath(os.fspath(out_dir))
+        """Write DIR/report.html (see :func:`fitlug.report.write_report`); returns its path
+        (DIR as given, as write_report returns it)."""
+        out_dir = os.fspath(out_dir)
         answer = None
         if self.proc is not None:
             try:
-                reply, _ = self.proc.communicate(json.dumps({"out": out_dir}) + "\n")
+                reply, _ = self.proc.communicate(
+                    json.dumps({"out": os.path.abspath(out_dir)}) + "\n")
                 answer = json.loads(reply.strip().splitlines()[-1]) if reply.strip() else None
             except (OSError, ValueError) as exc:
                 log.debug("report process failed: %s", exc)
@@ -96,7 +98,7 @@ class ReportProcess:
         self.answer = answer
         self.close()
         if answer and "path" in answer:
-            return answer["path"]
+            return os.path.join(out_dir, "report.html")
         if answer:
             log.debug("report process: %s", answer.get("error"))
         from ._page import write_report
