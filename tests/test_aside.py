@@ -62,6 +62,14 @@ def test_a_failing_child_is_replaced_by_the_caller(tmp_path):
     child = rp.proc
     rp.close()
     assert child.poll() is not None
+    # a child killed before it answers (out of memory, a signal): the caller draws the page
+    shutil.copytree(REFERENCE, tmp_path / "g")
+    os.remove(tmp_path / "g" / "report.html")
+    rp = ReportProcess()
+    rp.proc.kill()
+    rp.proc.wait()
+    assert rp.render(tmp_path / "g") == str(tmp_path / "g" / "report.html")
+    assert rp.answer is None and _read(tmp_path / "g" / "report.html").startswith(b"<!DOCTYPE")
 
 
 def test_executable_run_draws_early_parts_and_the_same_page(tmp_path, monkeypatch, capsys):
