@@ -42,10 +42,14 @@ class ReportProcess:
     def __init__(self):
         import fitlug
 
-        # the child imports this very fitlug, wherever the caller found it
+        # the child imports this very fitlug, wherever the caller found it (a source tree put
+        # on sys.path by a script); an installed one it finds itself (a site folder first on
+        # PYTHONPATH would go before the standard library)
         root = os.path.dirname(os.path.dirname(os.path.abspath(fitlug.__file__)))
         env = dict(os.environ)
-        env["PYTHONPATH"] = os.pathsep.join([root] + [p for p in (env.get("PYTHONPATH"),) if p])
+        if root not in _site_folders():
+            env["PYTHONPATH"] = os.pathsep.join(
+                [root] + [p for p in (env.get("PYTHONPATH"),) if p])
         try:
             self.proc = subprocess.Popen(
                 [sys.executable, "-m", "fitlug.report._aside"], stdin=subprocess.PIPE,
@@ -122,6 +126,17 @@ class ReportProcess:
         except (OSError, subprocess.TimeoutExpired):
             proc.kill()
             proc.wait()
+
+
+def _site_folders() -> set:
+    """The site-packages folders a fresh interpreter puts on its path."""
+    import site
+
+    try:
+        folders = list(site.getsitepackages()) + [site.getusersitepackages()]
+    except AttributeError:  # a virtualenv of old without them
+        folders = []
+    return {os.path.abspath(f) for f in folders}
 
 
 def _warm() -> None:
