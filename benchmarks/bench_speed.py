@@ -19,7 +19,9 @@ empty cache (the kind seen), then the 6.0 s one's first run (new to that cache) 
 warm runs, and the first's CPU seconds over the warm median's (issue 43: at most 1.5).
 
 Wall and CPU seconds (user + sys of the whole process, its threads included, interpreter
-start and imports too) come from the parent (getrusage of the children); the stage split
+start and imports too, and of its report process) come from the parent (getrusage of the
+children); the peak memory (MB) is the run's own peak resident memory (VmHWM) plus its
+report process's (fitlug.report._aside), an upper bound of both at once; the stage split
 (start-up, read, fit, explain, posterior, report: wall and the process's CPU) from the
 child, which times the CLI's own stage lines. With `--before REF` the same runs are made
 with the code of git REF (exported to a temporary folder) interleaved with this tree's,
@@ -63,6 +65,20 @@ def _worker(csv: str, out: str) -> None:
         return orig(args, name, detail)
 
     fitmod.stage = stage
+    child_peak = []  # the report process's own peak (its answer), where the code has one
+    try:
+        from fitlug.report import _aside
+
+        render = _aside.ReportProcess.render
+
+        def spy(self, out_dir):
+            path = render(self, out_dir)
+            child_peak.append((self.answer or {}).get("peak_rss_bytes") or 0)
+            return path
+
+        _aside.ReportProcess.render = spy
+    except ImportError:
+        pass
     rc = cli.main([csv, "--out", out, "-q"])
     marks.append(("end", time.perf_counter(), time.process_time()))
     split = {}
@@ -73,9 +89,22 @@ def _worker(csv: str, out: str) -> None:
     mc = doc.get("mcmc") or {}
     print(json.dumps({"rc": rc, "split": split, "slip": (doc.get("slip") or {}).get("value"),
                       "steps": mc.get("steps"), "converged": mc.get("converged"),
-                      "verdict": (doc.get("discrepancy") or {}).get("verdict")}))
+                      "verdict": (doc.get("discrepancy") or {}).get("verdict"),
+                      "peak_mb": (_vm_hwm() + sum(child_peak)) / 2**20}))
     # end as the `fit-lug` executable ends (fitlug.cli.entry), where the code has it
     getattr(cli, "exit_now", lambda status: None)(0)
+
+
+def _vm_hwm() -> int:
+    """This process's peak resident memory, bytes (Linux's VmHWM; 0 elsewhere)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return 0
 
 
 def _child(src: str, csv: str, cache: str) -> dict:
@@ -203,7 +232,7 @@ def main(argv=None) -> int:
 
 
 def _table(rows, versions) -> None:
-    print("\nkind     version | first wall   CPU | warm wall   CPU | warm stages, CPU s "
+    print("\nkind     version | first wall   CPU | warm wall   CPU  peak MB | warm stages, CPU s "
           "(wall s): " + " ".join(STAGES) + " | slip, steps, verdict")
     for (kind, ver), (first, warm) in rows.items():
         ok = [w for w in warm if "error" not in w]
@@ -217,8 +246,10 @@ def _table(rows, versions) -> None:
             t = [w["split"].get(s, {}).get("wall", 0.0) for w in ok]
             st.append(f"{statistics.median(c):.1f}({statistics.median(t):.1f})")
         w0 = ok[0]
+        peak = [w["peak_mb"] for w in ok if w.get("peak_mb")]
         print(f"{kind:8} {ver:7} | {first['wall']:10.1f} {first['cpu']:5.1f} | "
-              f"{med['wall']:9.1f} {med['cpu']:5.1f} | {' '.join(st)} | "
+              f"{med['wall']:9.1f} {med['cpu']:5.1f} "
+              f"{statistics.median(peak) if peak else float('nan'):6.0f} | {' '.join(st)} | "
               f"{w0['slip']}, {w0['steps']}, {w0['verdict']}")
 
 
