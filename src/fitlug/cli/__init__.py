@@ -148,9 +148,10 @@ def executable_setup(first_args: list) -> None:
 
 def _without_dask() -> None:
     """Mark dask unimportable in a `fit-lug` process that never uses it (every sub-command
-    but campaign). xarray (ArviZ's: posterior.nc, the report's R-hat and ESS table) imports
-    dask.array and dask.distributed on its first netCDF write only to ask whether an array
-    is a dask one: ~0.4-0.5 s CPU of a warm run of the bundled recording (issue 43). With
+    but campaign). xarray (ArviZ's: the report's R-hat and ESS table reads posterior.nc)
+    imports dask.array on its first netCDF read (and dask.distributed on a write) only to
+    ask whether an array is a dask one: ~0.4 s CPU of a warm run of the bundled recording
+    (issue 43); the report process (fitlug.report._aside) does the same. With
     dask None in sys.modules before xarray is imported, xarray behaves as where dask is not
     installed, and writes and reads the same files. For the executable only (a process
     about to do one thing): never done by :func:`main`, which tests and library callers
