@@ -120,3 +120,28 @@ def test_when_the_report_gets_a_process_of_its_own(monkeypatch):
     assert cli_fit._report_process(small) and not cli_fit._report_process(big)
     monkeypatch.setenv("FITLUG_REPORT_PROCESS", "0")
     assert not cli_fit._report_process(small)
+
+
+def test_the_child_imports_the_callers_fitlug(monkeypatch):
+    """A source tree the caller imported fitlug from goes first on the child's PYTHONPATH;
+    an installed fitlug's site folder does not (it would go before the standard library)."""
+    import subprocess
+
+    import fitlug
+    from fitlug.report import _aside
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(fitlug.__file__)))
+    seen = []
+
+    class FakePopen:
+        def __init__(self, cmd, env=None, **kw):
+            seen.append(env)
+
+    monkeypatch.setattr(subprocess, "Popen", FakePopen)
+    monkeypatch.setenv("PYTHONPATH", "/elsewhere")
+    monkeypatch.setattr(_aside, "_site_folders", lambda: set())
+    ReportProcess()
+    assert seen[-1]["PYTHONPATH"] == os.pathsep.join([root, "/elsewhere"])
+    monkeypatch.setattr(_aside, "_site_folders", lambda: {root})
+    ReportProcess()
+    assert seen[-1]["PYTHONPATH"] == "/elsewhere"
