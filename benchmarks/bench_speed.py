@@ -20,7 +20,7 @@ warm runs, and the first's CPU seconds over the warm median's (issue 43: at most
 
 Wall and CPU seconds (user + sys of the whole process, its threads included, interpreter
 start and imports too, and of its report process) come from the parent (getrusage of the
-children); the peak memory (MB) is the run's own peak resident memory (VmHWM) plus its
+children); the peak memory (MB) is the run's own peak resident memory (ru_maxrss) plus its
 report process's (fitlug.report._aside), an upper bound of both at once; the stage split
 (start-up, read, fit, explain, posterior, report: wall and the process's CPU) from the
 child, which times the CLI's own stage lines. With `--before REF` the same runs are made
@@ -90,21 +90,12 @@ def _worker(csv: str, out: str) -> None:
     print(json.dumps({"rc": rc, "split": split, "slip": (doc.get("slip") or {}).get("value"),
                       "steps": mc.get("steps"), "converged": mc.get("converged"),
                       "verdict": (doc.get("discrepancy") or {}).get("verdict"),
-                      "peak_mb": (_vm_hwm() + sum(child_peak)) / 2**20}))
+                      # own peak: ru_maxrss (this worker's parent, the bench, is far
+                      # smaller, so the size it inherits at the fork does not count)
+                      "peak_mb": (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+                                  + sum(child_peak)) / 2**20}))
     # end as the `fit-lug` executable ends (fitlug.cli.entry), where the code has it
     getattr(cli, "exit_now", lambda status: None)(0)
-
-
-def _vm_hwm() -> int:
-    """This process's peak resident memory, bytes (Linux's VmHWM; 0 elsewhere)."""
-    try:
-        with open("/proc/self/status", encoding="ascii") as fh:
-            for line in fh:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    return 0
 
 
 def _child(src: str, csv: str, cache: str) -> dict:
