@@ -140,28 +140,13 @@ def _site_folders() -> set:
 
 
 def _warm() -> None:
-    """Imports and ArviZ's first read of a netCDF file, before the folder is known."""
-    import tempfile
-    import warnings
-
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    warnings.filterwarnings("ignore", message="ArviZ is undergoing a major refactor",
-                            category=FutureWarning)
-    import corner  # noqa: F401
-    import numpy as np
-
-    import arviz as az
-
-    from ..io import write_samples_netcdf
+    """Imports and ArviZ's first read of a netCDF file, before the folder is known (the
+    steps of the fitting process's import thread, :mod:`fitlug.report._preload`)."""
     from . import _page  # noqa: F401
+    from ._preload import import_modules, warm_netcdf
 
-    with tempfile.TemporaryDirectory() as tmp:
-        path = os.path.join(tmp, "warm.nc")
-        x = np.zeros((2, 4))
-        write_samples_netcdf(path, {"posterior": {"a": x}, "sample_stats": {"lp": x}})
-        az.from_netcdf(path).posterior["a"].values  # noqa: B018 - read it back
+    import_modules()
+    warm_netcdf()
 
 
 def _child() -> int:

@@ -1,14 +1,16 @@
 """The report's heavy imports (matplotlib, corner, ArviZ: ~3 s on a 2-core machine) and
-xarray's first netCDF write, in a background thread while the fit runs; JAX's numerics
-release the GIL, so they overlap.
+ArviZ's first netCDF read, in a background thread while the fit runs; JAX's numerics
+release the GIL, so they overlap. (The `fit-lug` executable does the same steps in a
+process of its own, :mod:`fitlug.report._aside`: :func:`import_modules`, :func:`warm_netcdf`.)
 
-After the imports the thread writes and reads a tiny netCDF file through ArviZ: the first
-posterior.nc of a process otherwise pays for xarray's first write (it imports
-dask.distributed to ask whether a cluster is in use) and h5py's first file, 0.6-0.8 s.
-A throwaway figure drawn here as well did not make the report's figures cheaper, and its
-pure-Python work held the GIL against the fit's own Python and slowed it by more than it
-saved (measured in the whole run, on the bundled recording): the thread does not draw.
-Each step checks whether :func:`wait` is already waiting, and stops there.
+After the imports the thread writes a tiny netCDF file as posterior.nc is written
+(:func:`fitlug.io.write_samples_netcdf`) and reads it through ArviZ as the report's
+diagnostics table reads posterior.nc: the first file of a process otherwise pays for
+h5py's first file and xarray's first read. A throwaway figure drawn here as well did not
+make the report's figures cheaper, and its pure-Python work held the GIL against the
+fit's own Python and slowed it by more than it saved (measured in the whole run, on the
+bundled recording): the thread does not draw. Each step checks whether :func:`wait` is
+already waiting, and stops there.
 
 The caller's thread imports scipy.linalg and scipy.special before the thread starts (the
 fit, the explanation and the posterior need them anyway; scipy.stats, 1 s, only the
@@ -45,23 +47,30 @@ def wait() -> None:
         t.join()
 
 
+def import_modules() -> None:
+    """Import matplotlib (on Agg), corner and ArviZ, the report's heavy modules; raises
+    what an import raises."""
+    import warnings
+
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot  # noqa: F401
+    import corner  # noqa: F401
+
+    # ArviZ's FutureWarning about its refactor, on every import: one targeted filter
+    # (not catch_warnings, which would swap the process's filters under the main thread)
+    warnings.filterwarnings("ignore", message="ArviZ is undergoing a major refactor",
+                            category=FutureWarning)
+    import arviz  # noqa: F401
+
+
 def _run() -> None:
     try:
-        import matplotlib
-
-        matplotlib.use("Agg", force=False)
-        import matplotlib.pyplot  # noqa: F401
-        import corner  # noqa: F401
-        import warnings
-
-        # ArviZ's FutureWarning about its refactor, on every import: one targeted filter
-        # (not catch_warnings, which would swap the process's filters under the main thread)
-        warnings.filterwarnings("ignore", message="ArviZ is undergoing a major refactor",
-                                category=FutureWarning)
-        import arviz  # noqa: F401
+        import_modules()
     except Exception:  # noqa: BLE001 - the report imports them again and says what failed
         return
-    for step in (_warm_netcdf,):
+    for step in (warm_netcdf,):
         if _WANTED.is_set():
             return
         try:
@@ -70,19 +79,21 @@ def _run() -> None:
             pass
 
 
-def _warm_netcdf() -> None:
-    """Write and read a tiny InferenceData through h5netcdf (as posterior.nc is)."""
+def warm_netcdf() -> None:
+    """Write a tiny file as posterior.nc is written and read it back through ArviZ, as the
+    report's diagnostics table reads posterior.nc."""
     import os
     import tempfile
 
     import arviz as az
     import numpy as np
 
+    from ..io import write_samples_netcdf
+
     # no warnings.catch_warnings here: it swaps the process-wide filters under the main
     # thread's feet (nothing below warns: a posterior of 2 chains x 4 draws, no summary)
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "warm.nc")
         x = np.zeros((2, 4))
-        az.from_dict(posterior={"a": x}, sample_stats={"lp": x},
-                     attrs={"warm": 1}).to_netcdf(path, engine="h5netcdf")
+        write_samples_netcdf(path, {"posterior": {"a": x}, "sample_stats": {"lp": x}})
         az.from_netcdf(path).posterior["a"].values  # noqa: B018 - read it back
