@@ -1,4 +1,5 @@
-"""What the benchmarks that spawn worker processes set before spawning them."""
+"""What the benchmarks that spawn worker processes set before spawning them, and what
+their workers read of a run."""
 
 from __future__ import annotations
 
@@ -14,3 +15,23 @@ def one_thread_each() -> None:
                                        "intra_op_parallelism_threads=1")
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
+
+
+def report_process_peaks() -> list:
+    """A list that gains the peak resident memory (bytes) of each report process
+    (fitlug.report._aside) this worker's `fit-lug` runs use, from its answer; stays empty
+    where the code has none (an older commit) or the run draws its report in-process."""
+    peaks: list = []
+    try:
+        from fitlug.report import _aside
+    except ImportError:
+        return peaks
+    render = _aside.ReportProcess.render
+
+    def spy(self, out_dir):
+        path = render(self, out_dir)
+        peaks.append((self.answer or {}).get("peak_rss_bytes") or 0)
+        return path
+
+    _aside.ReportProcess.render = spy
+    return peaks

@@ -251,16 +251,9 @@ def _worker(stage: str, folder: str, frames: int, budget: float, seed: int = 0) 
 
         if hasattr(cli, "executable_setup"):  # as the `fit-lug` executable runs it
             cli.executable_setup(["fit"])
-            from fitlug.report import _aside
+            from _workers import report_process_peaks
 
-            render = _aside.ReportProcess.render
-
-            def spy(self, out_dir):  # the report process's own peak (its answer)
-                path = render(self, out_dir)
-                child_peak.append((self.answer or {}).get("peak_rss_bytes") or 0)
-                return path
-
-            _aside.ReportProcess.render = spy
+            child_peak = report_process_peaks()  # the report process's own peak
         rc = main(["fit", csv, "--rig", rig_path, "--out", os.path.join(folder, "out"), "-q",
                    "--mcmc-budget", str(budget)])
         assert rc == 0, rc

@@ -65,20 +65,9 @@ def _worker(csv: str, out: str) -> None:
         return orig(args, name, detail)
 
     fitmod.stage = stage
-    child_peak = []  # the report process's own peak (its answer), where the code has one
-    try:
-        from fitlug.report import _aside
+    from _workers import report_process_peaks
 
-        render = _aside.ReportProcess.render
-
-        def spy(self, out_dir):
-            path = render(self, out_dir)
-            child_peak.append((self.answer or {}).get("peak_rss_bytes") or 0)
-            return path
-
-        _aside.ReportProcess.render = spy
-    except ImportError:
-        pass
+    child_peak = report_process_peaks()  # the report process's own peak, where it has one
     rc = cli.main([csv, "--out", out, "-q"])
     marks.append(("end", time.perf_counter(), time.process_time()))
     split = {}
