@@ -19,12 +19,19 @@ a program traced from its old code; a plugin whose source cannot be read turns t
 off). Anything
 unusual (a tracer or a non-array leaf among the arguments, an export or a read that fails,
 FITLUG_NO_EXPORT_CACHE=1) falls back to calling the function as it is.
+
+Threads: a key's module is exported (or read) and first called (compiled) under a lock of
+its own, so a program that another thread is compiling is waited for, not compiled twice
+(:mod:`fitlug.cli._prewarm` compiles the later stages' programs beside the solver's on a
+first run). :func:`on_export` names a callback called, in the exporting thread, just before
+a freshly exported module is compiled: the sign that this run is compiling.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import threading
 
 import jax
 import numpy as np
@@ -36,6 +43,35 @@ _MEMO_MAX = 16  # signatures kept in a process (a campaign fits many recordings 
 STALE_DAYS = 30  # a module unused this long is removed when a new one is written
 _SOURCE: list = []
 _IDENTITIES: list = []  # callables -> str, or None when what they cover cannot be keyed
+_LOCK = threading.Lock()  # guards _MEMO, _READY and _KEY_LOCKS
+_KEY_LOCKS: dict = {}  # key -> the lock its export and first call are made under
+_READY: set = set()  # keys whose jitted call has run once in this process (compiled)
+_ON_EXPORT: list = []  # callbacks(name) before a freshly exported module's first call
+#: name -> the thread that made a module's first call in this process (tests, benchmarks)
+FIRST_CALLER: dict = {}
+
+
+def forget() -> None:
+    """Drop every module held in this process (a plugin effect replaced under its id)."""
+    with _LOCK:
+        _MEMO.clear()
+        _READY.clear()
+
+
+def on_export(callback) -> None:
+    """Call callback(name) in the exporting thread just before a module exported in this
+    process (not read from disk) is first called, i.e. compiled; exceptions it raises are
+    ignored. Remove it with :func:`remove_on_export`."""
+    with _LOCK:
+        if callback not in _ON_EXPORT:
+            _ON_EXPORT.append(callback)
+
+
+def remove_on_export(callback) -> None:
+    """Stop calling `callback` (see :func:`on_export`)."""
+    with _LOCK:
+        if callback in _ON_EXPORT:
+            _ON_EXPORT.remove(callback)
 
 
 def add_identity(fn) -> None:
@@ -100,21 +136,53 @@ def call(name: str, fn, static: tuple, *args):
                 jax.__version__, jaxlib.__version__, jax.default_backend(),
                 _source_identity(), *extra))
     key = hashlib.sha256(sig.encode()).hexdigest()[:32]
-    f = _MEMO.get(key, False)
-    if f is False:
-        while len(_MEMO) >= _MEMO_MAX:
-            _MEMO.pop(next(iter(_MEMO)))
-        f = _MEMO[key] = _load_or_export(name, key, fn, static, treedef, leaves)
-    if f is None:
-        return fn(*args, *static)
-    return f(*leaves)
+    with _LOCK:
+        f = _MEMO.get(key, False)
+        ready = key in _READY
+    if f is not False and ready:
+        return fn(*args, *static) if f is None else f(*leaves)
+    with _LOCK:
+        key_lock = _KEY_LOCKS.setdefault(key, threading.Lock())
+    with key_lock:  # another thread exporting or compiling this key: wait for it
+        with _LOCK:
+            f = _MEMO.get(key, False)
+        exported = False
+        if f is False:
+            f, exported = _load_or_export(name, key, fn, static, treedef, leaves)
+            with _LOCK:
+                while len(_MEMO) >= _MEMO_MAX:
+                    old = next(iter(_MEMO))
+                    _MEMO.pop(old)
+                    _READY.discard(old)
+                _MEMO[key] = f
+        if f is None:
+            return fn(*args, *static)
+        with _LOCK:
+            ready = key in _READY
+        if ready:
+            return f(*leaves)
+        if exported:
+            with _LOCK:
+                hooks = list(_ON_EXPORT)
+            for cb in hooks:
+                try:
+                    cb(name)
+                except Exception:  # noqa: BLE001 - a listener never breaks a fit
+                    pass
+        out = f(*leaves)
+        with _LOCK:
+            _READY.add(key)
+            FIRST_CALLER.setdefault(name, threading.current_thread().name)
+        return out
 
 
 def _load_or_export(name, key, fn, static, treedef, leaves):
+    """(the jitted call of the module, whether it was exported now) or (None, False)."""
     from jax import export
 
     path = os.path.join(cache_dir(), f"{name}-{key}.jaxexport")
     exp = None
+    fresh = False
     if os.path.exists(path):
         try:
             with open(path, "rb") as fh:
@@ -130,8 +198,9 @@ def _load_or_export(name, key, fn, static, treedef, leaves):
         try:
             exp = export.export(jax.jit(flat_fn))(*leaves)
             blob = exp.serialize()
+            fresh = True
         except Exception:  # e.g. a host callback in the program: not exportable
-            return None
+            return None, False
         try:
             os.makedirs(cache_dir(), exist_ok=True)
             tmp = f"{path}.{os.getpid()}.tmp"
@@ -141,7 +210,7 @@ def _load_or_export(name, key, fn, static, treedef, leaves):
             _prune(name)
         except OSError:  # read-only cache: the module still serves this process
             pass
-    return jax.jit(exp.call)
+    return jax.jit(exp.call), fresh
 
 
 def _prune(name: str) -> None:

@@ -137,13 +137,15 @@ def executable_setup(first_args: list) -> None:
     """What the `fit-lug` executable does before :func:`main` and main() called in-process
     does not: every sub-command but campaign runs without dask (:func:`_without_dask`);
     a fit's report is drawn by a process of its own that imports the report's modules
-    while the fit runs (:mod:`fitlug.report._aside`). (first_args: the command line's
-    first argument, in a list.)"""
+    while the fit runs (:mod:`fitlug.report._aside`), and on a first run the later
+    stages' programs compile in a thread beside the solver's (:mod:`fitlug.cli._prewarm`).
+    (first_args: the command line's first argument, in a list.)"""
     if list(first_args[:1]) != ["campaign"]:
         _without_dask()
     from . import _fit
 
     _fit.REPORT_PROCESS = True
+    _fit.PREWARM = True
 
 
 def _without_dask() -> None:

@@ -21,6 +21,13 @@ REPORT_PROCESS = False
 #: same: a second process holds its own imports (~220 MB) and copies of the state's
 #: arrays, where a long recording's run lasts minutes and a second saved is nothing
 REPORT_PROCESS_MAX_SAMPLES = 200_000
+#: compile the later stages' programs in a thread while the solver's compiles, on a first
+#: run (fitlug.cli._prewarm): set by the `fit-lug` executable, like REPORT_PROCESS (a
+#: library caller's process is not given a thread that outlives the call)
+PREWARM = False
+#: samples above which it does not: the thread holds a second problem and the posterior's
+#: dense Jacobian at the start (~80 MB here) beside the fit's own
+PREWARM_MAX_SAMPLES = 50_000
 
 
 def _report_process(rec) -> bool:
@@ -114,7 +121,17 @@ def _fit_and_write(args, rec, rig, out, run_id, t_start, prog, preload, aside) -
     from ..fit import fit
     from ..io import write_json
 
-    res = fit(rec, rig)
+    from . import _prewarm
+
+    # a first run: the later stages' programs compile beside the solver's (cli._prewarm)
+    watch = (_prewarm.arm(rec, rig, explain=not args.no_explain, posterior=not args.no_mcmc,
+                          report=not args.no_report)
+             if PREWARM and len(rec.t) <= PREWARM_MAX_SAMPLES else None)
+    try:
+        res = fit(rec, rig)
+    finally:
+        if watch is not None:
+            _prewarm.disarm(watch)
     final, expl = res, None
     if not args.no_explain:
         stage(args, "explaining", f"base fit chi2/dof {res.chi2_per_dof:.3f}; looking for "

@@ -191,7 +191,7 @@ def _forget_compiled() -> None:
     from ... import _exported
 
     jax.clear_caches()
-    _exported._MEMO.clear()
+    _exported.forget()
 
 
 def code_identity() -> str | None:
