@@ -124,14 +124,13 @@ def _fit_and_write(args, rec, rig, out, run_id, t_start, prog, preload, aside) -
     from . import _prewarm
 
     # a first run: the later stages' programs compile beside the solver's (cli._prewarm)
-    watch = (_prewarm.arm(rec, rig, explain=not args.no_explain, posterior=not args.no_mcmc,
-                          report=not args.no_report)
-             if PREWARM and len(rec.t) <= PREWARM_MAX_SAMPLES else None)
+    warm = (_prewarm.arm(rec, rig, explain=not args.no_explain)
+            if PREWARM and len(rec.t) <= PREWARM_MAX_SAMPLES else None)
     try:
         res = fit(rec, rig)
     finally:
-        if watch is not None:
-            _prewarm.disarm(watch)
+        if warm is not None:
+            warm.disarm()
     final, expl = res, None
     if not args.no_explain:
         stage(args, "explaining", f"base fit chi2/dof {res.chi2_per_dof:.3f}; looking for "
@@ -140,6 +139,8 @@ def _fit_and_write(args, rec, rig, out, run_id, t_start, prog, preload, aside) -
 
         expl = explain(res, seed=args.seed, progress=prog)
         final = expl.final
+    if warm is not None:  # the posterior's programs while the report's early parts draw
+        warm.posterior(final, chain=not args.no_mcmc)
     disc = None if expl is None else expl.to_json()
     state = None  # (arrays, meta) of the report's state without the posterior
     if aside is not None:

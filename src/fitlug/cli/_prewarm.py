@@ -1,23 +1,25 @@
-"""On a first run, compile the later stages' programs while the solver's compiles (issue 43).
+"""On a first run, compile the later stages' programs beside the stage that runs (issue 43).
 
 A recording of a kind this machine has not seen compiles about ten programs one after the
-other: the Levenberg-Marquardt solver's (the largest: 4-6 s on 2 cores, most of it in
+other: the Levenberg-Marquardt solver's (the largest: 5-6 s on 2 cores, most of it in
 XLA, which releases the GIL), then the derived quantities', the glitch finder's, the
-explanation's, the report's and the posterior's (together as long again). Their shapes
-are known before the first fit: they are the recording's, its rig's and the base model's.
-So when the solver's module has just been exported (:func:`fitlug._exported.on_export`:
-this process is compiling, so the disk had nothing for this kind of recording), a daemon
-thread builds the same problem, takes its data-derived start as if it were a fit, and runs
-the later stages' own functions on it (discarding what they compute): each of their
-programs is exported and compiled by the thread on the core the solver leaves free, and
-the stages find it ready (:mod:`fitlug._exported` makes a stage wait for a program the
-thread is compiling instead of compiling it twice).
+explanation table's, the report's and the posterior's (together as long again).
 
-Only the programs' shapes matter: the numbers the stages compute later are their own,
-bit for bit. Where a stage's program differs from the base model's (an explained effect
-changes the model) the thread's work was spent for nothing, on a first run only. A warm
-run (every module on disk) never starts the thread. Anything the thread's steps raise is
-ignored: a step only saves time.
+- When the solver's module has just been exported (:func:`fitlug._exported.on_export`:
+  the disk had nothing for this kind of recording), a daemon thread builds the same
+  problem, takes its data-derived start as if it were a fit and runs the fit's and the
+  explanation's later calls on it (the derived quantities, the glitch search's model, the
+  explanation's table), discarding what they compute: their programs depend only on the
+  recording's and the rig's shapes and the base model, and compile on the core the
+  solver leaves free.
+- Once the explanation has given the final fit (its model is known only then: an
+  explained effect changes it), the posterior's programs for that fit compile in a second
+  thread while the command draws the report's early parts (:meth:`Prewarm.posterior`).
+
+:mod:`fitlug._exported` makes a stage wait for a program a thread is compiling instead of
+compiling it twice. Only the programs matter: the numbers the stages compute are their own,
+bit for bit. A warm run (every module on disk) starts neither thread. Anything a thread's
+steps raise is ignored: a step only saves time.
 """
 
 from __future__ import annotations
@@ -27,41 +29,55 @@ import threading
 _THREADS: list = []
 
 
-def arm(rec, rig, *, explain: bool = True, posterior: bool = True,
-        report: bool = True) -> object:
-    """Start the thread once the solver's module for `rec` is exported in this process;
-    returns the callback to pass to :func:`disarm` when the fit is done. `explain`,
-    `posterior`, `report`: whether the command runs those stages (without the posterior's
-    chain, its marginal's Jacobian is still made: the least-squares identifiability)."""
-    from .. import _exported
+class Prewarm:
+    """What :func:`arm` returns: :meth:`disarm` once the fit is done, :meth:`posterior`
+    once the explanation has given the final fit."""
 
-    started = threading.Event()
+    def __init__(self, rec, rig, explain: bool):
+        self._args = (rec, rig, explain)
+        self.started = threading.Event()
 
-    def on_export(name: str) -> None:
-        if name != "lsq_solve" or started.is_set():
+    def _on_export(self, name: str) -> None:
+        if name != "lsq_solve" or self.started.is_set():
             return
-        started.set()
-        t = threading.Thread(target=_run, args=(rec, rig, (explain, posterior, report)),
-                             name="fitlug-prewarm",
-                             daemon=True)
-        _THREADS.append(t)
-        t.start()
+        self.started.set()
+        _start(_run, self._args, "fitlug-prewarm")
 
-    _exported.on_export(on_export)
-    return on_export
+    def disarm(self) -> None:
+        """Stop watching for the solver's export (the thread, if started, runs on)."""
+        from .. import _exported
+
+        _exported.remove_on_export(self._on_export)
+
+    def posterior(self, final, chain: bool = True) -> None:
+        """Where this run compiled its solver: the posterior's programs for `final` (the
+        explained fit) compile in a thread while the command draws the report's early
+        parts. `chain`: whether the chain runs (else only the marginal's Jacobian, for the
+        least-squares identifiability)."""
+        if self.started.is_set():
+            _start(_posterior, (final, chain), "fitlug-prewarm-posterior")
 
 
-def disarm(callback) -> None:
-    """Stop watching for the solver's export (the thread, if started, runs on)."""
+def arm(rec, rig, *, explain: bool = True) -> Prewarm:
+    """Start the thread once the solver's module for `rec` is exported in this process;
+    `explain`: whether the command explains the fit (its table's program is made too)."""
     from .. import _exported
 
-    _exported.remove_on_export(callback)
+    handle = Prewarm(rec, rig, explain)
+    _exported.on_export(handle._on_export)
+    return handle
 
 
 def join(timeout: float | None = None) -> None:
     """Wait for the threads started in this process (tests, benchmarks)."""
     for t in list(_THREADS):
         t.join(timeout)
+
+
+def _start(target, args, name) -> None:
+    t = threading.Thread(target=target, args=args, name=name, daemon=True)
+    _THREADS.append(t)
+    t.start()
 
 
 def _start_result(rec, rig):
@@ -88,10 +104,8 @@ def _start_result(rec, rig):
                      dof=max(prob.n_valid - len(flat), 1), converged=True, steps=0)
 
 
-def _steps(res, rig, stages=(True, True, True)) -> list:
-    """The later stages' calls, in the order the command makes them; `stages`: whether
-    the explanation, the posterior's chain and the report run."""
-    explain, chain, draw = stages
+def _steps(res, rig, explain: bool) -> list:
+    """The fit's and the explanation's calls after the solver, in the command's order."""
 
     def derived():
         from ..fit._result import compute_quantities
@@ -110,18 +124,25 @@ def _steps(res, rig, stages=(True, True, True)) -> list:
 
         geometry(res)
 
-    def report():
-        import jax
-        import numpy as np
+    return [derived, glitches] + [explanation] * explain
 
-        from ..report._state import _raw_residuals, state_arrays
 
-        state_arrays(res)
-        if explain:  # the base fit's residuals beside the final's (the explanation's)
-            _raw_residuals(res.problem, {k: jax.device_put(np.asarray(v))
-                                         for k, v in res.params.items()})
+def _run(rec, rig, explain) -> None:
+    try:
+        res = _start_result(rec, rig)
+    except Exception:  # noqa: BLE001 - the stages compile their programs themselves
+        return
+    for step in _steps(res, res.problem.rig, explain):
+        try:
+            step()
+        except Exception:  # noqa: BLE001 - as above
+            pass
 
-    def posterior():
+
+def _posterior(final, chain: bool) -> None:
+    """The posterior's marginal of `final` as sample_posterior makes it, and its
+    linearity check's passes (what is computed is discarded)."""
+    try:
         import inspect
 
         from ..posterior._marginal import slip_law_parameters
@@ -129,20 +150,8 @@ def _steps(res, rig, stages=(True, True, True)) -> list:
         from ..posterior._tempering import tempered_marginal
 
         walkers = inspect.signature(sample_posterior).parameters["walkers"].default
-        marg, _ = tempered_marginal(res, slip_law_parameters(res), batch=walkers // 2)
+        marg, _ = tempered_marginal(final, slip_law_parameters(final), batch=walkers // 2)
         if chain:
             marg.linearity_check()
-
-    return [derived, glitches] + [explanation] * explain + [report] * draw + [posterior]
-
-
-def _run(rec, rig, stages) -> None:
-    try:
-        res = _start_result(rec, rig)
-    except Exception:  # noqa: BLE001 - the stages compile their programs themselves
-        return
-    for step in _steps(res, res.problem.rig, stages):
-        try:
-            step()
-        except Exception:  # noqa: BLE001 - as above
-            pass
+    except Exception:  # noqa: BLE001 - the posterior compiles its programs itself
+        pass
