@@ -376,3 +376,32 @@ def test_exact_marginal_is_the_profile_over_the_nuisance_on_a_cruise():
     assert prof[0] > 2.0  # and the profile rises towards beta -> 0
     assert np.all(np.abs(exact - prof) <= 0.05 + 0.03 * np.abs(prof)), (exact, prof)
     jax.clear_caches()
+
+
+def test_lean_emcee_import_leaves_scipy_stats_importable_and_the_chain_unchanged():
+    """posterior._mcmc.LEAN_IMPORT (the executable's): emcee imported without scipy.stats,
+    which a later import still gets whole; the same seed gives the same chain as emcee
+    imported whole (a fresh interpreter each, emcee not yet imported)."""
+    import subprocess
+    import sys
+
+    code = """
+import sys, numpy as np
+from fitlug.posterior import _mcmc
+_mcmc.LEAN_IMPORT = {lean}
+chain = _mcmc.run_ensemble(lambda x: -0.5 * np.sum(x ** 2, axis=1),
+                           np.random.default_rng(0).normal(size=(8, 2)) * 0.1,
+                           names=["a", "b"], seed=3, max_steps=300)
+stats_before = "scipy.stats" in sys.modules and sys.modules["scipy.stats"] is not None
+from scipy.stats import theilslopes, norm
+assert norm.cdf(0.0) == 0.5 and theilslopes([0.0, 1.0, 2.0])[0] == 1.0
+print(repr(float(chain.samples.sum())), stats_before)
+"""
+    out = {}
+    for lean in (True, False):
+        run = subprocess.run([sys.executable, "-c", code.format(lean=lean)],
+                             capture_output=True, text=True, timeout=300)
+        assert run.returncode == 0, run.stderr
+        out[lean] = run.stdout.split()
+    assert out[True][1] == "False"  # scipy.stats was not imported for emcee
+    assert out[True][0] == out[False][0]  # the same chain, bit for bit

@@ -148,7 +148,11 @@ def _fit_and_write(args, rec, rig, out, run_id, t_start, prog, preload, aside) -
     post, no_chain = None, None  # no_chain: why no posterior could be formed
     if not args.no_mcmc:
         stage(args, "sampling", "posterior (emcee), until the effective samples suffice")
-        from ..posterior import sample_posterior
+        from ..posterior import _mcmc, sample_posterior
+
+        # the executable's process never draws a report with ArviZ (it has a report
+        # process, or no report): emcee without scipy.stats (posterior._mcmc.LEAN_IMPORT)
+        _mcmc.LEAN_IMPORT = REPORT_PROCESS and (aside is not None or args.no_report)
 
         try:
             post = sample_posterior(final, seed=args.seed, progress=prog,

@@ -58,6 +58,28 @@ MAX_STEPS = 6_000
 #: degrees of freedom
 INDEPENDENCE_WEIGHT = 0.5
 INDEPENDENCE_DOF = 5.0
+#: import emcee without scipy.stats (set by the `fit-lug` executable where nothing else in
+#: its process needs it): only emcee's KDEMove, which fitlug does not use, takes
+#: scipy.stats's gaussian_kde, and importing scipy.stats for it cost ~0.3 s of a ~4.5 s
+#: run of the bundled recording (issue 43). Library callers import emcee whole.
+LEAN_IMPORT = False
+
+
+def _emcee():
+    """The emcee module; under LEAN_IMPORT imported with scipy.stats hidden (its KDEMove
+    then has no gaussian_kde), unless either is imported already. scipy.stats imports as
+    usual afterwards."""
+    if LEAN_IMPORT and "emcee" not in sys.modules and "scipy.stats" not in sys.modules:
+        sys.modules["scipy.stats"] = None  # emcee.moves.kde: `except ImportError`
+        try:
+            import emcee
+        finally:
+            if "scipy.stats" in sys.modules and sys.modules["scipy.stats"] is None:
+                del sys.modules["scipy.stats"]
+        return emcee
+    import emcee
+
+    return emcee
 GUARD_S = 900.0  # the default wall-time guard: reached only when something is wrong
 _clock = time.perf_counter  # the guard's clock (tests put a slow one in its place)
 
@@ -97,7 +119,7 @@ def autocorr_time(chain: np.ndarray) -> np.ndarray:
     emcee's estimator (Sokal's window, c = 5), without its length check: the caller
     applies the min_tau_multiple rule itself. Returns inf for a constant parameter.
     """
-    import emcee
+    emcee = _emcee()
 
     n = chain.shape[0]
     if n < 4:
@@ -125,7 +147,7 @@ def run_ensemble(log_prob, p0: np.ndarray, *, names, seed: int = 0,
     that mean and covariance, the other half DEMove (see the module docstring).
     Raises ValueError if p0 has a non-finite log-probability or too few walkers.
     """
-    import emcee
+    emcee = _emcee()
 
     p0 = np.asarray(p0, float)
     walkers, ndim = p0.shape
@@ -207,7 +229,7 @@ def _independence_move(mean, cov, dof: float = None):
     """emcee's MHMove proposing every walker independently of where it is, from a
     multivariate Student t g (mean, cov, `dof` degrees of freedom: tails heavier than the
     Gaussian it approximates), with the Metropolis-Hastings factor g(x) / g(x')."""
-    import emcee
+    emcee = _emcee()
 
     dof = INDEPENDENCE_DOF if dof is None else dof
     mean = np.asarray(mean, float)
