@@ -5,8 +5,11 @@ replaced by the calling process, and nothing left behind."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
+import sys
+import threading
 
 import pytest
 
@@ -91,6 +94,8 @@ def test_executable_run_draws_early_parts_and_the_same_page(tmp_path, monkeypatc
     assert main([os.path.join(ROOT, "data", "reference", "trajectories.csv"), "--out",
                  str(out), "-q"]) == 0
     assert answers and answers[0]["early"] == "used", answers
+    if sys.platform.startswith("linux"):  # drawn by forked copies of the report process
+        assert {"convergence", "trajectories", "residuals"} <= set(answers[0]["copies"])
     assert sorted(os.listdir(out)) == ["fit.json", "posterior.nc", "report.html", "state.npz"]
     assert _scratch_folders() == before  # the early parts' scratch folder removed
     again = tmp_path / "again"
@@ -145,3 +150,54 @@ def test_the_child_imports_the_callers_fitlug(monkeypatch):
     monkeypatch.setattr(_aside, "_site_folders", lambda: {root})
     ReportProcess()
     assert seen[-1]["PYTHONPATH"] == "/elsewhere"
+
+
+def _pipe_source(keys, parts=None, release=None):
+    """A _Forked whose 'copy' is a thread writing `parts` (None: nothing, a failed copy)
+    into its pipe once `release` is set."""
+    from fitlug.report._aside import _Forked
+
+    r, w = os.pipe()
+
+    def write():
+        if release is not None:
+            release.wait(30)
+        with os.fdopen(w, "wb") as fh:
+            if parts is not None:
+                fh.write(json.dumps({"parts": parts, "peak_rss_bytes": 1}).encode())
+
+    threading.Thread(target=write, daemon=True).start()
+    return _Forked(r, None, keys)
+
+
+def test_parts_wait_only_for_the_copy_that_draws_them():
+    from fitlug.report._aside import _Parts
+
+    release = threading.Event()
+    early = _pipe_source(("trajectories",), {"trajectories": "<p>T</p>"}, release)
+    conv = _pipe_source(("convergence",), {"convergence": "<p>C</p>"})
+    parts = _Parts([early, conv])
+    got = {}
+    t = threading.Thread(target=lambda: got.update(c=parts["convergence"]), daemon=True)
+    t.start()
+    t.join(10)
+    assert got == {"c": "<p>C</p>"}  # the early copy is still drawing
+    release.set()
+    assert "trajectories" in parts and parts["trajectories"] == "<p>T</p>"
+    assert "residuals" not in parts and sorted(parts) == ["convergence", "trajectories"]
+
+
+def test_a_failed_copy_leaves_its_parts_to_the_page(tmp_path):
+    """A copy that hands back nothing: the page draws those parts itself, the same page."""
+    from fitlug.report._aside import _Parts
+    from fitlug.report._page import EARLY
+
+    a, b = tmp_path / "a", tmp_path / "b"
+    shutil.copytree(REFERENCE, a)
+    shutil.copytree(REFERENCE, b)
+    failed = _pipe_source(EARLY + ("convergence",), None)
+    parts = _Parts([failed])
+    assert "convergence" not in parts and not failed.drawn
+    write_report(a, parts)
+    write_report(b)
+    assert _read(a / "report.html") == _read(b / "report.html")

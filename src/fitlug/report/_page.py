@@ -81,6 +81,17 @@ def _early_makers(fj, st) -> dict:
             "discrepancy-plots": lambda: discrepancy_plots(fj, st)}
 
 
+def convergence_part(out_dir) -> dict:
+    """{"convergence": the section's HTML} drawn from DIR's final files (fit.json,
+    state.npz, posterior.nc), for :func:`write_report`'s `early`."""
+    from ..io import read_json
+
+    out_dir = os.fspath(out_dir)
+    fj, st = read_json(os.path.join(out_dir, "fit.json")), load_state(out_dir)
+    with _encoded_aside() as aside:
+        return {"convergence": aside.fill(_convergence(st, fj, out_dir))}
+
+
 def early_parts(fj: dict, st: dict) -> dict:
     """The :data:`EARLY` parts of the page (HTML with their figures), drawn from a fit.json
     dict and state arrays made before the posterior (fitlug.report.fit_json and
@@ -94,7 +105,10 @@ def early_parts(fj: dict, st: dict) -> dict:
 def write_report(out_dir, early: dict | None = None) -> str:
     """Render DIR/report.html from DIR/fit.json and DIR/state.npz; returns its path.
 
-    early: :func:`early_parts` drawn already (fitlug.report._aside), used in their place.
+    early: parts drawn already (:func:`early_parts`; fitlug.report._aside: also
+    "convergence", the section drawn from posterior.nc), used in their place; a mapping,
+    whose lookups may wait for another process: it is read after the other parts of the
+    posterior are drawn.
     Raises InputError when either file is missing or unreadable.
     """
     from .._errors import InputError
@@ -117,7 +131,7 @@ def write_report(out_dir, early: dict | None = None) -> str:
     title = f"{name}: slip {F.pm(s.get('value'), s.get('std'))}" + (
         f" ({verdict})" if verdict and verdict != "none" else "") + " · fitlug"
     with _encoded_aside() as aside:
-        page = _page(fj, st, out_dir, name, title, early or {})
+        page = _page(fj, st, out_dir, name, title, {} if early is None else early)
         page = aside.fill(page)
     path = os.path.join(out_dir, "report.html")
     write_text_atomic(path, page)
@@ -127,21 +141,25 @@ def write_report(out_dir, early: dict | None = None) -> str:
 def _page(fj, st, out_dir, name, title, early: dict) -> str:
     """The whole page (figures as placeholders when encoded aside); `early`: parts drawn
     already (:func:`early_parts`)."""
-    makers = _early_makers(fj, st)
+    makers = {**_early_makers(fj, st), "convergence": lambda: _convergence(st, fj, out_dir)}
 
     def part(key):
         return early[key] if key in early else makers[key]()
 
+    # the parts drawn here first, then those `early` holds: where they are still being
+    # drawn by other processes (fitlug.report._aside), the work overlaps
+    late = {"estimates": _estimates(fj, st), "slip": _slip_section(fj, st),
+            "posterior": _posterior(st, fj), "convergence": part("convergence")}
     sections = [
-        ("estimates", "Estimates", _estimates(fj, st)),
-        ("slip", "The slip drawn", _slip_section(fj, st)),
+        ("estimates", "Estimates", late["estimates"]),
+        ("slip", "The slip drawn", late["slip"]),
         ("discrepancy", "What the model left out", None),
         ("trajectories", "Lug-marker trajectories", part("trajectories")),
         ("kinematics", "Body displacement and velocity", part("kinematics")),
         ("residuals", "Residuals", part("residuals")),
         ("least-squares", "Least-squares statistics", part("least-squares")),
-        ("posterior", "Posterior", _posterior(st, fj)),
-        ("convergence", "Convergence diagnostics", _convergence(st, fj, out_dir)),
+        ("posterior", "Posterior", late["posterior"]),
+        ("convergence", "Convergence diagnostics", late["convergence"]),
     ]
     body, toc = [], []
     for sid, h, content in sections:
