@@ -120,6 +120,11 @@ def _forked(draw, keys):
     with JAX's threads is never forked): then the caller draws them itself."""
     if not sys.platform.startswith("linux") or "jax" in sys.modules:
         return None
+    import gc
+
+    # the objects alive now into the collector's permanent generation: a collection in the
+    # copy would otherwise write to every one of them and copy their pages
+    gc.freeze()
     r, w = os.pipe()
     pid = os.fork()
     if pid == 0:  # the copy: draw, hand the HTML over, end without teardown
