@@ -58,6 +58,10 @@ class ReportProcess:
         # PYTHONPATH would go before the standard library)
         root = os.path.dirname(os.path.dirname(os.path.abspath(fitlug.__file__)))
         env = dict(os.environ)
+        # its matrices are small; and it forks copies of itself (._copies), best without
+        # BLAS worker threads
+        for var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+            env.setdefault(var, "1")
         if root not in _site_folders():
             env["PYTHONPATH"] = os.pathsep.join(
                 [root] + [p for p in (env.get("PYTHONPATH"),) if p])
