@@ -201,3 +201,16 @@ def test_a_failed_copy_leaves_its_parts_to_the_page(tmp_path):
     write_report(a, parts)
     write_report(b)
     assert _read(a / "report.html") == _read(b / "report.html")
+
+
+def test_a_copy_that_hangs_is_ended_and_its_parts_left_to_the_page(monkeypatch):
+    from fitlug.report import _copies
+
+    monkeypatch.setattr(_copies, "WAIT_S", 0.5)
+    r, w = os.pipe()  # a copy that never writes nor ends
+    try:
+        hung = _copies._Forked(r, None, ("trajectories",))
+        parts = _copies._Parts([hung])
+        assert "trajectories" not in parts and not hung.drawn
+    finally:
+        os.close(w)

@@ -11,9 +11,33 @@ from __future__ import annotations
 
 import json
 import os
+import select
 import signal
 import sys
+import time
 from collections.abc import Mapping
+
+#: the longest a page waits for a copy's parts (its drawing takes ~1 s on the bundled
+#: recording, tens of seconds on the longest a report process draws); past it the copy
+#: is ended and the page draws those parts itself
+WAIT_S = 600.0
+
+
+def _read_until(fd: int, deadline: float):
+    """All of a pipe's bytes up to its end, closing it; None (closed) if `deadline`
+    (time.monotonic) passes first."""
+    chunks = []
+    try:
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0 or not select.select([fd], [], [], left)[0]:
+                return None
+            chunk = os.read(fd, 1 << 20)
+            if not chunk:
+                return b"".join(chunks)
+            chunks.append(chunk)
+    finally:
+        os.close(fd)
 
 
 def _peak_rss():
@@ -41,8 +65,10 @@ class _Forked(Mapping):
 
     def _get(self) -> dict:
         if self._parts is None:
-            with os.fdopen(self._fd, "rb") as fh:
-                data = fh.read()
+            data = _read_until(self._fd, time.monotonic() + WAIT_S)
+            if data is None:  # a copy that hangs: ended, its parts drawn by the page
+                self._kill()
+                data = b""
             if self._pid is not None:
                 try:
                     os.waitpid(self._pid, 0)
@@ -63,13 +89,16 @@ class _Forked(Mapping):
     def stop(self) -> None:
         """Discard the parts: end the copy (the final files did not match their inputs)."""
         if self._parts is None:
-            try:
-                if self._pid is not None:
-                    os.kill(self._pid, signal.SIGKILL)
-            except OSError:
-                pass
+            self._kill()
             self._get()
             self._parts = {}
+
+    def _kill(self) -> None:
+        try:
+            if self._pid is not None:
+                os.kill(self._pid, signal.SIGKILL)
+        except OSError:
+            pass
 
     def __getitem__(self, key):
         return self._get()[key]
