@@ -63,6 +63,8 @@ INDEPENDENCE_DOF = 5.0
 #: scipy.stats's gaussian_kde, and importing scipy.stats for it cost ~0.3 s of a ~4.5 s
 #: run of the bundled recording (issue 43). Library callers import emcee whole.
 LEAN_IMPORT = False
+GUARD_S = 900.0  # the default wall-time guard: reached only when something is wrong
+_clock = time.perf_counter  # the guard's clock (tests put a slow one in its place)
 
 
 def _emcee():
@@ -80,8 +82,6 @@ def _emcee():
     import emcee
 
     return emcee
-GUARD_S = 900.0  # the default wall-time guard: reached only when something is wrong
-_clock = time.perf_counter  # the guard's clock (tests put a slow one in its place)
 
 
 @dataclass

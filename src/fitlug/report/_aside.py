@@ -181,7 +181,7 @@ def _child() -> int:
                 if early is None:
                     early, inputs = _early(msg["early"])
                 else:
-                    inputs = _inputs(msg["early"])
+                    inputs = _files(msg["early"])
             except Exception:  # noqa: BLE001 - drawn whole at the end instead
                 early, inputs = None, None
             continue
@@ -189,13 +189,14 @@ def _child() -> int:
         try:
             from ._page import convergence_part, write_report
 
-            used = early is not None and _same_inputs(inputs, msg["out"])
+            final = _files(msg["out"])  # read once: for the guard and the copy below
+            used = early is not None and _same_inputs(inputs, final)
             inputs = None  # the early parts' inputs, no longer needed (memory)
             if not used and isinstance(early, _Forked):
                 early.stop()
             # the convergence section (ArviZ's diagnostics and the traces) drawn beside the
             # posterior's other parts, by a second copy
-            conv = _forked(lambda: convergence_part(msg["out"]), ("convergence",))
+            conv = _forked(lambda: convergence_part(*final, msg["out"]), ("convergence",))
             parts = _Parts([p for p in (early if used else None, conv) if p is not None])
             path = write_report(msg["out"], parts)
             reply = {"path": path, "early": "used" if used else
@@ -224,8 +225,9 @@ def _forked_early(folder: str):
     return _forked(lambda: _early(folder)[0], EARLY)
 
 
-def _inputs(folder: str):
-    """The early parts' inputs (fit.json dict, state) from a scratch folder."""
+def _files(folder: str):
+    """(fit.json dict, state) of a folder: a scratch folder's, the early parts' inputs, or
+    the final one's."""
     from ..io import read_json
     from ._state import load_state
 
@@ -234,11 +236,9 @@ def _inputs(folder: str):
 
 def _early(folder: str):
     """(the early parts, their inputs) from a scratch folder of :meth:`draw_early`."""
-    from ..io import read_json
     from ._page import early_parts
-    from ._state import load_state
 
-    fj, st = read_json(os.path.join(folder, "fit.json")), load_state(folder)
+    fj, st = _files(folder)
     return early_parts(fj, st), (fj, st)
 
 
@@ -250,15 +250,12 @@ POSTERIOR_KEYS = frozenset({
     "mcmc_skipped", "discrepancy_skipped", "run_id", "input_abs", "command", "date_utc"})
 
 
-def _same_inputs(inputs, out_dir: str) -> bool:
-    """Whether the final fit.json and state.npz agree with the early parts' inputs
-    everywhere but in what the posterior adds or changes (a guard: otherwise the page is
-    drawn whole)."""
-    from ..io import read_json
-    from ._state import load_state
-
+def _same_inputs(inputs, final) -> bool:
+    """Whether the final fit.json and state.npz (`final`: :func:`_files` of the folder)
+    agree with the early parts' inputs everywhere but in what the posterior adds or changes
+    (a guard: otherwise the page is drawn whole)."""
     fj0, st0 = inputs
-    fj, st = read_json(os.path.join(out_dir, "fit.json")), load_state(out_dir)
+    fj, st = final
     keys = (set(fj0) | set(fj)) - POSTERIOR_KEYS
     if any(json.dumps(fj0.get(k), sort_keys=True) != json.dumps(fj.get(k), sort_keys=True)
            for k in keys):

@@ -53,9 +53,9 @@ def _peak_rss():
 
 
 class _Forked(Mapping):
-    """The early parts, drawn by a forked copy of this process (:func:`_forked_early`)
-    while this one waits for the posterior and then draws the parts it changes; a lookup
-    waits for them. Empty where the copy failed (the page then draws them itself)."""
+    """The parts a forked copy of this process draws (:func:`_forked`) while this one goes
+    on; a lookup waits for them. Empty where the copy failed or hung (the page then draws
+    them itself)."""
 
     def __init__(self, fd: int, pid: int | None, keys=()):
         self._fd, self._pid = fd, pid

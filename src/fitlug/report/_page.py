@@ -81,13 +81,10 @@ def _early_makers(fj, st) -> dict:
             "discrepancy-plots": lambda: discrepancy_plots(fj, st)}
 
 
-def convergence_part(out_dir) -> dict:
-    """{"convergence": the section's HTML} drawn from DIR's final files (fit.json,
-    state.npz, posterior.nc), for :func:`write_report`'s `early`."""
-    from ..io import read_json
-
+def convergence_part(fj: dict, st: dict, out_dir) -> dict:
+    """{"convergence": the section's HTML} drawn from DIR's final fit.json dict, state and
+    posterior.nc, for :func:`write_report`'s `early`."""
     out_dir = os.fspath(out_dir)
-    fj, st = read_json(os.path.join(out_dir, "fit.json")), load_state(out_dir)
     with _encoded_aside() as aside:
         return {"convergence": aside.fill(_convergence(st, fj, out_dir))}
 
