@@ -39,6 +39,7 @@ from ..model._physics import beta_max
 from ._chunks import ChunkPlan, blocked_chi2, blocked_residuals, chunk_plan, chunkable, time_blocks
 from ._normal import normal_blocks
 from ._residuals import Packing, jacobian, residuals
+from ._result import GROSS_MISFIT
 
 
 _START_GAIN = 100.0
@@ -47,11 +48,20 @@ _START_GAIN = 100.0
 #: relative change of chi^2 below which a nearly undamped step counts as rounding (the
 #: bundled recording's chi^2 moves by 1e-14..1e-13 of itself between steps at its minimum)
 FLAT_REL = 1e-11
+#: chi^2 a further Gauss-Newton step (fit._fit's polish), or CONFIRM_STEPS more steps at a
+#: gross misfit, may still remove at "converged", in units of chi^2/dof where that is
+#: above 1 (fitlug.fit._fit: intervals are drawn at delta chi^2 = 1 and more)
+DECREMENT_TOL = 0.5
+#: steps over which a fit at a gross misfit must lower chi^2 by DECREMENT_TOL chi^2/dof or
+#: more to go on (_RoundingAwareTrustRegion: stationary at a gross misfit)
+CONFIRM_STEPS = 30
 
 
 class _StopState(eqx.Module):
     step_size: jax.Array
     stop: jax.Array  # the step just judged moved chi^2 by rounding only: the solve is over
+    ck_loss: jax.Array  # the loss CONFIRM_STEPS steps ago at most (the stationarity window)
+    ck_n: jax.Array  # steps since then
 
 
 class _RoundingAwareTrustRegion(optx.ClassicalTrustRegion):
@@ -72,13 +82,24 @@ class _RoundingAwareTrustRegion(optx.ClassicalTrustRegion):
       solves took 18, 15 and 19 steps, 10-12 of each after chi^2 had stopped changing
       (2026-11-29: 6, 7 and 6 steps, the same digits).
 
+    - with `dof` (the residual rows' degrees of freedom) the solve also ends where chi^2/dof
+      is above GROSS_MISFIT and the last CONFIRM_STEPS steps lowered chi^2 by less than
+      DECREMENT_TOL chi^2/dof: at residuals that large the Gauss-Newton model is poor and
+      LM crawls (an engine's chain of links, chi^2/dof 5 847 after 60 steps, 5 840.05
+      after 300: 0.12-0.2 of a chi^2/dof per 30 steps from step 150 on), and that point
+      is stationary for every purpose the fit serves. It is the rule fitlug.fit._fit
+      applied after the step limit (300 steps and 30 more to confirm, for the first fit
+      and again for each refit from its optimum), applied as the solve goes.
+
     Any larger step is judged as before."""
 
     rtol: float = 1e-8
     atol: float = 1e-6
+    dof: jax.Array | float = 0.0  # 0: no stationarity rule at a gross misfit
 
     def init(self, y, f_info_struct):
-        return _StopState(step_size=jnp.array(1.0), stop=jnp.array(False))
+        return _StopState(step_size=jnp.array(1.0), stop=jnp.array(False),
+                          ck_loss=jnp.array(jnp.inf), ck_n=jnp.array(0))
 
     def step(self, first_step, y, y_eval, f_info, f_eval_info, state):
         base = super().init(y, None)  # optimistix's own state type, for its step
@@ -95,7 +116,20 @@ class _RoundingAwareTrustRegion(optx.ClassicalTrustRegion):
         flat = (~first_step & finite & (state.step_size >= 1.0)
                 & (jnp.abs(pred) <= tiny) & (jnp.abs(loss1 - loss0) <= tiny))
         size = jnp.where((done | flat) & ~accept, state.step_size, size)
-        return size, accept | done | flat, result, _StopState(step_size=size, stop=flat)
+        accepted = accept | done | flat
+        # the stationarity window at a gross misfit (loss = chi^2 / 2); the first step
+        # evaluates the start (its f_info is a placeholder)
+        now = jnp.where(accepted, loss1, loss0)
+        ck = jnp.where(first_step, loss1, state.ck_loss)
+        n = jnp.where(first_step, 0, state.ck_n + 1)
+        dof = jnp.maximum(jnp.asarray(self.dof, float), 1.0)
+        scale = 2.0 * now / dof
+        due = n >= CONFIRM_STEPS
+        still = (due & (jnp.asarray(self.dof) > 0) & finite & (scale > GROSS_MISFIT)
+                 & (2.0 * (ck - now) < DECREMENT_TOL * scale))
+        return size, accepted, result, _StopState(
+            step_size=size, stop=flat | still, ck_loss=jnp.where(due, now, ck),
+            ck_n=jnp.where(due, 0, n))
 
 
 class _LevenbergMarquardt(optx.LevenbergMarquardt):
@@ -106,9 +140,19 @@ class _LevenbergMarquardt(optx.LevenbergMarquardt):
         return term | state.search_state.stop, result
 
 
-def _levenberg_marquardt(rtol, atol, linear_solver):
+def _levenberg_marquardt(rtol, atol, linear_solver, dof=0.0):
+    """LM with the trust region above; `dof` > 0 turns on its stationarity rule at a gross
+    misfit (the degrees of freedom of the residual rows it is given)."""
     lm = _LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=linear_solver)
-    return eqx.tree_at(lambda s: s.search, lm, _RoundingAwareTrustRegion(rtol=rtol, atol=atol))
+    return eqx.tree_at(lambda s: s.search, lm,
+                       _RoundingAwareTrustRegion(rtol=rtol, atol=atol, dof=dof))
+
+
+def valid_dof(obs, mask):
+    """Degrees of freedom of a solve: valid residual rows (weight > 0; padded and flagged
+    rows carry 0) less the free elements (`mask` > 0), traced."""
+    n = 2.0 * (jnp.sum(obs["lug_w"] > 0) + jnp.sum(obs["body_w"] > 0))
+    return n - jnp.sum(mask > 0)
 
 
 def _column_scale(J):
@@ -181,7 +225,7 @@ def _solve(flat0, fixed, lay, obs, mask, packing: Packing, max_steps: int, rtol:
         sq = lambda z: jnp.sum(fn(z, None) ** 2)  # noqa: E731
         better = jnp.all(jnp.isfinite(gn.value)) & (sq(gn.value) < sq(z0))
         z1, gn_done = jnp.where(better, gn.value, z0), gn.stats["num_steps"]
-    solver = _levenberg_marquardt(rtol, atol, normal)
+    solver = _levenberg_marquardt(rtol, atol, normal, dof=valid_dof(obs, mask))
     sol = optx.least_squares(fn, solver, z1, max_steps=max_steps - n_gn, throw=False)
     flat = flat0 + sol.value * scale
     J = jacobian(flat, fixed, lay, obs, packing)
