@@ -224,6 +224,40 @@ def test_a_crawl_at_a_gross_misfit_is_stationary_in_its_units(reference_fit):
                                            free).converged
 
 
+def test_the_solver_ends_a_crawl_at_a_gross_misfit_as_it_goes():
+    """The contact-dynamics engine's chain of 40 links round 15 mm wheels (data/engine/
+    tight_wheels, MuJoCo): the base model misses its polygon by hundreds of sigma and LM,
+    from the fit's held-beta start, crawled through its 300-step limit (chi^2/dof 5 847
+    after 60 steps, 5 840.05 after 300, 0.12-0.2 of a chi^2/dof per 30 steps from step 150
+    on), after which the stationarity check ran 30 steps more. The solver now ends where
+    its last CONFIRM_STEPS steps removed less than DECREMENT_TOL chi^2/dof: converged well
+    before the limit, and a continuation from that point (LM started afresh) confirms it."""
+    from fitlug.fit._fit import (CONFIRM_STEPS, DECREMENT_TOL, _misfit_scale,
+                                 free_parameters, least_squares)
+    from fitlug.fit._result import GROSS_MISFIT
+
+    root = os.path.join(os.path.dirname(__file__), "..", "data", "engine", "tight_wheels")
+    rig = read_rig(os.path.join(root, "rig.toml"))
+    prob = build_problem(read_trajectories(os.path.join(root, "trajectories.csv"), rig=rig),
+                         rig)
+    free = free_parameters(prob.lay)
+    held = least_squares(dict(prob.p0), free, prob.lay, prob.obs, max_steps=300,
+                         hold=("beta",))
+    p = {**prob.p0, **held.params}
+    end = least_squares(p, free, prob.lay, prob.obs, max_steps=300)
+    scale = _misfit_scale(end, prob)
+    assert end.converged and scale > GROSS_MISFIT
+    assert 2 * CONFIRM_STEPS < end.steps < 250, end.steps
+    more = least_squares(dict(end.params), free, prob.lay, prob.obs, max_steps=CONFIRM_STEPS)
+    c_end, c_more = (float(np.sum(np.asarray(o.r) ** 2)) for o in (end, more))
+    assert c_end - c_more < DECREMENT_TOL * scale, (c_end - c_more, scale)
+    # the start was far from stationary: the rule did not end the walk at its first window
+    start = least_squares(p, free, prob.lay, prob.obs, max_steps=CONFIRM_STEPS)
+    assert not start.converged
+    c_start = float(np.sum(np.asarray(start.r) ** 2))
+    assert c_start - c_end > 10 * DECREMENT_TOL * scale
+
+
 def _drop_role(rec, role):
     """The recording without the markers of `role` (gone from the marker list too)."""
     kept = [m for m, r in enumerate(rec.roles) if r != role]
