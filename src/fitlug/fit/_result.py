@@ -14,6 +14,8 @@ from .._errors import FitError
 from ..model import belt_length, steady_slip
 from ..model._physics import G
 from ..model.effects import CATALOG
+# GROSS_MISFIT: chi^2/dof above which a fit that did not converge is far from the data
+from ._trust import GROSS_MISFIT
 
 Z95 = 1.959963984540054
 
@@ -394,9 +396,6 @@ def compute_quantities(res_params, packing, flat, cov, lay, mass_kg, fixed,
     return mark_not_identifiable(out, Estimate)
 
 
-#: chi^2/dof above which a fit that did not converge is said to be far from the data (a
-#: drive-through near the friction limit, slip 0.40, stopped at 8 952: issue 42's sweep)
-GROSS_MISFIT = 100.0
 
 
 def not_converged(res: FitResult, steps: int, advice: str) -> FitError:
