@@ -34,11 +34,11 @@ from .. import _exported
 from .._errors import FitError
 from ..model._physics import G
 from ._covariance import covariance
-from ._lsq import (LARGE_ENTRIES, _START_GAIN, _column_scale, _levenberg_marquardt,
-                   bound_residuals)
+from ._lsq import LARGE_ENTRIES, _START_GAIN, _column_scale, bound_residuals
 from ._parameters import ALIASES, DERIVED, Parameters, free_names
 from ._result import Estimate, FitResult, compute_quantities, not_converged
 from ._residuals import Packing, jacobian, residuals
+from ._trust import _levenberg_marquardt
 
 _BIG = 1e300
 

@@ -14,13 +14,14 @@ import numpy as np
 from ..model import param_names
 from ..model.effects import CATALOG
 from ._covariance import covariance, covariance_normal, gauss_newton_polish
-from ._lsq import CONFIRM_STEPS, DECREMENT_TOL, least_squares
+from ._lsq import least_squares
 from ._on_bound import held_on_bound
 from . import _glitches
 from ._noise import fourth_differences, noise_from_differences
 from ._boundary import check_effects, check_free, check_noise
 from ._problem import Problem, build_problem
-from ._result import GROSS_MISFIT, FitResult, compute_quantities, not_converged
+from ._result import FitResult, compute_quantities, not_converged
+from ._trust import CONFIRM_STEPS, DECREMENT_TOL, GROSS_MISFIT
 
 
 def free_parameters(lay) -> list[str]:
@@ -29,13 +30,6 @@ def free_parameters(lay) -> list[str]:
     return [k for k in param_names(lay) if k not in fixed]
 
 
-#: DECREMENT_TOL (._lsq): chi^2 a further Gauss-Newton step may still remove at
-#: "converged" when LM stopped at its step limit: half the delta chi^2 = 1 at which
-#: intervals are drawn. Seen: cruise-only recordings whose slip slope beta trades with s0
-#: along a curved valley (beta 10^4 times any physical value) where LM crawls and a full
-#: step overshoots; the remaining decrement was 0.27 and the covariance says how flat the
-#: valley is. CONFIRM_STEPS (._lsq): steps of the check that a fit left unconverged at a
-#: gross misfit is stationary (the dense solver applies it as it goes).
 #: a fit that would fail unconverged at a gross misfit goes on for this many times its steps
 EXTRA_STEPS = 3
 

@@ -396,8 +396,6 @@ def compute_quantities(res_params, packing, flat, cov, lay, mass_kg, fixed,
     return mark_not_identifiable(out, Estimate)
 
 
-
-
 def not_converged(res: FitResult, steps: int, advice: str) -> FitError:
     """The error of a fit `res` that did not converge after `steps` steps: `advice` (what to
     check), and at a gross misfit that the model is far from the data."""

@@ -19,7 +19,9 @@ GROSS_MISFIT = 100.0
 FLAT_REL = 1e-11
 #: chi^2 a further Gauss-Newton step (fit._fit's polish), or CONFIRM_STEPS more steps at a
 #: gross misfit, may still remove at "converged", in units of chi^2/dof where that is
-#: above 1 (fitlug.fit._fit: intervals are drawn at delta chi^2 = 1 and more)
+#: above 1: half the delta chi^2 = 1 at which intervals are drawn. Seen: cruise-only
+#: recordings whose slip slope beta trades with s0 along a curved valley, where LM crawls
+#: and a full step overshoots; the remaining decrement was 0.27
 DECREMENT_TOL = 0.5
 #: steps over which a fit at a gross misfit must lower chi^2 by DECREMENT_TOL chi^2/dof or
 #: more to go on (_RoundingAwareTrustRegion: stationary at a gross misfit)
@@ -119,6 +121,7 @@ def _levenberg_marquardt(rtol, atol, linear_solver, dof=0.0):
 
 def valid_dof(obs, mask):
     """Degrees of freedom of a solve: valid residual rows (weight > 0; padded and flagged
-    rows carry 0) less the free elements (`mask` > 0), traced."""
+    rows carry 0) less the free elements (`mask` > 0), traced (the host's count of the
+    rows is :attr:`fitlug.fit._problem.Problem.n_valid`)."""
     n = 2.0 * (jnp.sum(obs["lug_w"] > 0) + jnp.sum(obs["body_w"] > 0))
     return n - jnp.sum(mask > 0)
