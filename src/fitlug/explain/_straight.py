@@ -326,7 +326,11 @@ def withheld(final, accepted, steps, disc):
     if not (reads_straight_runs(final) or misses_the_data(final)):
         return final, accepted, steps, disc
     entries = [e for e in accepted if e not in BASE_EFFECTS]
-    terms = [t.to_json() for t in (getattr(disc, "terms", None) or [])]
+    # a real track's own physics (the body surging on its lugs: MODEL.md §2) is what the
+    # model does not describe, not a reading of that misfit: it is claimed (its term stays)
+    real = [t for t in (getattr(disc, "terms", None) or []) if t.choice.extra.get("real_track")]
+    terms = [t.to_json() for t in (getattr(disc, "terms", None) or [])
+             if not t.choice.extra.get("real_track")]
     if not entries and not terms:
         return final, accepted, steps, disc
     reason = (f"not claimed: the model does not describe the path (chi2/dof "
@@ -337,7 +341,7 @@ def withheld(final, accepted, steps, disc):
     info["withheld"] = {"readings": names, "reason": reason}
     final = dataclasses.replace(final, robust=info)
     if terms:
-        disc = dataclasses.replace(disc, terms=[], tried=list(disc.tried) + [
+        disc = dataclasses.replace(disc, terms=real, tried=list(disc.tried) + [
             {**t, "rejected_because": reason} for t in terms])
     keep = [e for e in accepted if e in BASE_EFFECTS]
     return final, keep, [st for st in steps if st.effect in keep], disc

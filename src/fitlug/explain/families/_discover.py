@@ -35,12 +35,14 @@ from .._correlated import implausible, inflation, peak_displacement_um
 from ._solve import Projector, chooses
 from ._slip import SlipLaw
 from ._speed import SpeedModulation
+from ._surge import BodySurge
 from ._time import TimeMap
 from ._vibration import SegmentVibration
 
-#: MODEL.md §5's families that the search knows, in its table's order
+#: MODEL.md §5's families that the search knows, in its table's order, then the body's
+#: surge on its lugs (MODEL.md §2, real tracks: §5's body motion in x, docs/readings.md)
 FAMILIES = (SpeedModulation, SlipLaw, PathShape, BodyMotion, GroundProfile, SegmentVibration,
-            ImageMap, TimeMap)
+            ImageMap, TimeMap, BodySurge)
 MAX_TERMS = 2
 #: at most this share of the samples may be set aside as glitches after the terms
 GLITCH_SHARE = 5e-3
