@@ -39,10 +39,8 @@ from ._surge import BodySurge
 from ._time import TimeMap
 from ._vibration import SegmentVibration
 
-#: MODEL.md §5's families that the search knows, in its table's order, then the body's
-#: surge on its lugs (MODEL.md §2, real tracks: §5's body motion in x, docs/readings.md)
 FAMILIES = (SpeedModulation, SlipLaw, PathShape, BodyMotion, GroundProfile, SegmentVibration,
-            ImageMap, TimeMap, BodySurge)
+            ImageMap, TimeMap, BodySurge)  #: MODEL.md §5's in order, then §2's body surge
 MAX_TERMS = 2
 #: at most this share of the samples may be set aside as glitches after the terms
 GLITCH_SHARE = 5e-3

@@ -21,8 +21,10 @@ function of time in the body's x would take up a part of any misfit.
 
 from __future__ import annotations
 
+import jax.numpy as jnp
 import numpy as np
 
+from ...model._host import kinematics_host
 from .._criterion import GROSS_CHI2
 from ._base import Choice, Family, best_size, bspline, names
 
@@ -46,8 +48,7 @@ class BodySurge(Family):
         body = (ctx.role == 1) & (ctx.axis == 0) & ctx.valid
         if body.sum() < MIN_BODY_ROWS:
             return None
-        chi2 = float(ctx.r[ctx.valid] @ ctx.r[ctx.valid])
-        if not chi2 > GROSS_CHI2 * max(int(ctx.res.dof), 1):
+        if not ctx.res.chi2_per_dof > GROSS_CHI2:
             return None
         lo, hi = float(np.min(ctx.t[body])), float(np.max(ctx.t[body]))
         if hi - lo < 2 * SPACINGS_S[0]:
@@ -62,16 +63,18 @@ class BodySurge(Family):
             return None
         n_int, fitted = found
         xs = np.linspace(lo, hi, max(8 * n_int + 1, 201))
-        smooth = _smooth_part(ctx.res.problem.lay, xs, lo, hi, n_int)
+        lay = ctx.res.problem.lay
+        smooth = _smooth_part(lay, xs, lo, hi, n_int)
+        # the surge about the body's smooth motion: Delta less what the speed spline's X(t)
+        # can hold (in a ramp its knots are 0.035-0.07 s apart, and there Delta and X
+        # trade: the raw Delta of the reference engine run spans 61 mm, its part outside
+        # the smooth motion 1.3 mm); at xs once (the shape's band evaluates it 400 times)
+        at_xs = bspline(xs, lo, hi, n_int) - _smooth_rows(lay, xs) @ smooth
 
         def delta(x, c):
-            # the surge about the body's smooth motion: Delta less what the speed spline's
-            # X(t) can hold (in a ramp its knots are 0.035-0.07 s apart, and there Delta
-            # and X trade: the raw Delta of the reference engine run spans 61 mm, its part
-            # outside the smooth motion 1.3 mm)
             x = np.asarray(x, float)
-            return (bspline(x, lo, hi, n_int) - _smooth_rows(ctx.res.problem.lay, x)
-                    @ smooth) @ np.asarray(c)
+            M = at_xs if x is xs else bspline(x, lo, hi, n_int) - _smooth_rows(lay, x) @ smooth
+            return M @ np.asarray(c)
 
         def describe(c):
             d = delta(xs, c)
@@ -124,14 +127,13 @@ def _carried(ctx):
     lay = ctx.res.problem.lay
     psin = np.maximum.accumulate(np.asarray(ctx.psi_nodes, float))
     # the belt coordinate before the lag (ctx.u is the lagged one, a lug's shear of
-    # several mm behind), as the model's lug_lag takes it: sigma0 + psi(t), psi by the
-    # integration's cubic Hermite
-    psi_row = _hermite(ctx.grid, psin, np.asarray(ctx.vt_nodes, float), ctx.t)
+    # several mm behind), as the model's lug_lag takes it: sigma0 + psi(t)
+    psi_row = kinematics_host({k: jnp.asarray(v, float) for k, v in p.items()}, lay,
+                              ctx.t)["psi"]
     lug_i = np.concatenate([np.asarray(lay.lug_i)] * 2
                            + [np.zeros(2 * len(np.asarray(lay.body_t)), int)])
-    P = 2.0 * ctx.D + 2.0 * np.pi * ctx.R
     sigma = np.asarray(p["sigma0"], float)[lug_i] + psi_row
-    u = np.where(lug, np.mod(sigma, P), 0.0)
+    u = np.where(lug, np.mod(sigma, ctx.pitch * lay.n_belt), 0.0)
     t_e = np.interp(psi_row - u, psin, ctx.grid)
     t_l = np.minimum(np.interp(psi_row - u + ctx.D, psin, ctx.grid), ctx.t)
     on_run = lug & (u < ctx.D)
@@ -141,17 +143,6 @@ def _carried(ctx):
     # (1 - h) (Delta(t) - Delta(t_e)) on the run, (1 - h) decay (Delta(t_l) - Delta(t_e)) off
     k = (1.0 - h) * np.where(on_run, 1.0, np.where(lug, decay, 0.0))
     return {"t_e": t_e, "t_l": np.where(on_run, ctx.t, t_l), "k": k}
-
-
-def _hermite(grid, y, dy, t):
-    """The model's cubic Hermite interpolation of node values y (derivatives dy) at t."""
-    h = float(grid[1] - grid[0])
-    x = (np.asarray(t, float) - grid[0]) / h
-    i = np.clip(np.floor(x).astype(int), 0, len(grid) - 2)
-    s = x - i
-    s2, s3 = s * s, s * s * s
-    return ((2 * s3 - 3 * s2 + 1) * y[i] + (s3 - 2 * s2 + s) * h * dy[i]
-            + (-2 * s3 + 3 * s2) * y[i + 1] + (s3 - s2) * h * dy[i + 1])
 
 
 def _columns(ctx, carried, lo, hi, n_int):
