@@ -73,3 +73,26 @@ def test_slip_and_trajectories_draw_the_model_and_its_band(fitted):
     assert plot.trajectories(fitted, ax=ax2, markers=["C1", "B01"]) is ax2
     assert _legend_inside(ax2)
     plt.close("all")
+
+
+def test_close_spectral_lines_share_one_label():
+    """Lines closer than 4 % of the frequency axis (before and after, or a cluster below
+    2.5 Hz) are labelled once, their frequencies joined; a line apart keeps its own label
+    (five labels under 2.5 Hz were drawn over each other on an engine recording)."""
+    from fitlug.report._discrepancy_plots import plot_spectra
+
+    f = np.linspace(0.0, 50.0, 501)
+    def power(lines):
+        p = np.ones_like(f)
+        for f0, a in lines:
+            p += a * np.exp(-0.5 * ((f - f0) / 0.05) ** 2)
+        return p
+    before = {"f_hz": list(f), "power": list(power([(0.4, 1e4), (0.8, 3e4), (1.5, 2e4),
+                                                    (20.0, 5e3)])),
+              "lug_passing_hz": 8.0, "wheel_revolution_hz": 1.0}
+    after = {"f_hz": list(f), "power": list(power([(0.8, 1e3), (20.0, 5e3)]))}
+    fig, peaks = plot_spectra({"before": before, "after": after})
+    labels = sorted(t.get_text() for t in fig.axes[0].texts)
+    plt.close(fig)
+    assert labels == ["0.40, 0.80, 1.50 Hz", "20.00 Hz"], labels
+    assert len(peaks) == 6  # every line is still listed for the caption

@@ -72,6 +72,10 @@ def test_the_body_surge_is_named_and_modelled_on_an_engine_recording(explained):
     assert 0.5 * truth["surge_frequency_hz"] < f < 2.0 * truth["surge_estimate_hz"], f
     s = ex.final.quantities["slip"]
     assert ex.final.robust["headline"] == "straight runs"
+    # the lug-passing frequency the located lines are named by is the cruise's (the engine
+    # measures it: belt speed over pitch), not that of the chain's overshoot after its ramp
+    f_lug = d["spectra"]["before"]["lug_passing_hz"]
+    assert abs(f_lug / truth["lug_passing_hz"] - 1.0) < 0.05, (f_lug, truth["lug_passing_hz"])
     assert abs(s.value - truth["slip"]) < 3.0 * s.std
 
 

@@ -89,6 +89,17 @@ def spectral_peaks(f, p, lug_hz=None, wheel_hz=None, n=4, factor=8.0):
     return out
 
 
+def _close_groups(pts, gap):
+    """(f, p) points sorted by f, in runs whose neighbours lie closer than `gap` in f."""
+    groups = []
+    for pt in pts:
+        if groups and pt[0] - groups[-1][-1][0] < gap:
+            groups[-1].append(pt)
+        else:
+            groups.append([pt])
+    return groups
+
+
 def plot_spectra(spectra: dict):
     fig, axes = _new(9.0, 3.6)
     ax = axes[0, 0]
@@ -109,12 +120,19 @@ def plot_spectra(spectra: dict):
         if s and s.get("f_hz"):
             for fpk, ppk, name in spectral_peaks(s["f_hz"], s["power"], s0.get("lug_passing_hz"),
                                                  s0.get("wheel_revolution_hz")):
-                ax.annotate(f"{fpk:.2f} Hz", (fpk, ppk), textcoords="offset points",
-                            xytext=(3, 4), fontsize=8)
                 peaks.append((k, fpk, ppk, name))
+    f_hi = min(50.0, max(s0.get("f_hz") or [50.0]))
+    # one label per group of peaks closer than 4 % of the axis (before and after often
+    # share a line; five lines under 2.5 Hz were drawn over each other)
+    for grp in _close_groups(sorted({(round(fp, 6), pp) for _, fp, pp, _ in peaks}),
+                             0.04 * f_hi):
+        fs = sorted({fp for fp, _ in grp})
+        fp, pp = max(grp, key=lambda g: g[1])
+        ax.annotate(", ".join(f"{x:.2f}" for x in fs) + " Hz", (fp, pp),
+                    textcoords="offset points", xytext=(3, 4), fontsize=8)
     ax.set_xlabel("frequency (Hz)")
     ax.set_ylabel("residual power (σ²)")
-    ax.set_xlim(0, min(50.0, max(s0.get("f_hz") or [50.0])))
+    ax.set_xlim(0, f_hi)
     ax.legend(frameon=False, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     return fig, peaks
 
