@@ -529,3 +529,29 @@ def test_a_long_glitch_list_is_folded_after_its_first_rows():
     assert "</details>" in folded and "Rule: a rule." in folded
     short = _glitches({"glitches": gl[:3], "glitch_rule": "a rule"})
     assert "<details>" not in short and len(re.findall(r"<tr>", short)) == 4
+
+
+def test_a_law_not_identifiable_is_drawn_as_a_compromise(folder):
+    """Where fit.json says k is not identifiable (the model does not describe the path),
+    the slip-against-load plot draws the model's law dashed and says why in its label; a
+    fitted law stays the solid black line."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    st = load_state(folder)
+    fig, (a1, a2) = plt.subplots(1, 2)
+    plot_slip_force(st, {"not_identifiable": {"stiffness_N_per_mm": "a compromise"},
+                         "slip": {"value": 0.5}}, ax=a1)
+    plot_slip_force(st, {}, ax=a2)
+    law1 = [ln for ln in a1.get_lines() if "law" in ln.get_label()]
+    law2 = [ln for ln in a2.get_lines() if "law" in ln.get_label()]
+    assert len(law1) == len(law2) == 1
+    assert law1[0].get_linestyle() == "--" and "not identifiable" in law1[0].get_label()
+    assert law2[0].get_linestyle() == "-" and law2[0].get_label() == "fitted law s(F)"
+    np.testing.assert_array_equal(law1[0].get_ydata(), law2[0].get_ydata())
+    # the slip read is drawn, and the axis holds it (not the compromise's range alone)
+    read = [ln for ln in a1.get_lines() if ln.get_label() == "the slip read (0.5)"]
+    assert len(read) == 1 and a1.get_ylim()[0] < 0.5 < a1.get_ylim()[1]
+    plt.close(fig)

@@ -65,8 +65,13 @@ def _slip_figures(fj, st) -> list[str]:
         + ("" if m else " per kilogram (no mass given)")
         + ": points are the slip measured from the lug markers on the ground (their "
         "rearward creep relative to the body, binned, ±1 σ of each bin), coloured by phase "
-        "(accelerating, cruising, braking); the line is the fitted law. Look for the "
-        "points following the line; a bend away from it at high load means the lugs slide."))
+        "(accelerating, cruising, braking); "
+        + ("the dashed line is the model's law, whose k and C_rr are not identifiable here "
+           "(see the estimates): a compromise, not a law the points should follow; the "
+           "dotted line is the slip read, and the axis is the points' and its."
+           if _law_not_identifiable(fj) else
+           "the line is the fitted law. Look for the points following the line; a bend "
+           "away from it at high load means the lugs slide.")))
     return out
 
 
@@ -293,6 +298,12 @@ def slip_from_lugs(st: dict):
     return np.concatenate(ts), np.concatenate(ss)
 
 
+def _law_not_identifiable(fj: dict | None) -> bool:
+    """Whether fit.json says the slip law's stiffness is not identifiable."""
+    ni = (fj or {}).get("not_identifiable") or {}
+    return bool(ni.get("stiffness_N_per_mm") or ni.get("k_over_m_N_per_mm_kg"))
+
+
 def plot_slip_force(st: dict, fj: dict | None = None, ax=None, bins: int = 14):
     """Slip against the traction load F = m (a + C_rr g): the lug markers' measured slip,
     binned per phase (mean ± 1 σ of the mean), and the model's law."""
@@ -346,6 +357,21 @@ def plot_slip_force(st: dict, fj: dict | None = None, ax=None, bins: int = 14):
         v_c = law.get("v_headline_mm_s") or law["v_ref_mm_s"]  # the headline's speed
         s_law = s_lin + slip_change(law, np.full(len(s_lin), v_c), s_lin, law["steady_slip"])
         ax.plot(Fm[o], s_law, "-", color="k", lw=1.5, label=f"fitted law s(F) at {v_c:.0f} mm/s")
+    elif _law_not_identifiable(fj):
+        # the model does not describe the path: its law's k and C_rr are a compromise, drawn
+        # faint and said so, not as a law the points should follow
+        ys = [ln.get_ydata() for ln in ax.get_lines()]  # the points' bins, before the law
+        ax.plot(Fm[o], st["fine_s"][moving][o], "--", color="0.55", lw=1.0,
+                label="the model's law (k, C_rr not identifiable)")
+        head = (fj.get("slip") or {}).get("value")
+        if head is not None:
+            ax.axhline(head, color="k", lw=1.0, ls=":", label=f"the slip read ({head:.3g})")
+            ys.append([head])
+        y = np.concatenate([np.ravel(np.asarray(v, float)) for v in ys]) if ys else np.zeros(0)
+        y = y[np.isfinite(y)]
+        if len(y):  # the axis is the points' and the slip read, not the compromise's
+            pad = 0.15 * max(float(np.ptp(y)), 0.01)
+            ax.set_ylim(float(y.min()) - pad, float(y.max()) + pad)
     else:
         ax.plot(Fm[o], st["fine_s"][moving][o], "-", color="k", lw=1.5,
                 label="fitted law s(F)")
