@@ -6,7 +6,7 @@ import numpy as np
 
 def predict(p, lay):
     Bn, dBn, Bm, dBm = lay.dense_bases()
-    grid, h = np.asarray(lay.grid), lay.h
+    grid, h = np.asarray(lay.grid), float(lay.h)
     c = p["v"]
     v0n, a0n, v0m, a0m = Bn @ c, dBn @ c, Bm @ c, dBm @ c
     vtn = v0n / (1 - (p["s0"] + p["beta"] * a0n))

@@ -72,3 +72,39 @@ def pytest_collection_modifyitems(config, items):
 
 def _case(item) -> str:
     return item.name.split("[", 1)[1].rstrip("]") if "[" in item.name else ""
+
+
+# --- where a run's compile time goes (issue 43, item 6) -------------------------------------
+# FITLUG_PROFILE_COMPILES=PREFIX writes PREFIX.<worker>.jsonl: per test phase, its wall
+# seconds and every jax.monitoring duration (trace, lowering, backend compile, cache reads)
+# summed by event; benchmarks/ci_profile.py adds them up by file and by test.
+if os.environ.get("FITLUG_PROFILE_COMPILES"):
+    import json as _json
+    import time as _time
+
+    import jax.monitoring as _mon
+
+    _durations: dict = {}
+    _compiled: dict = {}
+
+    def _on_duration(event, seconds, **kwargs):
+        _durations[event] = _durations.get(event, 0.0) + float(seconds)
+        if event == "/jax/core/compile/backend_compile_duration":
+            name = str(kwargs.get("fun_name", ""))
+            n, s = _compiled.get(name, (0, 0.0))
+            _compiled[name] = (n + 1, s + float(seconds))
+
+    _mon.register_event_duration_secs_listener(_on_duration)
+
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_protocol(item, nextitem):
+        worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+        _durations.clear()
+        _compiled.clear()
+        t0, c0 = _time.perf_counter(), _time.process_time()
+        yield
+        rec = {"nodeid": item.nodeid, "wall": _time.perf_counter() - t0,
+               "cpu": _time.process_time() - c0, "events": dict(_durations),
+               "compiled": dict(_compiled)}
+        with open(f"{os.environ['FITLUG_PROFILE_COMPILES']}.{worker}.jsonl", "a") as fh:
+            fh.write(_json.dumps(rec) + "\n")

@@ -210,7 +210,11 @@ def _load_or_export(name, key, fn, static, treedef, leaves):
             _prune(name)
         except OSError:  # read-only cache: the module still serves this process
             pass
-    return jax.jit(exp.call), fresh
+    def program(*xs):
+        return exp.call(*xs)
+
+    program.__name__ = program.__qualname__ = name  # profiles name it (not "call")
+    return jax.jit(program), fresh
 
 
 def _prune(name: str) -> None:

@@ -215,8 +215,8 @@ def _with_straight(out: dict, st: dict, res) -> dict:
     out["slip"] = Estimate(st["slip"], st["std"])
     lay = res.problem.lay
     if "delta_l_mm" in out:
-        out["delta_l_mm"] = Estimate(delta_l(st["slip"], lay.n_contact, float(lay.L)),
-                                     delta_l(st["std"], lay.n_contact, float(lay.L)))
+        out["delta_l_mm"] = Estimate(delta_l(st["slip"], float(lay.n_contact), float(lay.L)),
+                                     delta_l(st["std"], float(lay.n_contact), float(lay.L)))
     return out
 
 

@@ -269,7 +269,7 @@ def _top_run_slip(res, margin_mm, p, lay, nodes, min_visits: int = 2) -> dict | 
     return {"slip": float(slip), "std": std, "v_body_mm_s": float(v_body),
             "v_body_std": float(s_body), "v_belt_mm_s": v_belt, "v_belt_std": float(s_belt),
             "window_s": [t1, t2], "visits": n, "window_shift": float(shift),
-            "margin_mm": float(margin_mm), "pitch_mm": P / lay.n_belt, "R_mm": R,
+            "margin_mm": float(margin_mm), "pitch_mm": P / float(lay.n_belt), "R_mm": R,
             "straightness_rel": TOP_RUN_REL, "method": "top run"}
 
 
@@ -298,7 +298,7 @@ def far_from_data(res, why: list | None = None) -> str | None:
         return None
     # beyond the noise: a misfit of chi^2/dof c is sqrt(c - 1) noise levels of systematic
     rms = float(np.sqrt(max(np.mean((r[ok] ** 2 - 1.0) / w[ok] ** 2), 0.0)))
-    pitch = prob.rig.lug_pitch_mm or float(ctx_of(res.params, prob.lay).P) / prob.lay.n_belt
+    pitch = prob.rig.lug_pitch_mm or float(ctx_of(res.params, prob.lay).P) / float(prob.lay.n_belt)
     if not rms > FAR_PITCH * pitch:
         return None
     return (f"the model misses the markers by {rms:.1f} mm rms beyond their noise "

@@ -145,7 +145,7 @@ def geometry(res) -> Geometry:
                     markers=tuple(prob.rec.markers), roles=tuple(prob.rec.roles), fps=fps,
                     v_cruise=float(np.median(np.abs(v[near]))),
                     vt_cruise=float(np.median(np.abs(vt[near]))),
-                    pitch=P / lay.n_belt, R=float(p["R"]), t_lo=float(tu[0]),
+                    pitch=P / float(lay.n_belt), R=float(p["R"]), t_lo=float(tu[0]),
                     t_hi=float(tu[-1]))
 
 

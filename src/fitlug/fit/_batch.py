@@ -20,7 +20,8 @@ from ._problem import Problem, build_problem
 
 def _signature(prob: Problem) -> tuple:
     lay = prob.lay
-    return (lay.n_lug, lay.n_body, lay.n_belt, lay.n_contact, lay.L, round(lay.h, 12),
+    return (lay.n_lug, lay.n_body, int(lay.n_belt), int(lay.n_contact), float(lay.L),
+            round(float(lay.h), 12),
             lay.effects, prob.rec.sigma is None)
 
 

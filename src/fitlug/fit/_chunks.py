@@ -100,7 +100,7 @@ def _plan_arrays(lay, chunk: int, margin: int) -> dict:
     G = grid.shape[0]
     lt, bt = np.asarray(lay.lug_t), np.asarray(lay.body_t)
     t_row = np.concatenate([lt, lt, bt, bt])
-    i0 = np.clip(np.floor((t_row - grid[0]) / lay.h).astype(np.int64), 0, G - 2)
+    i0 = np.clip(np.floor((t_row - grid[0]) / float(lay.h)).astype(np.int64), 0, G - 2)
     cid = i0 // chunk
     c0 = int(cid.min()) if len(cid) else 0
     cid = cid - c0

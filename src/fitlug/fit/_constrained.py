@@ -115,7 +115,7 @@ def constraints_for(spec: Parameters, p0: dict, packing: Packing, lay, mass_kg,
         d["dlog"][j] = float(pr.kind == "lognormal")
     if d["disd"].any() and "beta" in sl and float(np.ravel(p0["beta"])[0]) <= 0:
         # beta = 0 (the default start) is k = inf: start at the prior's k (or C_rr)
-        n_L = lay.n_contact * lay.L
+        n_L = float(lay.n_contact) * float(lay.L)
         k_mu = np.exp(d["dmu"][0]) if d["dlog"][0] else d["dmu"][0]
         c_mu = np.exp(d["dmu"][1]) if d["dlog"][1] else d["dmu"][1]
         if d["disd"][0] and k_mu > 0:

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
+
 import jax.numpy as jnp
 import numpy as np
 
@@ -342,9 +344,9 @@ def _check_lug_count(res: FitResult, **kw) -> FitResult:
         return res
     P = float(2 * res.params["D"] + 2 * np.pi * res.params["R"])
     N = max(int(round(P / pitch)), 1)
-    if N == prob.lay.n_belt:
+    if N == int(prob.lay.n_belt):
         return res
-    lay = dataclasses.replace(prob.lay, n_belt=N)  # a static field: not a pytree leaf
+    lay = dataclasses.replace(prob.lay, n_belt=jax.device_put(np.float64(N)))
     prob2 = Problem(**{**prob.__dict__, "lay": lay,
                        "init_info": {**prob.init_info, "n_belt": N}})
     kw.pop("p_start", None)

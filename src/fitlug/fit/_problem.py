@@ -338,7 +338,7 @@ def _init_speed(lay, obs, cx0, standin=None):
         return fit_body_speed(lay, lay_t, lay_j, obs["body_x"], obs["body_w"],
                               smooth=SPEED_START_SMOOTH)
     Bn, _, Bm, _ = lay.dense_bases()
-    h = lay.h
+    h = float(lay.h)
     # integrated basis at nodes (Simpson, cumulative), then Hermite at the body times
     I = np.vstack([np.zeros(Bn.shape[1]), np.cumsum(h / 6 * (Bn[:-1] + 4 * Bm + Bn[1:]), 0)])  # noqa: E741
     grid = np.asarray(lay.grid)

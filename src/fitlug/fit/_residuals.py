@@ -113,6 +113,10 @@ def _in_packed_order(blocks, order):
     return jnp.concatenate([blocks[b][:, j:j + n] for _, b, j, n in runs], axis=1)
 
 
+#: the base model's parameters in the order the problem's start dict holds them
+_CANONICAL = ("v", "s0", "beta", "R", "D", "e", "x_off", "y_off", "sigma0", "cx", "cy")
+
+
 class Packing(NamedTuple):
     """How a parameter dict maps to the free vector (static)."""
 
@@ -121,7 +125,14 @@ class Packing(NamedTuple):
 
     @classmethod
     def of(cls, p: dict, free) -> "Packing":
-        names = tuple(k for k in p if k in set(free))
+        """The free parameters of `p`, the base model's in their canonical order (the
+        problem's start's), then the effects' in `p`'s order: the same parameters give
+        the same packing, and so the same compiled programs, whatever order a dict that
+        went through another stage holds them in (a refit from a result's parameters
+        packed beta first and compiled the solver again)."""
+        free = set(free)
+        base = tuple(k for k in _CANONICAL if k in p and k in free)
+        names = base + tuple(k for k in p if k in free and k not in _CANONICAL)
         return cls(names, tuple(tuple(np.shape(p[k])) for k in names))
 
     @property

@@ -68,7 +68,7 @@ def pad_layout(lay: Layout, *, n_grid: int, n_coef: int, n_lug_samples: int,
     G = grid.shape[0]
     if n_grid != G and reads_grid(lay):
         raise ValueError("a layout whose effects read the grid keeps its grid")
-    ext = grid[-1] + lay.h * np.arange(1, n_grid - G + 1)
+    ext = grid[-1] + float(lay.h) * np.arange(1, n_grid - G + 1)
     br = np.asarray(lay.breaks)
     br = np.concatenate([br, np.full(n_coef - lay.n_coef, br[-1] if len(br) else 0.0)])
     t0 = float(np.asarray(lay.t_ref))

@@ -45,13 +45,18 @@ class Layout(eqx.Module):
     lug_i: jax.Array  # (S_l,) lug marker index
     body_t: jax.Array
     body_j: jax.Array
-    h: float = eqx.field(static=True)
+    # the rig's numbers are 0-d float64 arrays, not static fields (issue 43 item 2): a
+    # static field is part of every compiled program's key, so each rig (its lugs on the
+    # belt and in contact, its load-bearing length, its frame rate) compiled the fit's,
+    # the explanation's and the posterior's programs afresh. Host code reads them with
+    # float() / int().
+    h: jax.Array  # () node spacing of the integration grid, s
     n_coef: int = eqx.field(static=True)  # K, speed-spline coefficients
     n_lug: int = eqx.field(static=True)
     n_body: int = eqx.field(static=True)
-    n_belt: int = eqx.field(static=True)  # N, lugs on the belt
-    n_contact: int = eqx.field(static=True)  # n
-    L: float = eqx.field(static=True)  # load-bearing length, mm
+    n_belt: jax.Array  # () N, lugs on the belt
+    n_contact: jax.Array  # () n
+    L: jax.Array  # () load-bearing length, mm
     # knots of the speed spline and the gauge time are arrays, not static fields: a static
     # field is part of the compiled function's key, and every recording has its own knots
     breaks: jax.Array  # (K - 2,) spline breakpoints, s (metadata: the bases hold them)
@@ -78,7 +83,8 @@ class Layout(eqx.Module):
 
     def with_breaks(self, breaks) -> "Layout":
         """The same recording with the speed spline on other breakpoints (same grid)."""
-        return dataclasses.replace(self, **_speed_bases(np.asarray(self.grid), self.h, breaks))
+        return dataclasses.replace(self, **_speed_bases(np.asarray(self.grid), float(self.h),
+                                                          breaks))
 
     def with_times(self, lug_t, lug_i, body_t, body_j) -> "Layout":
         """The same model evaluated at other sample times (inside the grid)."""
@@ -112,9 +118,9 @@ def make_layout(*, breaks, t_lo, t_hi, fps, lug_t, lug_i, body_t, body_j, n_lug,
     lay = Layout(grid=f(grid, float), **_speed_bases(grid, h, breaks),
                  t_ref=jnp.asarray(float(t_ref)),
                  lug_t=f(lug_t, float), lug_i=f(lug_i, int),
-                 body_t=f(body_t, float), body_j=f(body_j, int), h=h,
-                 n_lug=int(n_lug), n_body=int(n_body), n_belt=int(n_belt),
-                 n_contact=int(n_contact), L=float(L), effects=())
+                 body_t=f(body_t, float), body_j=f(body_j, int), h=f(h, float),
+                 n_lug=int(n_lug), n_body=int(n_body), n_belt=f(int(n_belt), float),
+                 n_contact=f(int(n_contact), float), L=f(float(L), float), effects=())
     return lay.with_effects(effects)
 
 
@@ -335,7 +341,7 @@ def integrated_basis_rows(lay: Layout, t, chunk: int = 4096):
     model), without the dense (G, K) matrices: yields (sample indices, dense rows
     (len, K)) per chunk of node intervals, memory chunk x K."""
     grid = np.asarray(lay.grid)
-    h, G, K = lay.h, grid.shape[0], lay.n_coef
+    h, G, K = float(lay.h), grid.shape[0], lay.n_coef
     Bn, jn = np.asarray(lay.Bn), np.asarray(lay.jn)
     Bm, jm = np.asarray(lay.Bm), np.asarray(lay.jm)
     t = np.asarray(t, float)

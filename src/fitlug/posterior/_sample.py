@@ -294,7 +294,7 @@ def _slip_term(samples: dict, res, rng) -> None:
             from ..model import delta_l
 
             lay = res.problem.lay
-            samples["delta_l_mm"] = delta_l(draw, lay.n_contact, float(lay.L))
+            samples["delta_l_mm"] = delta_l(draw, float(lay.n_contact), float(lay.L))
         samples["slip"] = draw
         return
     s = np.asarray(samples["slip"], float)

@@ -53,8 +53,8 @@ def user_log_prior(priors: dict, names: list, res):
             if k == "k":
                 if rig.mass_kg is None:
                     raise ValueError("a prior on k needs the rig's mass")
-                f = (lambda th: 2.0 * rig.mass_kg / (1000.0 * th[:, bi] * lay.n_contact
-                                                     * lay.L))
+                f = (lambda th: 2.0 * rig.mass_kg / (1000.0 * th[:, bi] * float(lay.n_contact)
+                                                     * float(lay.L)))
             else:
                 pull = rig.drawbar_pull_N or 0.0
                 m = rig.mass_kg or 1.0

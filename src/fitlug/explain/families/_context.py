@@ -148,6 +148,6 @@ def context(res, J: np.ndarray) -> Context:
         a=np.interp(t, grid, a_n),
         dr_dX=np.asarray(dr_dX), dr_dpsi=np.asarray(dr_dpsi), grid=grid, v_nodes=v_n,
         vt_nodes=vt_n, psi_nodes=psi_n, t_ref=float(lay.t_ref), D=D, R=R,
-        pitch=P / lay.n_belt, x_off=float(p["x_off"]), n_body=lay.n_body,
+        pitch=P / float(lay.n_belt), x_off=float(p["x_off"]), n_body=lay.n_body,
         markers=tuple(prob.rec.markers))
 

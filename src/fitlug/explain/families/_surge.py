@@ -133,7 +133,7 @@ def _carried(ctx):
     lug_i = np.concatenate([np.asarray(lay.lug_i)] * 2
                            + [np.zeros(2 * len(np.asarray(lay.body_t)), int)])
     sigma = np.asarray(p["sigma0"], float)[lug_i] + psi_row
-    u = np.where(lug, np.mod(sigma, ctx.pitch * lay.n_belt), 0.0)
+    u = np.where(lug, np.mod(sigma, ctx.pitch * float(lay.n_belt)), 0.0)
     t_e = np.interp(psi_row - u, psin, ctx.grid)
     t_l = np.minimum(np.interp(psi_row - u + ctx.D, psin, ctx.grid), ctx.t)
     on_run = lug & (u < ctx.D)
