@@ -14,26 +14,20 @@ jax.config.update("jax_enable_x64", True)
 
 
 # --- scheduling on the CI's two workers (issue 43, item 6) ---------------------------------
-# `--dist loadgroup` (pyproject) with one group per file keeps what `--dist loadfile` gave
-# (a module fixture is built once), except test_families.py: its cases share no fixture
-# and were one file of 837 s CPU (2026-11-28, docs/development.md), longer than the rest
-# of one worker's share, so its cases go in FAMILY_GROUPS groups, the heaviest cases in
-# different ones. The heaviest groups are queued first, so that the last to finish is short.
-FAMILY_GROUPS = 3
-#: CPU seconds of test_families' cases (2026-11-28 evening, -n 2, user + sys of the worker
-#: per test), for the split only; a test without a case here (the unit tests) counts 1
-FAMILY_COST = {"rail_bow": 40, "lug_splay": 38, "keystone": 35, "squat": 29,
-               "speed_hunt": 22, "flap": 21, "carrier_roller": 15, "frame_jitter": 13,
-               "frame_vibration": 13, "wheel_runout": 8, "null": 2}
-#: the files' CPU seconds (the same run; docs/development.md's third pass), for the order
-#: only; files not named come after them, in collection order
-FILE_COST = {"test_uncertainty.py": 236, "test_explain_independent.py": 204,
-             "test_families_independent.py": 141, "test_tracker_error.py": 121,
-             "test_straight_runs.py": 80, "test_buckets.py": 61, "test_posterior.py": 61,
-             "test_concealed.py": 45, "test_drive_through.py": 45, "test_explain.py": 40,
-             "test_notebook.py": 40, "test_campaign.py": 39, "test_cli.py": 30,
-             "test_glitches.py": 25, "test_model.py": 25, "test_scale.py": 25,
-             "test_friction_limit.py": 20, "test_end_to_end.py": 15}
+# `--dist loadgroup` (pyproject). A test that reads a module-scoped fixture goes in its
+# file's xdist group, so that the fixture is built once, on one worker; every other test is
+# a group of its own, which xdist hands to whichever worker is free (a file of independent
+# minute-long tests, test_straight_runs' engine recordings or test_families' mechanisms,
+# was one unit of up to a third of the run on one worker). The heaviest files' tests are
+# queued first, so that the last to finish is short.
+#: the files' wall seconds cold (2026-12-02, FITLUG_PROFILE_COMPILES, benchmarks/
+#: ci_profile.py), for the order only; files not named come after them, in collection order
+FILE_COST = {"test_straight_runs.py": 1148, "test_uncertainty.py": 526,
+             "test_families.py": 500, "test_drive_through.py": 372,
+             "test_families_independent.py": 316, "test_explain_independent.py": 312,
+             "test_posterior.py": 250, "test_tracker_error.py": 194, "test_explain.py": 188,
+             "test_notebook.py": 188, "test_glitches.py": 163, "test_buckets.py": 161,
+             "test_campaign.py": 151, "test_model.py": 147, "test_concealed.py": 94}
 
 
 def pytest_configure(config):
@@ -43,6 +37,15 @@ def pytest_configure(config):
         config.option.loadscopereorder = False
 
 
+def _shares_a_fixture(item) -> bool:
+    """Whether the test reads a fixture built once for its module (or class)."""
+    info = getattr(item, "_fixtureinfo", None)
+    if info is None:
+        return True
+    return any(str(getattr(fd, "scope", "function")) in ("module", "class", "package")
+               for defs in info.name2fixturedefs.values() for fd in defs)
+
+
 # tryfirst: xdist's worker turns a test's xdist_group mark into its group in its own
 # pytest_collection_modifyitems, which ran before this one (a plugin registered after the
 # conftest): no test had a group, every test was a scope of its own, and a file's tests
@@ -50,28 +53,11 @@ def pytest_configure(config):
 # CPU) a second time
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items):
-    groups = {}
-    load = [0.0] * FAMILY_GROUPS
-    fam = [it for it in items if os.path.basename(str(it.fspath)) == "test_families.py"]
-    # the cases marked bench last: the default run deselects them after this hook (it runs
-    # first), so they must not move the others
-    for it in sorted(fam, key=lambda i: (i.get_closest_marker("bench") is not None,
-                                         -FAMILY_COST.get(_case(i), 1))):
-        k = min(range(FAMILY_GROUPS), key=load.__getitem__)
-        load[k] += FAMILY_COST.get(_case(it), 1)
-        groups[it.nodeid] = (f"test_families.py#{k}", load)
-    cost = {}
     for it in items:
-        name = os.path.basename(str(it.fspath))
-        group = groups.get(it.nodeid, (name,))[0]
-        it.add_marker(pytest.mark.xdist_group(group))
-        cost[it.nodeid] = (load[int(group[-1])] if "#" in group
-                           else FILE_COST.get(name, 0.0))
-    items.sort(key=lambda it: -cost[it.nodeid])  # stable: a group's tests keep their order
-
-
-def _case(item) -> str:
-    return item.name.split("[", 1)[1].rstrip("]") if "[" in item.name else ""
+        if _shares_a_fixture(it):
+            it.add_marker(pytest.mark.xdist_group(os.path.basename(str(it.fspath))))
+    # stable: a file's tests keep their order
+    items.sort(key=lambda it: -FILE_COST.get(os.path.basename(str(it.fspath)), 0.0))
 
 
 # --- where a run's compile time goes (issue 43, item 6) -------------------------------------

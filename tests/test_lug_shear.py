@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import independent_sim as isim
+from reference_jit import jit_reference
 from fitlug import explain, fit
 from fitlug.fit._problem import build_problem
 from fitlug.fit._residuals import Packing, jacobian, residuals
@@ -42,8 +43,8 @@ def test_identity_at_h_one_and_exact_jacobian():
     flat = pk.pack(p)
     fixed = {k: v for k, v in p.items() if k not in pk.names}
     J = np.asarray(jacobian(flat, fixed, prob_s.lay, prob_s.obs, pk))
-    J_ref = np.asarray(jax.jit(jax.jacfwd(lambda f: residuals(pk.unpack(f, fixed), prob_s.lay,
-                                                                prob_s.obs)))(flat))
+    J_ref = np.asarray(jit_reference(jax.jacfwd(
+        lambda f: residuals(pk.unpack(f, fixed), prob_s.lay, prob_s.obs)))(flat))
     scale = np.max(np.abs(J_ref), axis=0)
     np.testing.assert_allclose(J / scale, J_ref / scale, atol=1e-9)
 

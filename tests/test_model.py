@@ -12,6 +12,7 @@ from fitlug.model._physics import physical, slip_params_from_physical
 from fitlug.model.effects import Ctx
 from fitlug.sim import Scenario, truth_params
 from fitlug.sim._simulate import _truth_layout
+from reference_jit import jit_reference
 
 
 def test_reference_paper_eq1():
@@ -89,7 +90,7 @@ def test_gradients_match_finite_differences(effects):
         return jnp.concatenate(predict(q, lay))
 
     flat = jnp.concatenate([jnp.ravel(p[k]) for k in names])
-    J = jax.jit(jax.jacfwd(f))(flat)
+    J = jit_reference(jax.jacfwd(f))(flat)
     rng = np.random.default_rng(0)
     scale = np.abs(np.asarray(flat)) * 1e-6 + 1e-7
     for _ in range(3):
@@ -128,8 +129,8 @@ def test_structured_jacobian_equals_forward_mode(effects):
     lay, p, obs, packing, fixed, flat = _random_problem(effects, 1)
     # jitted: op by op, jacfwd of the whole catalog dispatched for 22 s on every run; one
     # program is compiled once and then read from the persistent cache
-    J_fwd = np.asarray(jax.jit(jax.jacfwd(lambda f: residuals(packing.unpack(f, fixed), lay,
-                                                                obs)))(flat))
+    J_fwd = np.asarray(jit_reference(jax.jacfwd(lambda f: residuals(packing.unpack(f, fixed),
+                                                                      lay, obs)))(flat))
     J = np.asarray(jacobian(flat, fixed, lay, obs, packing))
     assert J.shape == J_fwd.shape
     tol = 1e-10 * np.max(np.abs(J_fwd), axis=0) + 1e-12

@@ -37,12 +37,36 @@ def held_on_bound(out: LsqOutput, lay, obs, free, *, max_steps: int, tol: float,
     if not (np.all(np.isfinite(out.r)) and 2.0 * pen * pen > tol):
         return out
     rest = [k for k in free if k != "beta"]
-    held = least_squares(out.params, rest, lay, obs, max_steps=max_steps)
+    if out.J is not None:
+        # beta held at 0 in the fit's own packing (its column masked): the program the fit
+        # compiled, not a second one for the packing without beta (issue 43 item 2); the
+        # output's J already holds beta's column at the held point
+        p0 = {**out.params, "beta": np.zeros_like(np.asarray(out.params["beta"], float))}
+        held = least_squares(p0, free, lay, obs, max_steps=max_steps, hold=("beta",))
+        if not np.all(np.isfinite(held.r)):
+            return out
+        if held.converged or finish is None:
+            return held._replace(steps=out.steps + held.steps, beta_solver=0.0)
+        held = _without(held, "beta")  # finished in the packing without beta, as below
+    else:
+        held = least_squares(out.params, rest, lay, obs, max_steps=max_steps)
     if not held.converged and finish is not None and np.all(np.isfinite(held.r)):
         held = finish(held, rest)
     if not np.all(np.isfinite(held.r)):
         return out
     return _in_packing(held, out, lay, obs)
+
+
+def _without(out: LsqOutput, name: str) -> LsqOutput:
+    """`out` with the parameter `name` (held) out of its packing: its entries and its
+    Jacobian's columns removed, its value kept among the parameters."""
+    from ._residuals import Packing
+
+    sl = out.packing.slices()[name]
+    keep = np.r_[0:sl.start, sl.stop:len(out.flat)]
+    packing = Packing.of(out.params, [k for k in out.packing.names if k != name])
+    return out._replace(flat=np.asarray(out.flat)[keep], J=np.asarray(out.J)[:, keep],
+                        packing=packing)
 
 
 def _in_packing(held: LsqOutput, out: LsqOutput, lay, obs) -> LsqOutput:
