@@ -38,9 +38,11 @@ def pytest_configure(config):
 
 
 def _shares_a_fixture(item) -> bool:
-    """Whether the test reads a fixture built once for its module (or class)."""
+    """Whether the test reads a fixture built once for its module (or class), or may: one
+    that takes `request` can ask for any (request.getfixturevalue: test_uncertainty's
+    verdicts read its recordings' fixtures so)."""
     info = getattr(item, "_fixtureinfo", None)
-    if info is None:
+    if info is None or "request" in getattr(item, "fixturenames", ()):
         return True
     return any(str(getattr(fd, "scope", "function")) in ("module", "class", "package")
                for defs in info.name2fixturedefs.values() for fd in defs)
