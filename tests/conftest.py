@@ -14,20 +14,27 @@ jax.config.update("jax_enable_x64", True)
 
 
 # --- scheduling on the CI's two workers (issue 43, item 6) ---------------------------------
-# `--dist loadgroup` (pyproject). A test that reads a module-scoped fixture goes in its
-# file's xdist group, so that the fixture is built once, on one worker; every other test is
-# a group of its own, which xdist hands to whichever worker is free (a file of independent
-# minute-long tests, test_straight_runs' engine recordings or test_families' mechanisms,
-# was one unit of up to a third of the run on one worker). The heaviest files' tests are
-# queued first, so that the last to finish is short.
-#: the files' wall seconds cold (2026-12-02, FITLUG_PROFILE_COMPILES, benchmarks/
-#: ci_profile.py), for the order only; files not named come after them, in collection order
-FILE_COST = {"test_straight_runs.py": 1148, "test_uncertainty.py": 526,
-             "test_families.py": 500, "test_drive_through.py": 372,
-             "test_families_independent.py": 316, "test_explain_independent.py": 312,
-             "test_posterior.py": 250, "test_tracker_error.py": 194, "test_explain.py": 188,
-             "test_notebook.py": 188, "test_glitches.py": 163, "test_buckets.py": 161,
-             "test_campaign.py": 151, "test_model.py": 147, "test_concealed.py": 94}
+# `--dist loadgroup` (pyproject) with one group per file keeps what `--dist loadfile` gave
+# (a module fixture is built once), except test_families.py: its cases share no fixture
+# and were one file of 837 s CPU (2026-11-28, docs/development.md), longer than the rest
+# of one worker's share, so its cases go in FAMILY_GROUPS groups, the heaviest cases in
+# different ones. The heaviest groups are queued first, so that the last to finish is short.
+FAMILY_GROUPS = 3
+#: CPU seconds of test_families' cases (2026-11-28 evening, -n 2, user + sys of the worker
+#: per test), for the split only; a test without a case here (the unit tests) counts 1
+FAMILY_COST = {"rail_bow": 40, "keystone": 35, "squat": 29,
+               "speed_hunt": 22, "flap": 21, "carrier_roller": 15, "frame_jitter": 13,
+               "frame_vibration": 13, "wheel_runout": 8, "null": 2}
+#: the files' wall seconds with a cold JAX cache (2026-12-02, benchmarks/ci_profile.py: the
+#: CI's machine is a fresh one), for the order only; files not named come after them
+FILE_COST = {"test_straight_runs.py": 928, "test_explain_independent.py": 630,
+             "test_uncertainty.py": 526, "test_fit.py": 427, "test_drive_through.py": 372,
+             "test_families_independent.py": 341, "test_scale.py": 329,
+             "test_model.py": 280, "test_posterior.py": 226, "test_tracker_error.py": 207,
+             "test_explain.py": 176, "test_lug_shear.py": 163, "test_notebook.py": 162,
+             "test_friction_limit.py": 155, "test_buckets.py": 153, "test_glitches.py": 150,
+             "test_campaign.py": 143, "test_surge.py": 131, "test_render_chain.py": 122,
+             "test_realism.py": 111, "test_families.py": 529}
 
 
 def pytest_configure(config):
@@ -37,17 +44,6 @@ def pytest_configure(config):
         config.option.loadscopereorder = False
 
 
-def _shares_a_fixture(item) -> bool:
-    """Whether the test reads a fixture built once for its module (or class), or may: one
-    that takes `request` can ask for any (request.getfixturevalue: test_uncertainty's
-    verdicts read its recordings' fixtures so)."""
-    info = getattr(item, "_fixtureinfo", None)
-    if info is None or "request" in getattr(item, "fixturenames", ()):
-        return True
-    return any(str(getattr(fd, "scope", "function")) in ("module", "class", "package")
-               for defs in info.name2fixturedefs.values() for fd in defs)
-
-
 # tryfirst: xdist's worker turns a test's xdist_group mark into its group in its own
 # pytest_collection_modifyitems, which ran before this one (a plugin registered after the
 # conftest): no test had a group, every test was a scope of its own, and a file's tests
@@ -55,11 +51,29 @@ def _shares_a_fixture(item) -> bool:
 # CPU) a second time
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items):
+    groups = {}
+    load = [0.0] * FAMILY_GROUPS
+    fam = [it for it in items if os.path.basename(str(it.fspath)) == "test_families.py"]
+    # the cases marked bench last: the default run deselects them after this hook (it runs
+    # first), so they must not move the others
+    for it in sorted(fam, key=lambda i: (i.get_closest_marker("bench") is not None,
+                                         -FAMILY_COST.get(_case(i), 1))):
+        k = min(range(FAMILY_GROUPS), key=load.__getitem__)
+        load[k] += FAMILY_COST.get(_case(it), 1)
+        groups[it.nodeid] = (f"test_families.py#{k}", load)
+    cost = {}
     for it in items:
-        if _shares_a_fixture(it):
-            it.add_marker(pytest.mark.xdist_group(os.path.basename(str(it.fspath))))
-    # stable: a file's tests keep their order
-    items.sort(key=lambda it: -FILE_COST.get(os.path.basename(str(it.fspath)), 0.0))
+        name = os.path.basename(str(it.fspath))
+        group = groups.get(it.nodeid, (name,))[0]
+        it.add_marker(pytest.mark.xdist_group(group))
+        # a family group: its share of the file's cost
+        cost[it.nodeid] = (FILE_COST["test_families.py"] * load[int(group[-1])] / sum(load)
+                           if "#" in group else FILE_COST.get(name, 0.0))
+    items.sort(key=lambda it: -cost[it.nodeid])  # stable: a group's tests keep their order
+
+
+def _case(item) -> str:
+    return item.name.split("[", 1)[1].rstrip("]") if "[" in item.name else ""
 
 
 # --- where a run's compile time goes (issue 43, item 6) -------------------------------------
