@@ -298,7 +298,8 @@ def far_from_data(res, why: list | None = None) -> str | None:
         return None
     # beyond the noise: a misfit of chi^2/dof c is sqrt(c - 1) noise levels of systematic
     rms = float(np.sqrt(max(np.mean((r[ok] ** 2 - 1.0) / w[ok] ** 2), 0.0)))
-    pitch = prob.rig.lug_pitch_mm or float(ctx_of(res.params, prob.lay).P) / float(prob.lay.n_belt)
+    pitch = (prob.rig.lug_pitch_mm
+             or float(ctx_of(res.params, prob.lay).P) / float(prob.lay.n_belt))
     if not rms > FAR_PITCH * pitch:
         return None
     return (f"the model misses the markers by {rms:.1f} mm rms beyond their noise "
