@@ -3,6 +3,7 @@ by test, from a run made with the profiling hook of tests/conftest.py.
 
     FITLUG_PROFILE_COMPILES=/tmp/prof/p FITLUG_CACHE_DIR=$(mktemp -d) pytest tests
     python benchmarks/ci_profile.py /tmp/prof/p
+    python benchmarks/ci_profile.py /tmp/prof/p --tier   # the default run's share
 
 Prints, per test file, the wall seconds summed over its tests (both workers), the seconds
 XLA spent compiling (backend compile), tracing and lowering to StableHLO, and the share of
@@ -65,7 +66,37 @@ def main(prefix: str, top: int = 25) -> None:
         print(f"{s:8.1f} {n:6d}  {name}")
 
 
+def tier(prefix: str) -> None:
+    """What the default run keeps of a profiled run of the whole suite (`-m "bench or not
+    bench"`): the tests not in tests/conftest.py's BENCH_IN_CI, by file; a test's module
+    fixtures count where they were built, so the figure is a lower bound where a kept test
+    now builds what a benched one did."""
+    import ast
+    import os
+
+    src = open(os.path.join(os.path.dirname(__file__), "..", "tests", "conftest.py")).read()
+    node = next(n for n in ast.parse(src).body if isinstance(n, ast.AnnAssign | ast.Assign)
+                and "BENCH_IN_CI" in ast.unparse(n.targets[0] if isinstance(n, ast.Assign)
+                                                 else n.target))
+    keys = list(ast.literal_eval(node.value).keys())
+    rows = load(prefix)
+    by_file = defaultdict(lambda: [0.0, 0.0])
+    for r in rows:
+        f = by_file[r["nodeid"].split("::")[0]]
+        f[0] += r["wall"]
+        if not any(r["nodeid"].startswith(k) for k in keys):
+            f[1] += r["wall"]
+    tot = [sum(v[i] for v in by_file.values()) for i in range(2)]
+    print(f"{'file':44s} {'all s':>8s} {'kept s':>8s}")
+    for name, v in sorted(by_file.items(), key=lambda kv: -kv[1][1]):
+        print(f"{name:44s} {v[0]:8.1f} {v[1]:8.1f}")
+    print(f"{'all (worker-seconds)':44s} {tot[0]:8.1f} {tot[1]:8.1f}")
+
+
 if __name__ == "__main__":
     if len(sys.argv) < 2:
-        raise SystemExit("usage: python benchmarks/ci_profile.py PREFIX")
-    main(sys.argv[1])
+        raise SystemExit("usage: python benchmarks/ci_profile.py PREFIX [--tier]")
+    if "--tier" in sys.argv[2:]:
+        tier(sys.argv[1])
+    else:
+        main(sys.argv[1])
