@@ -68,17 +68,15 @@ def main(prefix: str, top: int = 25) -> None:
 
 def tier(prefix: str) -> None:
     """What the default run keeps of a profiled run of the whole suite (`-m "bench or not
-    bench"`): the tests not in tests/conftest.py's BENCH_IN_CI, by file; a test's module
+    bench"`): the tests not in tests/ci_tier.py's BENCH_IN_CI, by file; a test's module
     fixtures count where they were built, so the figure is a lower bound where a kept test
     now builds what a benched one did."""
-    import ast
     import os
 
-    src = open(os.path.join(os.path.dirname(__file__), "..", "tests", "conftest.py")).read()
-    node = next(n for n in ast.parse(src).body if isinstance(n, ast.AnnAssign | ast.Assign)
-                and "BENCH_IN_CI" in ast.unparse(n.targets[0] if isinstance(n, ast.Assign)
-                                                 else n.target))
-    keys = list(ast.literal_eval(node.value).keys())
+    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
+    from ci_tier import BENCH_IN_CI  # the tier's table: plain data, no imports
+
+    keys = list(BENCH_IN_CI)
     rows = load(prefix)
     by_file = defaultdict(lambda: [0.0, 0.0])
     for r in rows:

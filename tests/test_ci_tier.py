@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 import re
 
-from conftest import BENCH_IN_CI
+from ci_tier import BENCH_IN_CI
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -26,3 +26,29 @@ def test_every_key_names_a_test_function():
             missing.append(key)
         assert where.strip(), key  # each says where its coverage lives
     assert not missing, missing
+
+
+def test_no_coverage_is_claimed_by_a_benched_test():
+    """Where a key says its check still runs (a test's name), that test is in the tier."""
+    whole = {}  # a benched function (every case of it) -> its file
+    files = set()
+    for key in BENCH_IN_CI:
+        path, _, rest = key.partition("::")
+        if not rest:
+            files.add(path)
+        elif "[" not in rest:
+            whole[rest] = path
+    claimed = []
+    for key, where in BENCH_IN_CI.items():
+        if "bench" in where:  # "(bench)" or a benchmark script: said to be out of the tier
+            continue
+        for name in re.findall(r"\btest_\w+", where):
+            if os.path.exists(os.path.join(ROOT, "tests", name + ".py")):
+                continue  # a file's name: a test of it named beside, or the file's tier
+            if any(f.startswith(name) or name.startswith(f) for f in whole):
+                claimed.append((key, name))
+            for f in files:  # a file benched whole: a test of it named after its name
+                path = os.path.join(ROOT, f)
+                if re.search(r"^def " + re.escape(name), open(path).read(), re.M):
+                    claimed.append((key, name))
+    assert not claimed, claimed
